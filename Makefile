@@ -1,0 +1,26 @@
+# Set-up is a stamp file: the venv is (re)built only when pyproject.toml or constraints.txt change,
+# so a second `make test` spends seconds on set-up.
+PY      ?= python3
+VENV    := .venv
+BIN     := $(VENV)/bin
+STAMP   := $(VENV)/.arcsem-installed
+JOBS    ?= 2
+export PIP_DISABLE_PIP_VERSION_CHECK=1
+
+.PHONY: setup demo test bench clean-venv
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml constraints.txt
+	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test]"
+	@touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/arcsem experiment=demo
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q -n $(JOBS) --dist loadgroup
+
+clean-venv:
+	rm -rf $(VENV)

@@ -1,0 +1,102 @@
+"""Plugin registries: a decorator to register, entry points to discover, dataclasses to validate.
+
+In-tree and third-party plugins take the same path: a module declared under an entry-point group
+(``arcsem.backbones`` / ``arcsem.losses``) registers its class with ``@REGISTRY.register(name)``
+when imported. ``get(name)`` looks in memory first, then loads only the entry point of that name.
+
+Example::
+
+    @BACKBONES.register("my_backbone")
+    class MyBackbone(Backbone):
+        @dataclass
+        class Config:
+            lr: float = 1e-3
+    model = BACKBONES.build({"name": "my_backbone", "lr": 0.1}, scene=scene)
+"""
+from __future__ import annotations
+
+import dataclasses
+from importlib import metadata
+from typing import Any, Callable
+
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from .errors import ConfigError, PluginError
+
+__all__ = ["Registry", "validate_config"]
+
+
+class Registry:
+    """Name -> class map for one plugin kind, backed by an entry-point group."""
+
+    def __init__(self, kind: str, group: str):
+        self.kind, self.group = kind, group
+        self._classes: dict[str, type] = {}
+        self._origin: dict[str, str] = {}
+
+    def register(self, name: str) -> Callable[[type], type]:
+        """Class decorator; a second, different class under the same name raises."""
+
+        def deco(cls: type) -> type:
+            old = self._classes.get(name)
+            if old is not None and old.__qualname__ != cls.__qualname__:
+                raise PluginError(f"{self.kind} '{name}' registered twice: {old} and {cls}")
+            cls.name = name
+            self._classes[name] = cls
+            self._origin.setdefault(name, f"{cls.__module__} (imported)")
+            return cls
+
+        return deco
+
+    def _entry_points(self) -> dict[str, metadata.EntryPoint]:
+        return {ep.name: ep for ep in metadata.entry_points(group=self.group)}
+
+    def names(self) -> list[str]:
+        """Every known name: registered in memory or declared as an entry point."""
+        return sorted(set(self._classes) | set(self._entry_points()))
+
+    def get(self, name: str) -> type:
+        """The class registered as ``name``; loads only that entry point if needed."""
+        if name in self._classes:
+            return self._classes[name]
+        ep = self._entry_points().get(name)
+        if ep is None:
+            raise PluginError(f"unknown {self.kind} '{name}'; available: {', '.join(self.names()) or 'none'}")
+        try:
+            ep.load()
+        except Exception as exc:  # a broken plugin must not hide behind a vague message
+            raise PluginError(f"{self.kind} '{name}' ({ep.value}) failed to load: {exc!r}") from exc
+        if name not in self._classes:
+            raise PluginError(f"entry point {self.group}:{name} = {ep.value} did not register '{name}'")
+        dist = getattr(ep, "dist", None)
+        self._origin[name] = f"{ep.value} [{dist.name if dist else 'entry point'}]"
+        return self._classes[name]
+
+    def origin(self, name: str) -> str:
+        self.get(name)
+        return self._origin[name]
+
+    def build(self, cfg: Any, **runtime: Any) -> Any:
+        """Instantiate plugin ``cfg.name`` with its validated ``Config`` and runtime arguments."""
+        cfg = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else dict(cfg)
+        if "name" not in cfg:
+            raise ConfigError(f"{self.kind} config has no 'name'; available: {', '.join(self.names())}")
+        name = cfg.pop("name")
+        cls = self.get(name)
+        return cls(validate_config(cls.Config, cfg, where=f"{self.kind} '{name}'"), **runtime)
+
+
+def validate_config(schema: type, values: dict, where: str) -> Any:
+    """Return ``schema(**values)`` checked by OmegaConf: unknown keys and wrong types raise ConfigError."""
+    fields = [f.name for f in dataclasses.fields(schema)]
+    unknown = [k for k in values if k not in fields]
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(map(repr, unknown))}; valid keys: {', '.join(fields)}")
+    try:
+        merged = OmegaConf.merge(OmegaConf.structured(schema), values)
+    except OmegaConfBaseException as exc:
+        key = getattr(exc, "full_key", None) or "?"
+        msg = str(exc).splitlines()[0]
+        raise ConfigError(f"{where}: bad value for key '{key}': {msg}") from None
+    return OmegaConf.to_object(merged)

@@ -1,0 +1,105 @@
+"""The one scene type every dataset reader returns and every stage consumes.
+
+Images are float32 in ``[0, 1]`` with three channels (grey images are three equal channels).
+Optional per-view ground truth (``depths``, ``normals``, ``colors``) exists for synthetic scenes;
+real data leaves it ``None``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import torch
+from torch import Tensor
+
+from .cameras import Cameras
+
+__all__ = ["Split", "Scene"]
+
+
+@dataclass
+class Split:
+    """The views of one split (train or test). ``N`` views of ``H x W`` pixels.
+
+    Attributes:
+        names: ``N`` view names (file stem of the image, e.g. ``"r_013"``), unique.
+        cameras: ``N`` cameras; ``image_ids`` = training index for train views, -1 for test views.
+        images: ``[N, H, W, 3]`` float32 in [0, 1], the observed (grey) images.
+        masks: ``[N, H, W]`` bool specimen masks, or None.
+        depths: ``[N, H, W]`` ground-truth z-depth (0 = background), or None.
+        normals: ``[N, H, W, 3]`` ground-truth world normals, or None.
+        colors: ``[N, H, W, 3]`` ground-truth colour images, or None.
+        clean: ``[N, H, W, 3]`` noise-free grey images (synthetic ground truth), or None.
+        files: ``N`` image paths the views were read from (for messages and output names).
+    """
+
+    names: list[str]
+    cameras: Cameras
+    images: Tensor
+    masks: Tensor | None = None
+    depths: Tensor | None = None
+    normals: Tensor | None = None
+    colors: Tensor | None = None
+    clean: Tensor | None = None
+    files: list[str] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def index(self, name: str) -> int:
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise KeyError(f"no view named '{name}'; views: {', '.join(self.names)}") from None
+
+    def subset(self, idx: list[int] | Tensor) -> "Split":
+        """The views ``idx`` (cameras keep their ``image_ids``)."""
+        idx = torch.as_tensor(idx, dtype=torch.long)
+        pick = lambda t: None if t is None else t[idx]  # noqa: E731
+        return replace(
+            self,
+            names=[self.names[i] for i in idx.tolist()],
+            cameras=self.cameras[idx],
+            images=self.images[idx],
+            masks=pick(self.masks),
+            depths=pick(self.depths),
+            normals=pick(self.normals),
+            colors=pick(self.colors),
+            clean=pick(self.clean),
+            files=[self.files[i] for i in idx.tolist()] if self.files else [],
+        )
+
+
+@dataclass
+class Scene:
+    """A dataset: train and test views, optional colour references, point cloud and bounds.
+
+    Attributes:
+        root: folder the scene was read from.
+        train, test: the splits (``test`` may hold zero views).
+        bounds: ``[2, 3]`` axis-aligned box (min, max) that contains the specimen.
+        points: ``[P, 3]`` initial point cloud, or None. ``point_colors``: ``[P, 3]`` in [0, 1], or None.
+        references: artist colour images by training-view name, ``{name: [H, W, 3]}``.
+        reference_sets: named presets -> list of training-view names (``five``, ``four``, ...).
+        extent: scene extent used by Gaussian learning rates (1.1 x max camera distance from centroid).
+    """
+
+    root: str
+    train: Split
+    test: Split
+    bounds: Tensor
+    points: Tensor | None = None
+    point_colors: Tensor | None = None
+    references: dict[str, Tensor] = field(default_factory=dict)
+    reference_sets: dict[str, list[str]] = field(default_factory=dict)
+
+    @property
+    def extent(self) -> float:
+        centers = self.train.cameras.centers
+        if self.train.cameras.is_ortho:  # camera planes can sit anywhere; use the specimen instead
+            return float(1.1 * (self.bounds[1] - self.bounds[0]).norm())
+        return float(1.1 * (centers - centers.mean(0)).norm(dim=-1).max())
+
+    @property
+    def size(self) -> float:
+        """Diameter of the bounding box (a length scale for tolerances)."""
+        return float((self.bounds[1] - self.bounds[0]).norm())

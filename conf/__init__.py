@@ -1,0 +1,1 @@
+"""Hydra config tree (pkg://arcsem.conf)."""

@@ -1,0 +1,2 @@
+"""Loss plugins."""
+__all__: list[str] = []

@@ -1,0 +1,188 @@
+"""Pseudo-colours: reference colours carried to every other view through 3-D nearest neighbours.
+
+1. The masked pixels of each reference view are unprojected with that view's depth
+   (:meth:`arcsem.cameras.Cameras.unproject_points`) into 3-D points carrying the reference colour.
+2. Every masked pixel of every other view is unprojected with its own depth; its pseudo-colour is
+   the colour of the nearest reference point (``scipy.spatial.cKDTree``, all cores) if that point
+   lies within a radius, else the pixel has none (``valid`` False).
+
+The default radius is ``radius_factor`` (2) times the world size of one pixel at the query's depth
+(orthographic: ``1/fx``; pinhole: ``z/fx``); a fixed world ``radius`` may be given instead.
+Results are cached on disk under a hash of everything they depend on (atomic writes).
+"""
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import tempfile
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..cameras import Cameras
+
+__all__ = ["pixel_footprint", "masked_points", "reference_cloud", "pseudo_colors", "cache_key",
+           "cached_pseudo_colors", "save_pseudo", "load_pseudo"]
+
+log = logging.getLogger(__name__)
+
+
+def pixel_footprint(cams: Cameras, depth: Tensor) -> Tensor:
+    """World size of one pixel ``[C, N]`` for depths ``[C, N]``: ortho ``1/fx``, pinhole ``z/fx``."""
+    fx = cams.K[:, 0, 0].to(depth.dtype)[:, None]
+    return (1.0 / fx).expand_as(depth) if cams.is_ortho else depth.abs() / fx
+
+
+def masked_points(cam: Cameras, depth: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
+    """Unproject the masked pixels of ONE view.
+
+    Args:
+        cam: one camera. depth: ``[H, W]`` z-depth. mask: ``[H, W]`` bool (pixels with depth <= 0 are dropped).
+    Returns:
+        flat pixel indices ``[M]`` (long, row-major) and world points ``[M, 3]`` (float64).
+    """
+    mask = mask & (depth > 0)
+    flat = mask.reshape(-1).nonzero()[:, 0]
+    W = cam.width
+    uv = torch.stack([(flat % W).double() + 0.5, (flat // W).double() + 0.5], -1)
+    z = depth.reshape(-1)[flat].double()
+    pts = cam.to(dtype=torch.float64).unproject_points(uv[None], z[None])[0]
+    return flat, pts
+
+
+def reference_cloud(cams: Cameras, depths: Tensor, masks: Tensor, images: Tensor) -> tuple[np.ndarray, np.ndarray]:
+    """Coloured point cloud of the references.
+
+    Args:
+        cams: ``R`` reference cameras. depths: ``[R, H, W]``. masks: ``[R, H, W]`` bool.
+        images: ``[R, H, W, 3]`` reference colours.
+    Returns:
+        points ``[P, 3]`` float64 and colours ``[P, 3]`` float32 (numpy).
+    """
+    pts, cols = [], []
+    for r in range(len(cams)):
+        flat, p = masked_points(cams[r], depths[r], masks[r])
+        pts.append(p.numpy())
+        cols.append(images[r].reshape(-1, 3)[flat].float().numpy())
+    return np.concatenate(pts), np.concatenate(cols)
+
+
+def pseudo_colors(
+    cams: Cameras,
+    depths: Tensor,
+    masks: Tensor,
+    ref_indices: list[int],
+    ref_images: Tensor,
+    radius: float | None = None,
+    radius_factor: float = 2.0,
+    progress: bool = True,
+) -> tuple[Tensor, Tensor]:
+    """Pseudo-colours of every view.
+
+    Args:
+        cams: ``N`` cameras. depths: ``[N, H, W]`` (or ``[N, H, W, 1]``) z-depth, <= 0 = no surface.
+        masks: ``[N, H, W]`` bool specimen masks. ref_indices: ``R`` indices into the ``N`` views.
+        ref_images: ``[R, H, W, 3]`` colours of those views.
+        radius: fixed world radius; default ``radius_factor`` x the pixel footprint of each query.
+    Returns:
+        colors ``[N, H, W, 3]`` float32 (0 where invalid) and valid ``[N, H, W]`` bool. Reference
+        views get their own colours inside their masks.
+    """
+    from scipy.spatial import cKDTree
+    from tqdm.auto import tqdm
+
+    depths = depths[..., 0] if depths.ndim == 4 else depths
+    N, H, W = depths.shape
+    masks = masks.bool()
+    ridx = list(ref_indices)
+    pts, cols = reference_cloud(cams[torch.as_tensor(ridx)], depths[ridx], masks[ridx], ref_images)
+    colors = torch.zeros(N, H, W, 3)
+    valid = torch.zeros(N, H, W, dtype=torch.bool)
+    if len(pts) == 0:
+        log.warning("pseudo-colours: the reference masks are empty; no view gets a pseudo-colour")
+        return colors, valid
+    tree = cKDTree(pts, leafsize=16, balanced_tree=False, compact_nodes=False)
+    cols_t = torch.from_numpy(cols)
+    for v in tqdm(range(N), desc="pseudo-colours", disable=not progress, leave=False):
+        if v in ridx:
+            m = masks[v] & (depths[v] > 0)
+            colors[v][m] = ref_images[ridx.index(v)].float()[m]
+            valid[v] = m
+            continue
+        flat, q = masked_points(cams[v], depths[v], masks[v])
+        if len(flat) == 0:
+            continue
+        z = depths[v].reshape(-1)[flat].double()
+        r = torch.full_like(z, radius) if radius is not None else radius_factor * pixel_footprint(cams[v], z[None])[0]
+        dist, nn = tree.query(q.numpy(), k=1, distance_upper_bound=float(r.max()), workers=-1)
+        ok = torch.from_numpy(dist <= r.numpy())
+        hit = flat[ok]
+        colors[v].view(-1, 3)[hit] = cols_t[torch.from_numpy(nn[ok.numpy()])]
+        valid[v].view(-1)[hit] = True
+    return colors, valid
+
+
+# ---------------------------------------------------------------- cache
+def cache_key(*parts) -> str:
+    """Hex digest over ``parts``: tensors/arrays (shape, dtype, bytes), bytes, file paths (bytes), numbers, strings."""
+    h = hashlib.blake2b(digest_size=20)
+    for p in parts:
+        if isinstance(p, Tensor):
+            p = p.detach().cpu().contiguous().numpy()
+        if isinstance(p, np.ndarray):
+            h.update(f"{p.shape}{p.dtype}".encode())
+            h.update(memoryview(np.ascontiguousarray(p)).cast("B"))
+        elif isinstance(p, (bytes, bytearray)):
+            h.update(p)
+        elif isinstance(p, Path):
+            with open(p, "rb") as f:
+                for chunk in iter(lambda: f.read(1 << 24), b""):
+                    h.update(chunk)
+        elif isinstance(p, (list, tuple)):
+            h.update(cache_key(*p).encode())
+        else:
+            h.update(repr(p).encode())
+        h.update(b"|")
+    return h.hexdigest()
+
+
+def save_pseudo(path: Path, colors: Tensor, valid: Tensor) -> None:
+    """Write atomically: valid bits packed, colours only where valid."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, shape=np.array(valid.shape), valid=np.packbits(valid.numpy().reshape(-1)),
+                     colors=colors[valid].numpy().astype(np.float32))
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def load_pseudo(path: Path) -> tuple[Tensor, Tensor]:
+    with np.load(path) as z:
+        shape = tuple(int(s) for s in z["shape"])
+        valid = torch.from_numpy(np.unpackbits(z["valid"], count=int(np.prod(shape))).astype(bool).reshape(shape))
+        colors = torch.zeros(*shape, 3)
+        colors[valid] = torch.from_numpy(z["colors"])
+    return colors, valid
+
+
+def cached_pseudo_colors(cache_dir: str | Path | None, key: str, compute: Callable[[], tuple[Tensor, Tensor]]):
+    """``compute()`` unless ``cache_dir/pseudo_<key>.npz`` exists; returns ``(colors, valid, hit)``."""
+    if cache_dir is None:
+        return (*compute(), False)
+    path = Path(cache_dir) / f"pseudo_{key}.npz"
+    if path.exists():
+        try:
+            return (*load_pseudo(path), True)
+        except Exception as exc:  # a corrupt cache file is recomputed, not fatal
+            log.warning("pseudo-colour cache %s unreadable (%s); recomputing", path, exc)
+    colors, valid = compute()
+    save_pseudo(path, colors, valid)
+    return colors, valid, False

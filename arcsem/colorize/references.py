@@ -1,0 +1,138 @@
+"""Artist colour references: matched to training views by name, validated at the boundary.
+
+References come either from image files (the file stem names the training view, e.g.
+``r_013.png`` colours view ``r_013``) or from a preset of the scene (``five``, ``four``, ``three``,
+``two``, ``one``: the paper's reference sets, ``scene.reference_sets``) whose images are
+``scene.references``. Every reference is checked: its size must equal the view's, its name must be a
+training view, and its content must be a colour image (not empty, not grey).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..errors import ConfigError, DataError
+
+__all__ = ["References", "load_references", "check_reference", "PRESETS"]
+
+PRESETS = ("five", "four", "three", "two", "one")
+
+# A reference whose channels differ by less than this everywhere is grey (no colour to propagate).
+GREY_TOL = 2.0 / 255.0
+
+
+@dataclass
+class References:
+    """``R`` colour references.
+
+    Attributes:
+        names: ``R`` training-view names.
+        indices: ``[R]`` long, index of each reference in the training split.
+        images: ``[R, H, W, 3]`` float32 colour images in [0, 1].
+    """
+
+    names: list[str]
+    indices: Tensor
+    images: Tensor
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+
+def _read_image(path: Path) -> Tensor:
+    """``[H, W, 3]`` float32 in [0, 1] (alpha dropped, grey broadcast to 3 channels)."""
+    import imageio.v3 as iio
+
+    try:
+        arr = np.asarray(iio.imread(path))
+    except Exception as exc:  # unreadable file: name it
+        raise DataError(f"reference '{path}': cannot read image ({exc})") from None
+    scale = 65535.0 if arr.dtype == np.uint16 else (255.0 if arr.dtype == np.uint8 else 1.0)
+    arr = arr.astype(np.float32) / scale
+    if arr.ndim == 2:
+        arr = np.repeat(arr[..., None], 3, -1)
+    return torch.from_numpy(np.ascontiguousarray(arr[..., :3]))
+
+
+def check_reference(name: str, image: Tensor, view_hw: tuple[int, int], where: str) -> Tensor:
+    """Validate one reference ``image [H, W, 3]`` against its view's size; returns float32 [H, W, 3].
+
+    Raises DataError naming ``where`` (file or view) when the size differs, the image is empty
+    (one constant value) or grey (channels equal).
+    """
+    image = torch.as_tensor(image, dtype=torch.float32)
+    if image.ndim != 3 or image.shape[-1] != 3:
+        raise DataError(f"reference {where}: expected an [H, W, 3] colour image, got shape {tuple(image.shape)}")
+    if tuple(image.shape[:2]) != tuple(view_hw):
+        h, w = image.shape[:2]
+        raise DataError(f"reference {where}: size {w}x{h} differs from view '{name}' ({view_hw[1]}x{view_hw[0]})")
+    if float(image.max() - image.min()) < GREY_TOL:
+        raise DataError(f"reference {where}: image is empty (a single value)")
+    spread = (image.max(-1).values - image.min(-1).values).max()
+    if float(spread) < GREY_TOL:
+        raise DataError(f"reference {where}: image is grey (no colour); colour it before use")
+    return image
+
+
+def _view_index(names: list[str], name: str, where: str) -> int:
+    if name not in names:
+        shown = ", ".join(names[:8]) + (", ..." if len(names) > 8 else "")
+        raise DataError(f"reference {where}: '{name}' matches no training view ({shown})")
+    return names.index(name)
+
+
+def load_references(scene, spec: str | list[str]) -> References:
+    """References for ``scene`` from a preset name (``"five"`` ...) or a list of image files/folders.
+
+    Args:
+        scene: :class:`arcsem.scene.Scene`; its ``train`` split gives names and sizes.
+        spec: a preset in ``scene.reference_sets``, a path, or a list of paths (a folder means
+            every image file in it).
+    """
+    train = scene.train
+    hw = (train.cameras.height, train.cameras.width)
+    if isinstance(spec, str) and not Path(spec).exists() and ("/" not in spec and "." not in spec):
+        if spec not in scene.reference_sets:
+            raise ConfigError(
+                f"references: unknown preset '{spec}'; scene has: {', '.join(scene.reference_sets) or 'none'}"
+            )
+        names = list(scene.reference_sets[spec])
+        images = []
+        for n in names:
+            if n not in scene.references:
+                raise DataError(f"reference preset '{spec}': no colour image for view '{n}' in the scene")
+            images.append(check_reference(n, scene.references[n], hw, f"'{n}' (preset {spec})"))
+    else:
+        files = _expand_files([spec] if isinstance(spec, (str, Path)) else list(spec))
+        names, images = [], []
+        for f in files:
+            name = f.stem
+            _view_index(train.names, name, f"'{f}'")
+            images.append(check_reference(name, _read_image(f), hw, f"'{f}'"))
+            names.append(name)
+    if not names:
+        raise ConfigError(f"references: '{spec}' gives no reference image")
+    if len(set(names)) != len(names):
+        raise DataError(f"references: view named twice in {names}")
+    idx = torch.tensor([_view_index(train.names, n, f"'{n}'") for n in names], dtype=torch.long)
+    return References(names=names, indices=idx, images=torch.stack(images))
+
+
+IMAGE_EXT = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
+
+
+def _expand_files(items: list) -> list[Path]:
+    out: list[Path] = []
+    for it in items:
+        p = Path(it)
+        if p.is_dir():
+            out += sorted(q for q in p.iterdir() if q.suffix.lower() in IMAGE_EXT)
+        elif p.is_file():
+            out.append(p)
+        else:
+            raise DataError(f"reference file '{p}' does not exist")
+    return out

@@ -1,0 +1,114 @@
+"""VGG feature extractor for TCM/CCM: torchvision's VGG16 (default, Ref-NPR) or VGG19 (ArCSEM code).
+
+Features are the relu3_x and relu4_x layers, concatenated along channels per block (VGG16: 3 x 256
+channels at 1/4 resolution and 3 x 512 at 1/8; VGG19: 4 x 256 and 4 x 512). Inputs are normalised
+with the ImageNet mean/std. Weights come from the torch hub cache (:mod:`arcsem.weights`); where
+they cannot be had the network runs with RANDOM weights after a loud warning, and
+``features_source`` says ``"random"`` so that runs record ``features: random``.
+"""
+from __future__ import annotations
+
+import logging
+import warnings
+
+import torch
+from torch import Tensor, nn
+
+__all__ = ["VGGFeatures", "IMAGENET_MEAN", "IMAGENET_STD", "WEIGHT_FILES", "block_layers", "get_vgg"]
+
+log = logging.getLogger(__name__)
+
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+WEIGHT_FILES = {"vgg16": "vgg16-397923af.pth", "vgg19": "vgg19-dcbb9e9d.pth"}
+
+
+def block_layers(features: nn.Sequential, blocks=(3, 4)) -> dict[int, list[int]]:
+    """Indices of the ReLU layers of each block in torchvision's ``vgg.features`` (block b = after b-1 pools)."""
+    out: dict[int, list[int]] = {b: [] for b in blocks}
+    block = 1
+    for i, layer in enumerate(features):
+        if isinstance(layer, nn.MaxPool2d):
+            block += 1
+        elif isinstance(layer, nn.ReLU) and block in out:
+            out[block].append(i)
+    return out
+
+
+class VGGFeatures(nn.Module):
+    """Frozen VGG trunk; ``forward(images [C, H, W, 3] in [0, 1]) -> [block features [C, D_b, h_b, w_b]]``.
+
+    Attributes:
+        arch: ``"vgg16"`` or ``"vgg19"``. blocks: VGG blocks used (default relu3_x, relu4_x).
+        features_source: ``"imagenet"`` or ``"random"``; weights_detail: path loaded or why not.
+    """
+
+    def __init__(self, arch: str = "vgg16", blocks=(3, 4), load_weights: bool = True):
+        super().__init__()
+        from ..errors import ConfigError
+        from ..tvfix import import_torchvision
+
+        if arch not in WEIGHT_FILES:
+            raise ConfigError(f"vgg: unknown architecture '{arch}'; use vgg16 or vgg19")
+        tv = import_torchvision()
+        net = getattr(tv.models, arch)(weights=None)
+        self.arch, self.blocks = arch, tuple(blocks)
+        self.features_source, self.weights_detail = "random", "not requested"
+        if load_weights:
+            self._load(net)
+        else:
+            self._warn_random("weights not requested")
+        self.layers = block_layers(net.features, self.blocks)
+        last = max(i for ids in self.layers.values() for i in ids)
+        self.trunk = net.features[: last + 1]
+        # ReLUs in place would overwrite the activations we keep
+        for m in self.trunk:
+            if isinstance(m, nn.ReLU):
+                m.inplace = False
+        self.trunk.requires_grad_(False).eval()
+        self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
+
+    def _load(self, net: nn.Module) -> None:
+        from ..weights import load_state_dict_from_hub
+
+        sd, detail = load_state_dict_from_hub(WEIGHT_FILES[self.arch])
+        if sd is None:
+            self._warn_random(detail)
+            return
+        net.load_state_dict(sd)
+        self.features_source, self.weights_detail = "imagenet", detail
+
+    def _warn_random(self, why: str) -> None:
+        msg = (f"VGG ({self.arch}) runs with RANDOM weights ({why}); TCM/CCM matches are not the paper's. "
+               f"Put {WEIGHT_FILES[self.arch]} into the torch hub cache; this run records 'features: random'.")
+        self.weights_detail = why
+        warnings.warn(msg, stacklevel=3)
+        log.warning(msg)
+
+    def train(self, mode: bool = True):  # the trunk always stays in eval mode
+        super().train(mode)
+        self.trunk.eval()
+        return self
+
+    def forward(self, images: Tensor) -> list[Tensor]:
+        x = images.permute(0, 3, 1, 2) if images.shape[-1] == 3 else images
+        x = (x - self.mean) / self.std
+        keep = {i: b for b, ids in self.layers.items() for i in ids}
+        acts: dict[int, list[Tensor]] = {b: [] for b in self.blocks}
+        for i, layer in enumerate(self.trunk):
+            x = layer(x)
+            if i in keep:
+                acts[keep[i]].append(x)
+        return [torch.cat(acts[b], 1) for b in self.blocks]
+
+
+_CACHE: dict[tuple, VGGFeatures] = {}
+
+
+def get_vgg(arch: str = "vgg16", blocks=(3, 4)) -> VGGFeatures:
+    """A shared extractor per (arch, blocks): weights are looked up (and warned about) once per process."""
+    key = (arch, tuple(blocks))
+    if key not in _CACHE:
+        _CACHE[key] = VGGFeatures(arch, blocks)
+    return _CACHE[key]

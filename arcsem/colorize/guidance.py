@@ -1,0 +1,166 @@
+"""TCM guidance and CCM targets (Ref-NPR, as used by ArCSEM), computed once per view and cached.
+
+Both depend only on the grey images and the references, never on the render:
+
+* TCM: for each feature location of the grey view ``g`` (per VGG block), the nearest feature by
+  cosine distance among the grey references' features (all references concatenated); the guidance
+  is the COLOUR reference's feature at that location. Stored as match indices into the flattened
+  reference colour features (``[h, w]`` long per block), gathered when a batch needs them.
+* CCM: the same search on block-3 features pooled to cells of ``ccm_downscale`` pixels (with the
+  default ``tcm_downscale`` 4 a block-3 location IS a 16-pixel cell); a match counts if its cosine
+  distance is <= ``ccm_max_dist`` (0.6) and its reference patch is not white (all channels > 0.99);
+  the target is the mean colour of the matched reference patch.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from .pseudocolor import cache_key
+
+__all__ = ["downscale", "nearest_cosine", "patch_means", "tcm_match", "ccm_match", "ccm_targets", "Guidance"]
+
+log = logging.getLogger(__name__)
+
+
+def downscale(images: Tensor, factor: int) -> Tensor:
+    """``[C, H, W, 3]`` -> ``[C, H//f, W//f, 3]`` (antialiased bilinear, differentiable); f=1: unchanged."""
+    if factor == 1:
+        return images
+    C, H, W, _ = images.shape
+    x = F.interpolate(images.permute(0, 3, 1, 2), size=(H // factor, W // factor), mode="bilinear",
+                      antialias=True, align_corners=False)
+    return x.permute(0, 2, 3, 1)
+
+
+def nearest_cosine(query: Tensor, keys: Tensor, chunk: int = 4096) -> tuple[Tensor, Tensor]:
+    """Nearest key by cosine distance: query ``[Q, D]``, keys ``[K, D]`` -> index ``[Q]``, distance ``[Q]``."""
+    kn = F.normalize(keys.float(), dim=-1, eps=1e-8)
+    idx = torch.empty(len(query), dtype=torch.long)
+    dist = torch.empty(len(query))
+    for s in range(0, len(query), chunk):
+        qn = F.normalize(query[s:s + chunk].float(), dim=-1, eps=1e-8)
+        best, arg = (qn @ kn.T).max(-1)
+        idx[s:s + chunk], dist[s:s + chunk] = arg, 1.0 - best
+    return idx, dist
+
+
+def _flat(feats: Tensor) -> Tensor:
+    """``[R, D, h, w]`` -> ``[R*h*w, D]`` (reference-major, then row-major locations)."""
+    return feats.permute(0, 2, 3, 1).reshape(-1, feats.shape[1])
+
+
+def tcm_match(view_feats: list[Tensor], ref_gray_feats: list[Tensor], chunk: int = 4096) -> list[Tensor]:
+    """Per block: view features ``[D, h, w]``, reference grey features ``[R, D, h', w']`` -> index ``[h, w]``."""
+    out = []
+    for vf, rf in zip(view_feats, ref_gray_feats):
+        D, h, w = vf.shape
+        idx, _ = nearest_cosine(vf.reshape(D, -1).T, _flat(rf), chunk)
+        out.append(idx.reshape(h, w))
+    return out
+
+
+def _pool_to(feats: Tensor, grid: tuple[int, int]) -> Tensor:
+    """``[C, D, h, w]`` -> ``[C, D, *grid]`` by adaptive average pooling (identity when equal)."""
+    return feats if tuple(feats.shape[-2:]) == tuple(grid) else F.adaptive_avg_pool2d(feats, grid)
+
+
+def ccm_match(view_feat: Tensor, ref_gray_feat: Tensor, grid: tuple[int, int], chunk: int = 4096):
+    """Cell matches: view block feature ``[D, h, w]``, references ``[R, D, h, w]`` pooled to ``grid``.
+
+    Returns index ``[hc, wc]`` into the flattened reference cells and cosine distance ``[hc, wc]``.
+    """
+    q = _pool_to(view_feat[None], grid)[0]
+    idx, dist = nearest_cosine(q.reshape(q.shape[0], -1).T, _flat(_pool_to(ref_gray_feat, grid)), chunk)
+    return idx.reshape(grid), dist.reshape(grid)
+
+
+def patch_means(images: Tensor, cell: int) -> Tensor:
+    """Mean colour of ``cell x cell`` patches: ``[C, H, W, 3]`` -> ``[C, H//cell, W//cell, 3]``."""
+    return F.avg_pool2d(images.permute(0, 3, 1, 2), cell).permute(0, 2, 3, 1)
+
+
+def ccm_targets(idx: Tensor, dist: Tensor, ref_means: Tensor, max_dist: float = 0.6, white: float = 0.99):
+    """CCM targets: ``ref_means [R*hc*wc, 3]`` gathered at ``idx [hc, wc]``; valid where the match is
+    close enough (``dist <= max_dist``) and the patch is not white (not all channels > ``white``)."""
+    target = ref_means[idx]
+    valid = (dist <= max_dist) & ~(target > white).all(-1)
+    return target, valid
+
+
+class Guidance:
+    """TCM match indices and CCM targets of every view, computed on first use and cached in memory and on disk.
+
+    Args:
+        vgg: a :class:`arcsem.colorize.vgg.VGGFeatures`. gray: ``[N, H, W, 3]`` grey training images.
+        ref_indices: ``R`` view indices of the references. ref_colors: ``[R, H, W, 3]``.
+        tcm_downscale: images scaled down by this before VGG (paper: 4). ccm_downscale: CCM cell (16).
+    """
+
+    def __init__(self, vgg, gray: Tensor, ref_indices, ref_colors: Tensor, tcm_downscale: int = 4,
+                 ccm_downscale: int = 16, ccm_max_dist: float = 0.6, ccm_white: float = 0.99,
+                 cache_dir: str | Path | None = None, chunk: int = 4096):
+        self.vgg, self.gray, self.ref_indices = vgg, gray, list(ref_indices)
+        self.tcm_downscale, self.ccm_downscale = tcm_downscale, ccm_downscale
+        self.ccm_max_dist, self.ccm_white, self.chunk = ccm_max_dist, ccm_white, chunk
+        self.cache_dir = Path(cache_dir) if cache_dir else None
+        self.grid = (gray.shape[1] // ccm_downscale, gray.shape[2] // ccm_downscale)
+        with torch.no_grad():
+            self.ref_gray = self.features(gray[self.ref_indices])
+            self.ref_color = [_flat(f) for f in self.features(ref_colors)]
+        self.ref_means = patch_means(ref_colors.float(), ccm_downscale).reshape(-1, 3)
+        self.key = cache_key("guidance-v1", vgg.arch, vgg.features_source, vgg.blocks, gray, self.ref_indices,
+                             ref_colors, tcm_downscale, ccm_downscale, ccm_max_dist, ccm_white)
+        self._memory: dict[int, dict[str, Tensor]] = {}
+
+    def features(self, images: Tensor) -> list[Tensor]:
+        """VGG block features of images ``[C, H, W, 3]`` after the TCM downscale."""
+        return self.vgg(downscale(images.float(), self.tcm_downscale))
+
+    def _compute(self, v: int) -> dict[str, Tensor]:
+        with torch.no_grad():
+            feats = [f[0] for f in self.features(self.gray[v:v + 1])]
+        out = {f"tcm_idx{b}": i for b, i in enumerate(tcm_match(feats, self.ref_gray, self.chunk))}
+        out["ccm_idx"], out["ccm_dist"] = ccm_match(feats[0], self.ref_gray[0], self.grid, self.chunk)
+        return out
+
+    def matches(self, v: int) -> dict[str, Tensor]:
+        """Match indices of view ``v``: ``tcm_idx<b>`` ``[h_b, w_b]``, ``ccm_idx``/``ccm_dist`` ``[hc, wc]``."""
+        if v in self._memory:
+            return self._memory[v]
+        path = self.cache_dir / f"guide_{self.key}_{v}.npz" if self.cache_dir else None
+        if path is not None and path.exists():
+            with np.load(path) as z:
+                out = {k: torch.from_numpy(z[k]) for k in z.files}
+        else:
+            out = self._compute(v)
+            if path is not None:
+                _atomic_savez(path, {k: t.numpy() for k, t in out.items()})
+        self._memory[v] = out
+        return out
+
+    def targets(self, v: int) -> dict[str, Tensor | list[Tensor]]:
+        """``tcm_guidance``: per block ``[D_b, h_b, w_b]``; ``ccm_target [hc, wc, 3]``, ``ccm_valid [hc, wc]``."""
+        m = self.matches(v)
+        guide = []
+        for b, rc in enumerate(self.ref_color):
+            idx = m[f"tcm_idx{b}"]
+            guide.append(rc[idx.reshape(-1)].T.reshape(rc.shape[1], *idx.shape))
+        target, valid = ccm_targets(m["ccm_idx"], m["ccm_dist"], self.ref_means, self.ccm_max_dist, self.ccm_white)
+        return {"tcm_guidance": guide, "ccm_target": target, "ccm_valid": valid}
+
+
+def _atomic_savez(path: Path, arrays: dict) -> None:
+    import os
+    import tempfile
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    with os.fdopen(fd, "wb") as f:
+        np.savez(f, **arrays)
+    os.replace(tmp, path)

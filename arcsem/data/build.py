@@ -1,0 +1,217 @@
+"""Reader-independent assembly: view selection, train/test split, image loading, bounds.
+
+Readers (transforms.json, COLMAP) turn their files into :class:`ViewSpec` records (a camera and
+file paths, no pixels); :func:`assemble_scene` selects views, splits them, reads and downscales the
+images and returns the :class:`~arcsem.scene.Scene`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+
+from ..cameras import Cameras
+from ..errors import ConfigError, DataError
+from ..scene import Scene, Split
+from .io import read_array, read_image, read_mask, resize
+
+__all__ = ["ViewSpec", "ReaderOptions", "reader_options", "select_views", "assemble_scene",
+           "bounds_from_points", "bounds_from_cameras"]
+
+SPLIT_MODES = ("auto", "every_k", "none")
+
+
+@dataclass
+class ViewSpec:
+    """One view before its pixels are read. ``w2c`` ``[4, 4]`` (OpenCV axes), ``K`` ``[3, 3]``.
+
+    ``undistort`` is an optional function applied to every image read for this view (COLMAP).
+    """
+
+    name: str
+    image: Path
+    w2c: np.ndarray
+    K: np.ndarray
+    width: int
+    height: int
+    model: str = "pinhole"
+    split: str | None = None
+    mask: Path | None = None
+    depth: Path | None = None
+    normal: Path | None = None
+    color: Path | None = None
+    clean: Path | None = None
+    reference: Path | None = None
+    undistort: Callable[[np.ndarray], np.ndarray] | None = field(default=None, repr=False)
+
+
+@dataclass
+class ReaderOptions:
+    """Options every reader shares (conf/dataset/*.yaml)."""
+
+    downscale: float = 1.0  # images and cameras are shrunk by this factor (cv2 INTER_AREA)
+    split: str = "auto"  # auto: the dataset's own split (frame `split` keys / separate files), else all train
+    test_every: int = 8  # split=every_k: views 0, k, 2k, ... (in file order) are test views
+    max_views: int | None = None  # keep at most this many views, evenly spaced, before splitting
+
+
+def reader_options(cfg: Any) -> ReaderOptions:
+    """Validated :class:`ReaderOptions` from a dataset config (a DictConfig or a dict)."""
+    get = (lambda k, d: cfg.get(k, d)) if hasattr(cfg, "get") else (lambda k, d: getattr(cfg, k, d))
+    opts = ReaderOptions(float(get("downscale", 1.0) or 1.0), str(get("split", "auto")),
+                         int(get("test_every", 8)), get("max_views", None))
+    if opts.split not in SPLIT_MODES:
+        raise ConfigError(f"dataset.split: '{opts.split}' is not one of {', '.join(SPLIT_MODES)}")
+    if opts.downscale < 1.0:
+        raise ConfigError(f"dataset.downscale: {opts.downscale} must be >= 1")
+    if opts.test_every < 2:
+        raise ConfigError(f"dataset.test_every: {opts.test_every} must be >= 2")
+    return opts
+
+
+def select_views(views: list[ViewSpec], opts: ReaderOptions) -> tuple[list[ViewSpec], list[ViewSpec]]:
+    """Apply ``max_views`` (evenly spaced) then the split; returns ``(train, test)``."""
+    names = [v.name for v in views]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise DataError(f"duplicate view names (file stems): {', '.join(dup)}")
+    if opts.max_views is not None and len(views) > int(opts.max_views):
+        keep = np.unique(np.round(np.linspace(0, len(views) - 1, int(opts.max_views))).astype(int))
+        views = [views[i] for i in keep]
+    if opts.split == "every_k":
+        return ([v for i, v in enumerate(views) if i % opts.test_every != 0],
+                [v for i, v in enumerate(views) if i % opts.test_every == 0])
+    if opts.split == "auto" and any(v.split is not None for v in views):
+        bad = [v.name for v in views if v.split not in (None, "train", "test")]
+        if bad:
+            raise DataError(f"view '{bad[0]}': split must be 'train' or 'test'")
+        return [v for v in views if v.split != "test"], [v for v in views if v.split == "test"]
+    return list(views), []
+
+
+def _read_view(v: ViewSpec, size: tuple[int, int]) -> dict[str, np.ndarray | None]:
+    """Read every file of one view at the camera's size, undistort, and resize to ``size`` (w, h)."""
+    img, alpha = read_image(v.image)
+    if img.shape[:2] != (v.height, v.width):
+        raise DataError(f"view '{v.name}': image {v.image} is {img.shape[1]}x{img.shape[0]} "
+                        f"but its camera is {v.width}x{v.height}")
+
+    def fit(arr: np.ndarray, path: Path, nearest: bool = False) -> np.ndarray:
+        if arr.shape[:2] != (v.height, v.width):
+            raise DataError(f"view '{v.name}': {path} is {arr.shape[1]}x{arr.shape[0]}, "
+                            f"expected {v.width}x{v.height}")
+        if v.undistort is not None:
+            arr = v.undistort(arr)
+        return resize(arr, size, nearest)
+
+    out: dict[str, np.ndarray | None] = {}
+    if alpha is not None:  # RGBA -> RGB over a black background; alpha is the mask unless one is given
+        img = img * alpha[..., None]
+    out["image"] = fit(img, v.image)
+    mask = read_mask(v.mask) if v.mask is not None else (alpha > 0.5 if alpha is not None else None)
+    out["mask"] = None if mask is None else fit(mask.astype(np.float32), v.mask or v.image) > 0.5
+    hw = (v.height, v.width)
+    out["depth"] = None if v.depth is None else fit(read_array(v.depth, hw, None, "depth"), v.depth, True)
+    out["normal"] = None if v.normal is None else fit(read_array(v.normal, hw, 3, "normals"), v.normal, True)
+    for key in ("color", "clean", "reference"):
+        path = getattr(v, key)
+        out[key] = None if path is None else fit(read_image(path)[0], path)
+    return out
+
+
+def _stack(items: list[np.ndarray | None], name: str, views: list[ViewSpec]) -> torch.Tensor | None:
+    """Stack per-view arrays; all-or-none (a view lacking a file present elsewhere is an error)."""
+    have = [x is not None for x in items]
+    if not any(have):
+        return None
+    if not all(have):
+        missing = views[have.index(False)].name
+        raise DataError(f"view '{missing}' has no {name} while other views do")
+    return torch.from_numpy(np.stack(items))
+
+
+def _load_split(views: list[ViewSpec], size: tuple[int, int], factor: float, train: bool,
+                model: str) -> tuple[Split, dict[str, torch.Tensor]]:
+    data = [_read_view(v, size) for v in views]
+    w, h = (views[0].width, views[0].height) if views else size
+    w2c = torch.from_numpy(np.stack([v.w2c for v in views])).float() if views else torch.zeros(0, 4, 4)
+    K = torch.from_numpy(np.stack([v.K for v in views])).float() if views else torch.zeros(0, 3, 3)
+    ids = torch.arange(len(views)) if train else torch.full((len(views),), -1, dtype=torch.long)
+    cams = Cameras(w2c, K, w, h, model, image_ids=ids)
+    if factor != 1.0:
+        cams = cams.scaled(1.0 / factor)
+    col = lambda k: _stack([d[k] for d in data], k, views)  # noqa: E731
+    images = col("image") if views else torch.zeros(0, size[1], size[0], 3)
+    split = Split([v.name for v in views], cams, images, masks=col("mask"), depths=col("depth"),
+                  normals=col("normal"), colors=col("color"), clean=col("clean"),
+                  files=[str(v.image) for v in views])
+    refs = {v.name: torch.from_numpy(d["reference"]) for v, d in zip(views, data) if d["reference"] is not None}
+    return split, refs
+
+
+def _common_size(views: list[ViewSpec]) -> tuple[int, int, str]:
+    first = views[0]
+    for v in views[1:]:
+        if (v.width, v.height) != (first.width, first.height):
+            raise DataError(f"view '{v.name}' ({v.image}) is {v.width}x{v.height} but '{first.name}' is "
+                            f"{first.width}x{first.height}; all views must share one size")
+        if v.model != first.model:
+            raise DataError(f"view '{v.name}' uses a {v.model} camera but '{first.name}' a {first.model} one")
+    return first.width, first.height, first.model
+
+
+def bounds_from_points(points: np.ndarray, pad: float = 0.05) -> torch.Tensor:
+    """``[2, 3]`` box around the 0.5-99.5 percentiles of ``points [P, 3]``, padded by ``pad`` x size."""
+    lo, hi = np.percentile(points, 0.5, axis=0), np.percentile(points, 99.5, axis=0)
+    d = (hi - lo) * pad
+    return torch.tensor(np.stack([lo - d, hi + d]), dtype=torch.float32)
+
+
+def bounds_from_cameras(cams: Cameras) -> torch.Tensor:
+    """``[2, 3]`` box from the camera frusta: the point nearest all optical axes (least squares),
+    with a half-size equal to the largest image footprint half-diagonal at that point."""
+    c, d = cams.centers.double(), cams.forward.double()
+    proj = torch.eye(3, dtype=c.dtype) - d[:, :, None] * d[:, None, :]  # [C, 3, 3] onto the normal plane
+    A, b = proj.sum(0), (proj @ c[..., None]).sum(0)[:, 0]
+    center = torch.linalg.lstsq(A, b).solution if len(cams) > 1 else c[0] + d[0]
+    fx, fy = cams.K[:, 0, 0].double(), cams.K[:, 1, 1].double()
+    half = torch.sqrt((cams.width / (2 * fx)) ** 2 + (cams.height / (2 * fy)) ** 2)
+    if not cams.is_ortho:
+        half = half * ((center - c) * d).sum(-1).abs()
+    r = float(half.max())
+    return torch.stack([center - r, center + r]).float()
+
+
+def assemble_scene(root: Path, views: list[ViewSpec], opts: ReaderOptions, *, bounds: Any = None,
+                   points: np.ndarray | None = None, point_colors: np.ndarray | None = None,
+                   reference_sets: dict[str, list[str]] | None = None) -> Scene:
+    """Select, split and read ``views``; bounds from ``bounds``, else the points, else the frusta."""
+    if not views:
+        raise DataError(f"{root}: the dataset has no views")
+    w, h, model = _common_size(views)
+    train_v, test_v = select_views(views, opts)
+    if not train_v:
+        raise DataError(f"{root}: no training views after the split (split={opts.split})")
+    size = (round(w / opts.downscale), round(h / opts.downscale))
+    train, refs = _load_split(train_v, size, opts.downscale, True, model)
+    test, test_refs = _load_split(test_v, size, opts.downscale, False, model)
+    refs.update(test_refs)
+    known, all_names = set(train.names) | set(test.names), {v.name for v in views}
+    for set_name, names in (reference_sets or {}).items():
+        bad = [n for n in names if n not in all_names]
+        if bad:
+            raise DataError(f"{root}: reference set '{set_name}' names unknown view(s) {', '.join(bad)}")
+    sets = {k: [n for n in v if n in known] for k, v in (reference_sets or {}).items()}
+    if bounds is not None:
+        box = torch.as_tensor(np.asarray(bounds, dtype=np.float32)).reshape(2, 3)
+    elif points is not None and len(points) > 0:
+        box = bounds_from_points(points)
+    else:
+        box = bounds_from_cameras(train.cameras)
+    to_t = lambda a: None if a is None else torch.as_tensor(np.asarray(a, dtype=np.float32))  # noqa: E731
+    return Scene(str(root), train, test, box, points=to_t(points), point_colors=to_t(point_colors),
+                 references=refs, reference_sets=sets)
+

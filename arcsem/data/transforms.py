@@ -1,0 +1,161 @@
+"""NeRF / instant-ngp / torch-ngp ``transforms.json`` reader (the layout the ArCSEM authors used).
+
+Schema (``*`` marks arcsem extensions); intrinsics may sit at the top level or in a frame:
+
+* ``fl_x, fl_y, cx, cy, w, h`` or ``camera_angle_x`` (and ``camera_angle_y``) (NeRF); ``w, h``
+  default to the image size, ``cx, cy`` to the image centre, ``fl_y`` to ``fl_x``;
+* ``*camera_model``: ``PINHOLE`` (default; ``SIMPLE_PINHOLE`` and ``OPENCV`` with zero distortion
+  are accepted) or ``ORTHOGRAPHIC`` (``fl_x`` = pixels per world unit);
+* ``*aabb`` ``[[min], [max]]`` scene bounds; ``ply_file_path``: initial point cloud;
+  ``*reference_sets`` ``{"five": [view names], ...}``;
+* frames: ``file_path`` (extension optional, relative to the json), ``transform_matrix``
+  (camera-to-world, OpenGL axes), optional ``mask_path``, ``*split`` (train/test),
+  ``*depth_path`` (.npy z-depth, 0 = background), ``*normal_path`` (.npy ``[H, W, 3]``),
+  ``*color_path``, ``*clean_path``, ``*reference_path`` (artist colour image of this view).
+
+NeRF-synthetic folders with ``transforms_train.json`` / ``transforms_test.json`` are read too
+(each file gives the split of its frames).
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..cameras import opengl_to_opencv
+from ..errors import DataError
+from ..scene import Scene
+from .build import ReaderOptions, ViewSpec, assemble_scene
+from .io import read_image, read_ply, resolve_file
+
+__all__ = ["read_transforms", "find_transforms_files", "frame_views"]
+
+MODELS = {"PINHOLE": "pinhole", "SIMPLE_PINHOLE": "pinhole", "OPENCV": "pinhole", "ORTHOGRAPHIC": "orthographic"}
+DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y", "camera_model",
+                  *DISTORTION_KEYS)
+
+
+def find_transforms_files(path: Path) -> list[tuple[Path, str | None]]:
+    """``[(json file, split or None)]`` for a json file or a folder (transforms.json or _train/_test)."""
+    if not path.exists():
+        raise DataError(f"dataset path does not exist: {path}")
+    if path.is_file():
+        return [(path, None)]
+    if (path / "transforms.json").is_file():
+        return [(path / "transforms.json", None)]
+    pairs = [(path / f"transforms_{s}.json", s) for s in ("train", "test")]
+    if pairs[0][0].is_file():
+        return [(p, s) for p, s in pairs if p.is_file()]
+    raise DataError(f"{path}: no transforms.json (or transforms_train.json) in this folder")
+
+
+def _load_json(path: Path) -> dict:
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise DataError(f"{path}: malformed JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+    if not isinstance(data, dict) or not isinstance(data.get("frames"), list):
+        raise DataError(f"{path}: expected an object with a 'frames' list")
+    return data
+
+
+def _intrinsics(p: dict, img_path: Path, where: str) -> tuple[np.ndarray, int, int, str]:
+    """``K [3,3]``, w, h and model from merged top-level/frame keys ``p``."""
+    name = str(p.get("camera_model", "PINHOLE")).upper()
+    if name not in MODELS:
+        raise DataError(f"{where}: unknown camera_model '{p.get('camera_model')}'; "
+                        f"expected one of {', '.join(MODELS)}")
+    if any(float(p.get(k, 0.0)) != 0.0 for k in DISTORTION_KEYS):
+        raise DataError(f"{where}: lens distortion ({', '.join(k for k in DISTORTION_KEYS if k in p)}) "
+                        "is not supported in transforms.json; undistort the images first")
+    model = MODELS[name]
+    if "w" in p and "h" in p:
+        w, h = int(p["w"]), int(p["h"])
+    else:
+        img = read_image(img_path)[0]
+        w, h = img.shape[1], img.shape[0]
+    if "fl_x" in p:
+        fx = float(p["fl_x"])
+    elif "camera_angle_x" in p and model == "pinhole":
+        fx = 0.5 * w / math.tan(0.5 * float(p["camera_angle_x"]))
+    else:
+        raise DataError(f"{where}: no focal length (fl_x or camera_angle_x)")
+    if "fl_y" in p:
+        fy = float(p["fl_y"])
+    elif "camera_angle_y" in p and model == "pinhole":
+        fy = 0.5 * h / math.tan(0.5 * float(p["camera_angle_y"]))
+    else:
+        fy = fx
+    K = np.array([[fx, 0, float(p.get("cx", w / 2))], [0, fy, float(p.get("cy", h / 2))], [0, 0, 1]])
+    return K, w, h, model
+
+
+def _pose(frame: dict, where: str) -> np.ndarray:
+    try:
+        c2w = np.asarray(frame["transform_matrix"], dtype=np.float64)
+    except (KeyError, ValueError, TypeError):
+        raise DataError(f"{where}: missing or malformed 'transform_matrix'") from None
+    if c2w.shape == (3, 4):
+        c2w = np.vstack([c2w, [0, 0, 0, 1]])
+    if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
+        raise DataError(f"{where}: 'transform_matrix' must be a finite 4x4 (or 3x4) matrix")
+    c2w_cv = opengl_to_opencv(torch.from_numpy(c2w)).numpy()
+    return np.linalg.inv(c2w_cv)
+
+
+def frame_views(path: Path, data: dict, split: str | None) -> list[ViewSpec]:
+    """:class:`ViewSpec` of every frame of one parsed transforms file."""
+    base, top = path.parent, {k: data[k] for k in INTRINSIC_KEYS if k in data}
+    views = []
+    for i, frame in enumerate(data["frames"]):
+        if not isinstance(frame, dict) or "file_path" not in frame:
+            raise DataError(f"{path}: frame {i} has no 'file_path'")
+        where = f"{path}: frame {i} ('{frame['file_path']}')"
+        image = resolve_file(base, str(frame["file_path"]), where)
+        K, w, h, model = _intrinsics({**top, **{k: frame[k] for k in INTRINSIC_KEYS if k in frame}}, image, where)
+        opt = lambda key: resolve_file(base, str(frame[key]), f"{where} {key}", (".npy", ".png", ".tif")) \
+            if frame.get(key) else None  # noqa: E731
+        views.append(ViewSpec(
+            name=image.stem, image=image, w2c=_pose(frame, where), K=K, width=w, height=h, model=model,
+            split=frame.get("split", split), mask=opt("mask_path"), depth=opt("depth_path"),
+            normal=opt("normal_path"), color=opt("color_path"), clean=opt("clean_path"),
+            reference=opt("reference_path")))
+    return views
+
+
+def _unique_names(views: list[ViewSpec], base: Path) -> None:
+    """View name = file stem; stems shared by several views (``train/r_0``, ``test/r_0``) become the
+    path relative to the json folder, without extension."""
+    stems = [v.name for v in views]
+    for v in views:
+        if stems.count(v.name) > 1:
+            try:
+                v.name = v.image.relative_to(base.resolve()).with_suffix("").as_posix()
+            except ValueError:
+                v.name = v.image.with_suffix("").as_posix()
+
+
+def read_transforms(path: str | Path, opts: ReaderOptions | None = None) -> Scene:
+    """Read a transforms.json file or folder into a :class:`Scene` (see the module docstring)."""
+    opts = opts or ReaderOptions()
+    files = find_transforms_files(Path(path).expanduser().resolve())
+    views, first = [], None
+    for file, split in files:
+        data = _load_json(file)
+        first = first or (file, data)
+        views += frame_views(file, data, split)
+    file, data = first
+    _unique_names(views, file.parent)
+    points = colors = None
+    if data.get("ply_file_path"):
+        points, colors = read_ply(resolve_file(file.parent, data["ply_file_path"], f"{file}: ply_file_path", ()))
+    sets = data.get("reference_sets") or {}
+    if not isinstance(sets, dict) or not all(isinstance(v, list) for v in sets.values()):
+        raise DataError(f"{file}: 'reference_sets' must map names to lists of view names")
+    return assemble_scene(file.parent, views, opts, bounds=data.get("aabb"), points=points,
+                          point_colors=colors, reference_sets=sets)

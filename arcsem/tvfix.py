@@ -1,0 +1,73 @@
+"""Guarded workaround for ``import torchvision`` failing with a CPU torch and a CUDA torchvision wheel.
+
+The only torchvision wheel reachable here is a CUDA build whose compiled ops (``torchvision._C``) do
+not load against the CPU torch. Its ``_meta_registrations`` module then registers fake kernels for
+``torchvision::nms`` and ``torchvision::qnms`` and fails with ``operator torchvision::nms does not
+exist`` (pytorch/vision#9085). Defining the two op *schemas* (no kernels) before the first import
+lets torchvision, its models and ``lpips`` import; ``torchvision.ops`` and ``torchvision.io`` stay
+unusable. Nothing is defined when the ops already exist (a matching build), so a working install is
+left untouched.
+"""
+from __future__ import annotations
+
+import sys
+from types import ModuleType
+
+__all__ = ["import_torchvision", "ensure_torchvision_ops", "MISSING_OP_SCHEMAS"]
+
+# Schemas of the ops that torchvision registers fake kernels for at import time.
+MISSING_OP_SCHEMAS = {
+    "nms": "nms(Tensor dets, Tensor scores, float iou_threshold) -> Tensor",
+    "qnms": "qnms(Tensor dets, Tensor scores, float iou_threshold) -> Tensor",
+}
+_LIB = None  # keeps the torch.library.Library alive (the definitions vanish with it)
+
+
+def _op_exists(name: str) -> bool:
+    import torch
+
+    try:
+        torch._C._dispatch_find_schema_or_throw(f"torchvision::{name}", "")
+        return True
+    except RuntimeError:
+        return False
+
+
+def ensure_torchvision_ops() -> list[str]:
+    """Define the schemas of missing torchvision ops; returns the names defined (empty if none)."""
+    global _LIB
+    if "torchvision" in sys.modules:
+        return []
+    missing = [n for n in MISSING_OP_SCHEMAS if not _op_exists(n)]
+    if not missing:
+        return []
+    import torch.library
+
+    if _LIB is None:
+        _LIB = torch.library.Library("torchvision", "FRAGMENT")  # noqa: TOR901 (schema only, no kernels)
+    for name in missing:
+        _LIB.define(MISSING_OP_SCHEMAS[name])
+    return missing
+
+
+def import_torchvision() -> ModuleType:
+    """``import torchvision`` with the workaround applied first when (and only when) it is needed.
+
+    The compiled ops are tried first: ``torchvision.extension`` loads ``_C`` if it can, which defines
+    the real ops; only the schemas still missing afterwards are defined here.
+    """
+    if "torchvision" in sys.modules:
+        return sys.modules["torchvision"]
+    try:
+        import torchvision
+
+        return torchvision
+    except RuntimeError as exc:
+        if "torchvision::" not in str(exc):
+            raise
+    for mod in [m for m in sys.modules if m == "torchvision" or m.startswith("torchvision.")]:
+        del sys.modules[mod]  # drop the half-imported package before retrying
+    ensure_torchvision_ops()
+    import torchvision
+
+    return torchvision

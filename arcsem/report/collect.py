@@ -1,0 +1,219 @@
+"""Find runs under folders, flatten their ``metrics.json`` into a DataFrame, list missing sweep jobs.
+
+A *run* is a folder with ``metrics.json`` (written by ``arcsem`` at the end of a job). A *multirun*
+is a Hydra sweep folder with ``multirun.yaml``; its expected jobs are expanded from the sweep's
+overrides and compared with the jobs that finished, so an interrupted sweep yields ``missing``
+rows instead of an error.
+
+Row columns: ``run_dir``, ``study``, ``row`` (the study's row key, e.g. ``gs2d_act``), ``seed``,
+``git``, one column per override (``variant``, ``colorize.references``, ...) and one per metric,
+flattened with dots (``stage1.train.psnr``).
+"""
+from __future__ import annotations
+
+import itertools
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import yaml
+
+from ..errors import DataError
+
+__all__ = ["STUDIES", "Study", "MissingJob", "Collection", "collect", "find_runs", "flatten",
+           "parse_overrides", "expected_jobs"]
+
+
+@dataclass(frozen=True)
+class Study:
+    """A study: which override picks its rows, their order and printed labels."""
+
+    name: str
+    key: str                      # override key whose value is the row (e.g. "variant")
+    rows: dict[str, str]          # row value -> label, in table order
+
+
+STUDIES: dict[str, Study] = {
+    s.name: s for s in (
+        Study("grayscale_comparison", "variant",
+              {"plenoxels": "Plenoxels", "gs3d": "3DGS", "gs2d": "2DGS", "gs2d_act": "2DGS + ACT"}),
+        Study("colorization_ablation", "ablation",
+              {"full": "full", "no_tcm": "w/o TCM", "no_ccm": "w/o CCM", "no_act": "w/o ACT",
+               "no_all": "w/o all"}),
+        Study("reference_count", "colorize.references",
+              {"five": "5", "four": "4", "three": "3", "two": "2", "one": "1"}),
+    )
+}
+
+
+@dataclass
+class MissingJob:
+    """A job of a sweep without ``metrics.json`` (never started, crashed or still running)."""
+
+    sweep_dir: str
+    overrides: list[str]
+    job_dir: str | None = None    # None when the job folder was never created
+    study: str | None = None
+    row: str | None = None
+
+
+@dataclass
+class Collection:
+    """Everything found: one DataFrame row per finished run, plus the missing jobs."""
+
+    runs: pd.DataFrame
+    missing: list[MissingJob] = field(default_factory=list)
+
+
+def parse_overrides(items: list[str] | None) -> dict[str, str]:
+    """``["+variant=gs2d", "seed=1"]`` -> ``{"variant": "gs2d", "seed": "1"}`` (``+``/``~`` dropped)."""
+    out: dict[str, str] = {}
+    for item in items or []:
+        if "=" not in item:
+            continue
+        key, value = item.split("=", 1)
+        key = key.lstrip("+~")
+        out[key] = value
+    return out
+
+
+def flatten(data: Any, prefix: str = "") -> dict[str, Any]:
+    """Nested dicts -> ``{"a.b.c": value}``; lists stay values; ``None`` -> NaN for numbers."""
+    out: dict[str, Any] = {}
+    if isinstance(data, dict):
+        for k, v in data.items():
+            out.update(flatten(v, f"{prefix}{k}."))
+        return out
+    out[prefix[:-1]] = math.nan if data is None else data
+    return out
+
+
+def _read_yaml(path: Path) -> Any:
+    try:
+        return yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        return None
+    except yaml.YAMLError as err:
+        raise DataError(f"{path}: not valid YAML ({err.__class__.__name__})") from None
+
+
+def _job_overrides(run: Path, metrics: dict | None) -> list[str]:
+    """Overrides of a run: ``metrics.json`` first, then ``.hydra/overrides.yaml``."""
+    if metrics and isinstance(metrics.get("overrides"), list):
+        return [str(o) for o in metrics["overrides"]]
+    return [str(o) for o in (_read_yaml(run / ".hydra" / "overrides.yaml") or [])]
+
+
+def _choices(run: Path) -> dict[str, str]:
+    hydra_cfg = _read_yaml(run / ".hydra" / "hydra.yaml") or {}
+    return dict(((hydra_cfg.get("hydra") or {}).get("runtime") or {}).get("choices") or {})
+
+
+def identify(overrides: dict[str, str], choices: dict[str, str], config: dict | None) -> tuple:
+    """``(study, row)`` from overrides, Hydra's recorded choices or ``config.study``; None if unknown."""
+    config = config or {}
+    study_cfg = config.get("study") if isinstance(config.get("study"), dict) else {}
+    name = (overrides.get("experiment") or choices.get("experiment") or study_cfg.get("name"))
+    if name not in STUDIES:  # infer from the row key present
+        name = next((s.name for s in STUDIES.values() if s.key in overrides or s.key in choices), name)
+    study = STUDIES.get(name)
+    if study is None:
+        return name, None
+    row = overrides.get(study.key) or choices.get(study.key) or study_cfg.get("row")
+    if row is None and study.key == "colorize.references":
+        row = ((config.get("colorize") or {}).get("references"))
+    return name, (None if row is None else str(row))
+
+
+def read_run(run: Path) -> dict[str, Any]:
+    """One flattened record of the run folder ``run`` (which must hold ``metrics.json``)."""
+    try:
+        metrics = json.loads((run / "metrics.json").read_text())
+    except json.JSONDecodeError as err:
+        raise DataError(f"{run / 'metrics.json'}: not valid JSON ({err.msg}, line {err.lineno})") from None
+    config = _read_yaml(run / "config.yaml") or _read_yaml(run / ".hydra" / "config.yaml") or {}
+    ovr = parse_overrides(_job_overrides(run, metrics))
+    study, row = identify(ovr, _choices(run), config)
+    rec: dict[str, Any] = {"run_dir": str(run), "study": study, "row": row,
+                           "seed": metrics.get("seed", config.get("seed")), "git": metrics.get("git")}
+    rec.update(ovr)
+    skip = {"overrides", "seed", "git"}
+    rec.update(flatten({k: v for k, v in metrics.items() if k not in skip}))
+    return rec
+
+
+def find_runs(paths: list[Path], exclude: Path | None = None) -> list[Path]:
+    """Every folder under ``paths`` holding ``metrics.json`` (sorted; ``exclude`` skipped)."""
+    runs = set()
+    for p in paths:
+        p = Path(p)
+        if not p.exists():
+            raise DataError(f"{p}: no such run or multirun folder")
+        for m in p.rglob("metrics.json"):
+            if exclude is not None and exclude.resolve() in m.resolve().parents:
+                continue
+            runs.add(m.parent)
+    return sorted(runs, key=lambda r: (str(r.parent), _numeric(r.name)))
+
+
+def _numeric(name: str) -> tuple:
+    return (0, int(name), "") if name.isdigit() else (1, 0, name)
+
+
+def expected_jobs(multirun_yaml: Path) -> list[list[str]]:
+    """The override lists of every job of a sweep, expanded as Hydra's basic sweeper does."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    cfg = _read_yaml(multirun_yaml) or {}
+    hydra_cfg = cfg.get("hydra") or {}
+    task = list(((hydra_cfg.get("overrides") or {}).get("task")) or [])
+    params = ((hydra_cfg.get("sweeper") or {}).get("params")) or {}
+    items = [f"{k}={v}" for k, v in params.items()] + task
+    parsed = OverridesParser.create().parse_overrides(items)
+    axes: dict[str, list[str]] = {}
+    for ov in parsed:  # later entries (command line) win over sweeper params, as in Hydra
+        key = ov.get_key_element()
+        axes[key] = ([f"{key}={v}" for v in ov.sweep_string_iterator()] if ov.is_sweep_override()
+                     else [f"{key}={ov.get_value_element_as_str()}"])
+    return [list(combo) for combo in itertools.product(*axes.values())]
+
+
+def _missing_in_sweep(sweep: Path, done_dirs: set[str]) -> list[MissingJob]:
+    """Jobs of the sweep at ``sweep`` that have no ``metrics.json``."""
+    present: dict[frozenset, Path] = {}
+    lists: dict[Path, list[str]] = {}
+    for sub in sorted(sweep.iterdir()):
+        ovr = _read_yaml(sub / ".hydra" / "overrides.yaml") if sub.is_dir() else None
+        if ovr is not None:
+            present[frozenset(parse_overrides(ovr).items())] = sub
+            lists[sub] = [str(o) for o in ovr]
+    try:
+        wanted = expected_jobs(sweep / "multirun.yaml")
+    except Exception:  # an unparsable sweep: fall back to the job folders alone
+        wanted = list(lists.values())
+    missing = []
+    for job in wanted:
+        key = frozenset(parse_overrides(job).items())
+        sub = present.get(key)
+        if sub is not None and str(sub) in done_dirs:
+            continue
+        study, row = identify(dict(key), {}, {})
+        ovr = list(job) if sub is None else lists[sub]
+        missing.append(MissingJob(str(sweep), ovr, None if sub is None else str(sub), study, row))
+    return missing
+
+
+def collect(paths: list[str | Path], exclude: Path | None = None) -> Collection:
+    """Collect every run under ``paths`` and the missing jobs of every sweep folder there."""
+    paths = [Path(p) for p in paths]
+    runs = find_runs(paths, exclude)
+    records = [read_run(r) for r in runs]
+    done = {str(r) for r in runs}
+    sweeps = sorted({m.parent for p in paths for m in p.rglob("multirun.yaml")})
+    missing = [m for s in sweeps for m in _missing_in_sweep(s, done)]
+    df = pd.DataFrame.from_records(records) if records else pd.DataFrame(
+        columns=["run_dir", "study", "row", "seed", "git"])
+    return Collection(df, missing)

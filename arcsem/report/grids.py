@@ -1,0 +1,161 @@
+"""Image grids (numpy + OpenCV): ground truth beside each row's render of the same view.
+
+Files read from a run folder (names as the trainer and the colouriser write them):
+
+- ``renders/test/<view>.png``        stage-1 render of a held-out view
+- ``renders/test/<view>_depth.png``  its depth visualisation
+- ``renders/test/<view>_gt.png``     ground-truth grey image (optional; else the dataset folder)
+- ``renders/test/<view>_depth_gt.png`` ground-truth depth visualisation (optional)
+- ``colored/<view>.png``             stage-2 coloured training view
+- ``colored/<view>_gt.png``          ground-truth colour (optional; else the dataset folder)
+
+Where a file is missing, the tile says "missing" instead of failing.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+__all__ = ["TILE_H", "read_image", "placeholder", "make_grid", "view_names", "gt_path", "study_grids"]
+
+TILE_H = 160          # tile height in pixels
+LABEL_H = 22          # height of the label band above each tile
+MAX_VIEWS = 3         # views shown per grid
+SUFFIXES = ("_depth", "_gt", "_depth_gt", "_normal", "_alpha")
+
+
+def read_image(path: Path | None) -> np.ndarray | None:
+    """``[H, W, 3]`` uint8 BGR image, or None if ``path`` is None/missing/unreadable."""
+    import cv2
+
+    if path is None or not Path(path).is_file():
+        return None
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        return None
+    if img.dtype != np.uint8:  # 16-bit depth PNGs: stretch to 8 bits
+        f = img.astype(np.float64)
+        img = ((f - f.min()) / max(f.max() - f.min(), 1e-12) * 255).astype(np.uint8)
+    if img.ndim == 2:
+        img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    elif img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    return img
+
+
+def placeholder(h: int, w: int, text: str = "missing") -> np.ndarray:
+    """``[h, w, 3]`` grey tile with ``text`` centred."""
+    import cv2
+
+    tile = np.full((h, w, 3), 200, np.uint8)
+    cv2.rectangle(tile, (0, 0), (w - 1, h - 1), (120, 120, 120), 1)
+    (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.5, 1)
+    cv2.putText(tile, text, ((w - tw) // 2, (h + th) // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (60, 60, 60), 1,
+                cv2.LINE_AA)
+    return tile
+
+
+def _fit(img: np.ndarray | None, h: int, w: int) -> np.ndarray:
+    import cv2
+
+    return placeholder(h, w) if img is None else cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+
+
+def _band(text: str, w: int) -> np.ndarray:
+    import cv2
+
+    band = np.full((LABEL_H, w, 3), 255, np.uint8)
+    cv2.putText(band, text[: max(1, w // 8)], (4, LABEL_H - 7), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1,
+                cv2.LINE_AA)
+    return band
+
+
+def make_grid(paths: list[list[Path | None]], col_labels: list[str], row_labels: list[str] | None = None,
+              tile_h: int = TILE_H) -> np.ndarray:
+    """``[R, C]`` image paths -> one uint8 BGR image; labels above columns and left of rows.
+
+    Every tile gets the aspect ratio of the first readable image (4:3 if none is readable).
+    """
+    imgs = [[read_image(p) for p in row] for row in paths]
+    first = next((i for row in imgs for i in row if i is not None), None)
+    w = int(round(tile_h * (4 / 3 if first is None else first.shape[1] / first.shape[0])))
+    rows = [np.concatenate([np.concatenate([_band(lbl, w), _fit(i, tile_h, w)], 0)
+                            for i, lbl in zip(row, col_labels)], 1) for row in imgs]
+    if row_labels:
+        rows = [np.concatenate([_side(lbl, r.shape[0]), r], 1) for lbl, r in zip(row_labels, rows)]
+    return np.concatenate(rows, 0)
+
+
+def _side(text: str, h: int, w: int = 90) -> np.ndarray:
+    import cv2
+
+    band = np.full((h, w, 3), 255, np.uint8)
+    cv2.putText(band, text[:12], (4, h // 2 + 5), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    return band
+
+
+def view_names(folder: Path, limit: int = MAX_VIEWS) -> list[str]:
+    """Up to ``limit`` view names with a ``<name>.png`` in ``folder`` (suffixed variants skipped)."""
+    if not folder.is_dir():
+        return []
+    names = sorted(p.stem for p in folder.glob("*.png") if not p.stem.endswith(SUFFIXES))
+    if len(names) <= limit:
+        return names
+    idx = np.linspace(0, len(names) - 1, limit).round().astype(int)
+    return [names[i] for i in idx]
+
+
+def _dataset_root(run: Path) -> Path | None:
+    try:
+        cfg = yaml.safe_load((run / "config.yaml").read_text()) or {}
+    except (FileNotFoundError, yaml.YAMLError):
+        return None
+    ds = cfg.get("dataset") or {}
+    root = next((ds.get(k) for k in ("root", "path", "dir") if isinstance(ds.get(k), str)), None)
+    return None if root is None else Path(root).expanduser()
+
+
+def gt_path(run: Path, name: str, kind: str) -> Path | None:
+    """Ground truth of view ``name`` (``kind``: gray | depth | color) written in the run or the dataset."""
+    local = {"gray": [f"renders/test/{name}_gt.png"], "depth": [f"renders/test/{name}_depth_gt.png"],
+             "color": [f"colored/{name}_gt.png", f"colored_gt/{name}.png"]}[kind]
+    cands = [run / p for p in local]
+    root = _dataset_root(run)
+    if root is not None:
+        sub = {"gray": ["test", "images", "."], "depth": ["depth", "depths"], "color": ["colors", "color"]}[kind]
+        cands += [root / s / f"{name}.png" for s in sub]
+    return next((c for c in cands if c.is_file()), None)
+
+
+def _write(img: np.ndarray, path: Path) -> Path:
+    import cv2
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), img)
+    return path
+
+
+def study_grids(study: str, runs: Mapping[str, Path], out: Path) -> list[tuple[str, Path]]:
+    """Grids of one study: ``runs`` maps row label -> one run folder. Returns ``[(title, png)]``."""
+    if not runs:
+        return []
+    labels, dirs = list(runs), [Path(d) for d in runs.values()]
+    grids = []
+    if study == "grayscale_comparison":
+        names = next((n for d in dirs if (n := view_names(d / "renders" / "test"))), [])
+        for kind, suffix, title in (("gray", "", "renders"), ("depth", "_depth", "depth maps")):
+            paths = [[gt_path(dirs[0], n, kind)] + [d / "renders" / "test" / f"{n}{suffix}.png" for d in dirs]
+                     for n in names]
+            if paths:
+                img = make_grid(paths, ["ground truth"] + labels, names)
+                grids.append((f"{study}: {title}", _write(img, out / f"{study}_{kind}.png")))
+    else:
+        names = next((n for d in dirs if (n := view_names(d / "colored"))), [])
+        paths = [[gt_path(dirs[0], n, "color")] + [d / "colored" / f"{n}.png" for d in dirs] for n in names]
+        if paths:
+            img = make_grid(paths, ["GT colour"] + labels, names)
+            grids.append((f"{study}: coloured views", _write(img, out / f"{study}_color.png")))
+    return grids

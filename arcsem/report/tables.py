@@ -1,0 +1,225 @@
+"""Per-study tables in the paper's layout: CSV (numbers), Markdown and LaTeX (booktabs).
+
+Rows follow the study's order; several runs of one row (seeds) are averaged and shown as
+``mean ± std``. The best value of each column is bold (max for PSNR/SSIM, min for LPIPS and depth
+error). NaN metrics print ``n/a`` and a note says why (e.g. LPIPS weights missing); rows whose
+jobs did not finish print ``missing`` and the notes list those jobs.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+from .collect import STUDIES, Collection, MissingJob
+
+__all__ = ["Column", "LAYOUTS", "PAPER_TABLE1", "Table", "build_table", "to_markdown", "to_latex",
+           "write_tables"]
+
+
+@dataclass(frozen=True)
+class Column:
+    group: str          # header above the column ("train views", "held-out", ...)
+    label: str          # "PSNR"
+    key: str            # flattened metrics key, e.g. "stage1.train.psnr"
+    best: str | None    # "max" | "min" | None (no bold)
+    digits: int
+
+
+def _ims(group: str, prefix: str) -> list[Column]:
+    return [Column(group, "PSNR", f"{prefix}.psnr", "max", 2), Column(group, "SSIM", f"{prefix}.ssim", "max", 3),
+            Column(group, "LPIPS", f"{prefix}.lpips", "min", 3)]
+
+
+PAPER_TABLE1 = {  # ArCSEM Table 1 (training views, 3072x2048, real pollen data), from METHOD.md
+    "plenoxels": (30.94, 0.855, 0.556), "gs3d": (37.50, 0.902, 0.461),
+    "gs2d": (35.25, 0.867, 0.511), "gs2d_act": (36.32, 0.890, 0.489),
+}
+PAPER_COLUMNS = [Column("paper Table 1", n, f"paper.{n.lower()}", b, d)
+                 for n, b, d in (("PSNR", "max", 2), ("SSIM", "max", 3), ("LPIPS", "min", 3))]
+
+LAYOUTS: dict[str, list[Column]] = {
+    "grayscale_comparison": _ims("train views", "stage1.train") + _ims("held-out", "stage1.test") + [
+        Column("depth", "err. %", "stage1.depth.median_abs_pct", "min", 2),
+        Column("depth", "err.", "stage1.depth.median_abs", "min", 4)] + PAPER_COLUMNS,
+    "colorization_ablation": _ims("non-ref. train views", "stage2.train_nonref") + _ims("held-out", "stage2.test"),
+    "reference_count": _ims("non-ref. train views", "stage2.train_nonref") + _ims("held-out", "stage2.test"),
+}
+ROW_HEADER = {"grayscale_comparison": "Model", "colorization_ablation": "Variant",
+              "reference_count": "References"}
+
+
+@dataclass
+class Table:
+    """A study's table: formatted cells (with bold flags), the numbers and the notes."""
+
+    study: str
+    columns: list[Column]
+    labels: list[str]
+    cells: list[list[tuple[str, bool]]]   # [row][col] -> (text, bold)
+    numbers: pd.DataFrame                 # CSV content
+    notes: list[str]
+
+
+def _fmt(mean: float, std: float, n: int, digits: int) -> str:
+    if n == 0 or math.isnan(mean):
+        return "n/a"
+    text = f"{mean:.{digits}f}"
+    return f"{text} ± {std:.{digits}f}" if n > 1 and not math.isnan(std) else text
+
+
+def _summary(df: pd.DataFrame, study: str, columns: list[Column], missing: list[MissingJob]) -> pd.DataFrame:
+    """One row per study row (in order): ``label``, ``n``, ``status`` and ``<key>``/``<key>.std``."""
+    spec = STUDIES[study]
+    present = set(df["row"].dropna()) | {m.row for m in missing if m.row}
+    order = [r for r in spec.rows if r in present] + sorted(present - set(spec.rows))
+    recs = []
+    for row in order:
+        sub = df[df["row"] == row]
+        n_miss = sum(1 for m in missing if m.row == row)
+        rec = {"row": row, "label": spec.rows.get(row, row), "n": len(sub),
+               "status": "ok" if not n_miss else ("missing" if sub.empty else f"{n_miss} job(s) missing")}
+        for c in columns:
+            if c.key.startswith("paper."):
+                vals = PAPER_TABLE1.get(row)
+                rec[c.key] = math.nan if vals is None else vals[["psnr", "ssim", "lpips"].index(c.key[6:])]
+                continue
+            vals = pd.to_numeric(sub[c.key], errors="coerce") if c.key in sub else pd.Series(dtype=float)
+            rec[c.key] = float(vals.mean()) if vals.notna().any() else math.nan
+            rec[f"{c.key}.std"] = float(vals.std(ddof=1)) if vals.notna().sum() > 1 else math.nan
+        recs.append(rec)
+    return pd.DataFrame.from_records(recs)
+
+
+def _distinct(df: pd.DataFrame, suffix: str) -> list[str]:
+    cols = [c for c in df.columns if c == suffix or c.endswith("." + suffix)]
+    return sorted({str(v) for c in cols for v in df[c].dropna()})
+
+
+def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Column],
+           missing: list[MissingJob]) -> list[str]:
+    notes = []
+    if study == "grayscale_comparison":
+        notes.append("train views: the paper's protocol (ACT per training image); held-out: test views "
+                     "rendered with the mean ACT; depth err.: median |depth - GT| inside the mask "
+                     "(% of the specimen diameter, and in scene units).")
+        notes.append("paper Table 1: ArCSEM's published numbers on real SEM data (32 views, 3072x2048); "
+                     "not the same scene as ours.")
+    else:
+        notes.append("non-ref. train views: training views that are not colour references; held-out: test "
+                     "views; metrics against ground-truth colour.")
+    lp = _distinct(df, "lpips_weights")
+    lp_nan = any(math.isnan(v) for c in columns if c.label == "LPIPS" and not c.key.startswith("paper.")
+                 for v in nums.get(c.key, []))
+    bad = [w for w in lp if not w.lower().startswith(("alex", "vgg", "squeeze"))]
+    if bad or (lp_nan and not lp):
+        notes.append("LPIPS: n/a: weights missing (" + "; ".join(bad or ["not recorded"]) + ").")
+    if lp:
+        good = [w for w in lp if w not in bad]
+        if good:
+            notes.append("LPIPS weights: " + ", ".join(good) + ".")
+    feats = _distinct(df, "features")
+    if study != "grayscale_comparison":
+        if "random" in feats:
+            notes.append("VGG features: RANDOM weights in some runs (ImageNet weights unavailable): TCM/CCM "
+                         "numbers are not the standard ones.")
+        notes.append("VGG weights (features): " + (", ".join(feats) if feats else "not recorded") + ".")
+    seeds = sorted({str(s) for s in df["seed"].dropna()}) if "seed" in df else []
+    if seeds:
+        notes.append(f"seeds: {', '.join(seeds)}; several runs per row are shown as mean ± std.")
+    for m in missing:
+        where = m.job_dir or f"{m.sweep_dir} (job never started)"
+        notes.append(f"missing job: {' '.join(m.overrides)} -- {where}")
+    return notes
+
+
+def build_table(coll: Collection, study: str) -> Table:
+    """The table of ``study`` from a :class:`Collection` (rows with neither runs nor missing jobs omitted)."""
+    df = coll.runs[coll.runs["study"] == study] if len(coll.runs) else coll.runs
+    missing = [m for m in coll.missing if m.study == study]
+    columns = [c for c in LAYOUTS[study] if c.key.startswith("paper.") or c.key in df.columns]
+    nums = _summary(df, study, columns, missing)
+    best = {}
+    for c in columns:
+        vals = nums[c.key].dropna() if len(nums) else pd.Series(dtype=float)
+        if c.best and len(vals):
+            best[c.key] = round(vals.max() if c.best == "max" else vals.min(), c.digits)
+    cells = []
+    for _, r in nums.iterrows():
+        row = []
+        for c in columns:
+            if r["status"] == "missing" and not c.key.startswith("paper."):
+                row.append(("missing", False))
+                continue
+            mean, std = r[c.key], r.get(f"{c.key}.std", math.nan)
+            n = 1 if c.key.startswith("paper.") else int(r["n"])
+            bold = c.key in best and not math.isnan(mean) and round(mean, c.digits) == best[c.key]
+            row.append((_fmt(mean, std, n, c.digits), bold))
+        cells.append(row)
+    notes = _notes(study, df, nums, columns, missing)
+    return Table(study, columns, list(nums["label"]) if len(nums) else [], cells, nums, notes)
+
+
+def to_markdown(t: Table) -> str:
+    """GitHub Markdown: a header row ``group label`` per column, bold as ``**x**``, notes below."""
+    head = [ROW_HEADER.get(t.study, "Row")] + [f"{c.label} ({c.group})" for c in t.columns]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" + "---:|" * len(t.columns)]
+    for label, row in zip(t.labels, t.cells):
+        lines.append("| " + " | ".join([label] + [f"**{x}**" if b else x for x, b in row]) + " |")
+    notes = [f"{i}. {n}" for i, n in enumerate(t.notes, 1)]
+    return f"### {t.study}\n\n" + "\n".join(lines) + "\n\nNotes:\n\n" + "\n".join(notes) + "\n"
+
+
+_TEX = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "_": r"\_", "#": r"\#", "$": r"\$",
+        "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\^{}", "±": r"$\pm$",
+        "|": r"\textbar{}", "<": r"\textless{}", ">": r"\textgreater{}"}
+
+
+def _tex(text: str) -> str:
+    """``text`` with LaTeX's special characters escaped (one pass, so escapes are not re-escaped)."""
+    return "".join(_TEX.get(ch, ch) for ch in str(text)).replace("--", "-{}-")
+
+
+def to_latex(t: Table) -> str:
+    """A booktabs table with grouped headers (``\\cmidrule``), ``\\textbf`` best values, notes in the caption."""
+    groups: list[tuple[str, int]] = []
+    for c in t.columns:
+        if groups and groups[-1][0] == c.group:
+            groups[-1] = (c.group, groups[-1][1] + 1)
+        else:
+            groups.append((c.group, 1))
+    top, rules, start = [""], [], 2
+    for g, n in groups:
+        top.append(rf"\multicolumn{{{n}}}{{c}}{{{_tex(g)}}}")
+        rules.append(rf"\cmidrule(lr){{{start}-{start + n - 1}}}")
+        start += n
+    head = [_tex(ROW_HEADER.get(t.study, "Row"))] + [_tex(c.label) for c in t.columns]
+    body = []
+    for label, row in zip(t.labels, t.cells):
+        cells = [rf"\textbf{{{_tex(x)}}}" if b else _tex(x) for x, b in row]
+        body.append(" & ".join([_tex(label)] + cells) + r" \\")
+    caption = _tex(t.study.replace("_", " ")) + ". " + " ".join(_tex(n) for n in t.notes)
+    return "\n".join([
+        r"\begin{table}[t]", r"\centering", r"\small",
+        r"\begin{tabular}{l" + "r" * len(t.columns) + "}", r"\toprule",
+        " & ".join(top) + r" \\", " ".join(rules), " & ".join(head) + r" \\", r"\midrule",
+        *body, r"\bottomrule", r"\end{tabular}",
+        rf"\caption{{{caption}}}", rf"\label{{tab:{t.study}}}", r"\end{table}", ""])
+
+
+def write_tables(coll: Collection, out: Path) -> dict[str, Table]:
+    """Write ``<study>.csv|.md|.tex`` for every study found, and ``all_runs.csv``; returns the tables."""
+    out.mkdir(parents=True, exist_ok=True)
+    coll.runs.to_csv(out / "all_runs.csv", index=False)
+    studies = {s for s in coll.runs.get("study", pd.Series(dtype=str)).dropna()} | {
+        m.study for m in coll.missing if m.study}
+    tables = {}
+    for study in [s for s in LAYOUTS if s in studies]:
+        t = build_table(coll, study)
+        t.numbers.to_csv(out / f"{study}.csv", index=False)
+        (out / f"{study}.md").write_text(to_markdown(t))
+        (out / f"{study}.tex").write_text(to_latex(t))
+        tables[study] = t
+    return tables

@@ -1,0 +1,132 @@
+"""Stage-1 model sharing: one content-addressed cache folder per stage-1 configuration.
+
+Several stage-2 jobs of a sweep (the ablations, the reference counts) need the same stage-1 model.
+Each asks :func:`stage1_dir` for the folder keyed by a hash of the stage-1-relevant config
+(``dataset``, ``backbone``, ``act``, ``train``, ``seed`` and the package version), takes
+:func:`stage1_lock` on it, trains only if the folder holds no finished model, and marks it done.
+Parallel jobs (joblib, submitit) block on the lock instead of training twice::
+
+    path = stage1_dir(cfg)
+    with stage1_lock(path):
+        if not is_done(path):
+            train_stage1(cfg, out=path)      # writes the checkpoint into ``path``
+            mark_done(path)
+    model = load(path)
+
+or, in one call, ``ensure_stage1(cfg, train_fn)``.
+
+Cache root: ``cfg.cache_dir`` if set, else ``$ARCSEM_CACHE``, else ``~/.cache/arcsem``. Delete
+``<root>/stage1`` to force retraining (the key does not contain the source code, only the version).
+"""
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import hashlib
+import json
+import os
+from collections.abc import Callable, Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+__all__ = ["STAGE1_KEYS", "cache_root", "stage1_key", "stage1_dir", "stage1_lock", "is_done",
+           "mark_done", "ensure_stage1"]
+
+STAGE1_KEYS = ("dataset", "backbone", "act", "train", "seed")
+"""Top-level config keys that determine the stage-1 model (absent keys hash as ``None``)."""
+
+DONE_FILE = "DONE"
+LOCK_FILE = ".lock"
+
+
+def _plain(cfg: Any) -> Any:
+    """A DictConfig/dict as plain containers, interpolations resolved where possible."""
+    try:
+        from omegaconf import DictConfig, ListConfig, OmegaConf
+    except ImportError:  # pragma: no cover - omegaconf is a dependency
+        return cfg
+    if isinstance(cfg, (DictConfig, ListConfig)):
+        try:
+            return OmegaConf.to_container(cfg, resolve=True)
+        except Exception:  # e.g. ${hydra:...} outside a Hydra app: hash the unresolved text
+            return OmegaConf.to_container(cfg, resolve=False)
+    return cfg
+
+
+def cache_root(cfg: Mapping | None = None) -> Path:
+    """The cache root: ``cfg.cache_dir``, ``$ARCSEM_CACHE`` or ``~/.cache/arcsem`` (first set)."""
+    root = None
+    if cfg is not None:
+        root = _plain(cfg).get("cache_dir") if hasattr(cfg, "get") else None
+    root = root or os.environ.get("ARCSEM_CACHE") or "~/.cache/arcsem"
+    return Path(str(root)).expanduser()
+
+
+def stage1_key(cfg: Mapping) -> str:
+    """Hex digest (16 chars) of the stage-1-relevant part of ``cfg`` (order of keys irrelevant)."""
+    from arcsem import __version__
+
+    plain = _plain(cfg)
+    part = {k: plain.get(k) for k in STAGE1_KEYS}
+    part["arcsem_version"] = __version__
+    text = json.dumps(part, sort_keys=True, default=str, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def stage1_dir(cfg: Mapping, create: bool = True) -> Path:
+    """``<cache root>/stage1/<stage1_key(cfg)>/``; created with a ``key.json`` describing it."""
+    path = cache_root(cfg) / "stage1" / stage1_key(cfg)
+    if create:
+        path.mkdir(parents=True, exist_ok=True)
+        desc = path / "key.json"
+        if not desc.exists():
+            plain = _plain(cfg)
+            tmp = desc.with_suffix(f".tmp{os.getpid()}")
+            tmp.write_text(json.dumps({k: plain.get(k) for k in STAGE1_KEYS}, indent=2, default=str))
+            os.replace(tmp, desc)
+    return path
+
+
+@contextlib.contextmanager
+def stage1_lock(path: str | os.PathLike) -> Iterator[Path]:
+    """Exclusive ``fcntl.flock`` on ``path/.lock``; blocks until no other process holds it.
+
+    The lock is released when the block ends, also on exceptions or if the process dies.
+    """
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    with open(path / LOCK_FILE, "a+") as fh:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
+        try:
+            yield path
+        finally:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+
+
+def is_done(path: str | os.PathLike) -> bool:
+    """True when a finished stage-1 model was marked in ``path``."""
+    return (Path(path) / DONE_FILE).exists()
+
+
+def mark_done(path: str | os.PathLike, info: Mapping | None = None) -> None:
+    """Mark ``path`` as holding a finished model (atomic write of ``DONE`` with optional info)."""
+    path = Path(path)
+    tmp = path / f"{DONE_FILE}.tmp{os.getpid()}"
+    tmp.write_text(json.dumps(dict(info or {}), default=str))
+    os.replace(tmp, path / DONE_FILE)
+
+
+def ensure_stage1(cfg: Mapping, train_fn: Callable[[Path], Any]) -> tuple[Path, bool]:
+    """Train stage 1 into its shared folder unless done; returns ``(path, trained_here)``.
+
+    ``train_fn(path)`` must write the model into ``path``; it runs at most once per key across all
+    processes sharing the cache (others wait on the lock, then reuse). A failed ``train_fn``
+    leaves the folder unmarked so the next job retries.
+    """
+    path = stage1_dir(cfg)
+    with stage1_lock(path):
+        if is_done(path):
+            return path, False
+        train_fn(path)
+        mark_done(path, {"pid": os.getpid()})
+        return path, True

@@ -1,0 +1,217 @@
+"""arcsem.report: tables (CSV/Markdown/LaTeX), missing jobs, grids and the HTML page, on fake run folders.
+
+The run folders built here are fixtures shaped like what ``arcsem`` writes (metrics.json,
+config.yaml, .hydra/overrides.yaml, multirun.yaml, renders/, colored/), not mocks of the product.
+"""
+from __future__ import annotations
+
+import json
+import math
+from html.parser import HTMLParser
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from arcsem.report import build_report
+from arcsem.report.collect import collect, expected_jobs, parse_overrides
+from arcsem.report.tables import build_table, to_latex, to_markdown, write_tables
+
+GRAY = {  # variant -> (train psnr, ssim, lpips, test psnr, depth pct)
+    "plenoxels": (30.0, 0.80, 0.50, 28.0, 2.0),
+    "gs3d": (33.5, 0.90, 0.40, 31.0, 1.5),
+    "gs2d": (33.0, 0.88, 0.45, 30.5, 0.8),
+    "gs2d_act": (34.0, 0.89, 0.42, 31.5, 0.9),
+}
+
+
+def _png(path: Path, value: int, shape=(12, 16, 3)) -> None:
+    import cv2
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), np.full(shape, value, np.uint8))
+
+
+def _job(sweep: Path, num: int, overrides: list[str], metrics: dict | None, seed: int = 0) -> Path:
+    job = sweep / str(num)
+    (job / ".hydra").mkdir(parents=True)
+    (job / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(overrides))
+    if metrics is not None:
+        (job / "config.yaml").write_text(yaml.safe_dump({"seed": seed, "dataset": {"name": "synthetic"}}))
+        full = {"seed": seed, "git": "abc123", "overrides": overrides, **metrics}
+        (job / "metrics.json").write_text(json.dumps(full))
+    return job
+
+
+def _sweep(root: Path, experiment: str, key: str, values: list[str]) -> Path:
+    root.mkdir(parents=True)
+    multirun = {"hydra": {"sweeper": {"params": {key: ",".join(values)}},
+                          "overrides": {"task": [f"experiment={experiment}"]}}, "seed": 0}
+    (root / "multirun.yaml").write_text(yaml.safe_dump(multirun))
+    return root
+
+
+def _stage1(psnr, ssim, lpips, tpsnr, pct, lpips_note="alexnet v0.1"):
+    return {"stage1": {"train": {"psnr": psnr, "ssim": ssim, "lpips": lpips},
+                       "test": {"psnr": tpsnr, "ssim": ssim - 0.01, "lpips": lpips + 0.01},
+                       "depth": {"median_abs": pct / 100, "median_abs_pct": pct},
+                       "steps": 100, "time_s": 1.0, "num_primitives": 1000, "lpips_weights": lpips_note}}
+
+
+@pytest.fixture
+def gray_sweep(tmp_path: Path) -> Path:
+    """grayscale_comparison: 4 jobs, job 3 (gs2d_act) interrupted (folder, no metrics)."""
+    sweep = _sweep(tmp_path / "gray", "grayscale_comparison", "variant", list(GRAY))
+    for i, v in enumerate(GRAY):
+        done = v != "gs2d_act"
+        job = _job(sweep, i, ["experiment=grayscale_comparison", f"variant={v}"],
+                   _stage1(*GRAY[v]) if done else None)
+        if done:
+            _png(job / "renders/test/r_000.png", 40 * i)
+            _png(job / "renders/test/r_000_depth.png", 40 * i + 10)
+            (job / "videos").mkdir()
+            (job / "videos" / "turntable.mp4").write_bytes(b"\x00\x00\x00\x18ftypmp42")
+    _png(sweep / "0/renders/test/r_000_gt.png", 255)
+    return sweep
+
+
+@pytest.fixture
+def ref_sweep(tmp_path: Path) -> Path:
+    """reference_count with two seeds for 'five', NaN LPIPS everywhere, 'one' never started."""
+    sweep = _sweep(tmp_path / "refs", "reference_count", "colorize.references", ["five", "two", "one"])
+    psnr = {"five": [26.0, 27.0], "two": [24.0]}
+    num = 0
+    for refs, vals in psnr.items():
+        for seed, p in enumerate(vals):
+            m = {"stage2": {"train_nonref": {"psnr": p, "ssim": 0.9, "lpips": None},
+                            "test": {"psnr": p - 1, "ssim": 0.85, "lpips": math.nan},
+                            "features": "random", "references": refs,
+                            "lpips_weights": "missing: alexnet-owt-7be5be79.pth not in torch hub cache"}}
+            job = _job(sweep, num, ["experiment=reference_count", f"colorize.references={refs}",
+                                    f"seed={seed}"], m, seed)
+            _png(job / "colored/r_001.png", 100 + num)
+            num += 1
+    # the multirun sweeps two seeds for 'five' only through separate jobs; declare what was expected
+    multirun = yaml.safe_load((sweep / "multirun.yaml").read_text())
+    multirun["hydra"]["sweeper"]["params"] = {"colorize.references": "five,two,one", "seed": "0,1"}
+    (sweep / "multirun.yaml").write_text(yaml.safe_dump(multirun))
+    return sweep
+
+
+def test_parse_and_expand_overrides(ref_sweep):
+    assert parse_overrides(["+variant=gs2d", "~foo=1", "a.b=x=y"]) == {"variant": "gs2d", "foo": "1", "a.b": "x=y"}
+    jobs = expected_jobs(ref_sweep / "multirun.yaml")
+    assert len(jobs) == 6  # 3 reference sets x 2 seeds
+    assert ["colorize.references=one", "seed=1", "experiment=reference_count"] in jobs
+
+
+def test_collect_flattens_and_lists_missing(gray_sweep):
+    coll = collect([gray_sweep])
+    df = coll.runs
+    assert sorted(df["row"]) == ["gs2d", "gs3d", "plenoxels"]
+    assert set(df["study"]) == {"grayscale_comparison"}
+    row = df[df["row"] == "gs3d"].iloc[0]
+    assert row["stage1.train.psnr"] == 33.5 and row["stage1.depth.median_abs_pct"] == 1.5
+    assert row["git"] == "abc123" and row["variant"] == "gs3d"
+    assert len(coll.missing) == 1
+    miss = coll.missing[0]
+    assert miss.row == "gs2d_act" and miss.job_dir.endswith("/3") and "variant=gs2d_act" in miss.overrides
+
+
+def test_grayscale_table_bold_paper_and_missing(gray_sweep, tmp_path):
+    t = build_table(collect([gray_sweep]), "grayscale_comparison")
+    assert t.labels == ["Plenoxels", "3DGS", "2DGS", "2DGS + ACT"]
+    md = to_markdown(t)
+    lines = {ln.split("|")[1].strip(): ln for ln in md.splitlines() if ln.startswith("| ")}
+    # best train PSNR 33.50 (3DGS) and SSIM 0.900 bold; best LPIPS 0.400 (min) bold; depth best 0.80 (2DGS)
+    assert "**33.50**" in lines["3DGS"] and "**0.900**" in lines["3DGS"] and "**0.400**" in lines["3DGS"]
+    assert "**0.80**" in lines["2DGS"] and "30.00" in lines["Plenoxels"] and "**30.00**" not in md
+    # the paper's Table 1 beside ours, its best (3DGS 37.50) in bold; the missing row says so
+    assert "**37.50**" in lines["3DGS"] and "36.32" in lines["2DGS + ACT"]
+    assert lines["2DGS + ACT"].count("missing") == 8  # 3 train + 3 held-out + 2 depth; paper cells kept
+    assert any("missing job: experiment=grayscale_comparison variant=gs2d_act" in n for n in t.notes)
+    assert any("LPIPS weights: alexnet v0.1" in n for n in t.notes)
+    tex = to_latex(t)
+    assert r"\toprule" in tex and r"\midrule" in tex and r"\bottomrule" in tex
+    assert r"\textbf{33.50}" in tex and r"\textbf{0.400}" in tex and r"\textbf{30.00}" not in tex
+    assert r"\multicolumn{3}{c}{train views}" in tex and r"2DGS + ACT & missing" in tex
+    assert "grayscale\\_comparison" in tex  # escaped underscore in the caption
+
+
+def test_nan_lpips_na_mean_std_and_features(ref_sweep, tmp_path):
+    out = tmp_path / "out"
+    tables = write_tables(collect([ref_sweep]), out)
+    t = tables["reference_count"]
+    md = (out / "reference_count.md").read_text()
+    lines = {ln.split("|")[1].strip(): ln for ln in md.splitlines() if ln.startswith("| ")}
+    assert t.labels == ["5", "2", "1"]
+    # two seeds of 'five': mean 26.50, sample std 0.71; best mean in bold
+    assert "**26.50 ± 0.71**" in lines["5"] and "24.00" in lines["2"]
+    cells = [c.strip() for c in lines["5"].split("|")[2:-1]]
+    assert cells[2] == "n/a" and cells[5] == "n/a"  # LPIPS train / held-out
+    assert lines["1"].count("missing") == 6
+    assert "LPIPS: n/a: weights missing (missing: alexnet-owt-7be5be79.pth not in torch hub cache)" in md
+    assert "VGG weights (features): random." in md and "RANDOM weights" in md
+    assert md.count("missing job:") == 3  # five/seed=1 is done; two/seed=1, one/seed=0, one/seed=1 are not
+    csv = pd.read_csv(out / "reference_count.csv")
+    five = csv[csv["row"] == "five"].iloc[0]
+    assert five["n"] == 2 and abs(five["stage2.train_nonref.psnr"] - 26.5) < 1e-12
+    assert abs(five["stage2.train_nonref.psnr.std"] - math.sqrt(0.5)) < 1e-12
+    assert math.isnan(five["stage2.test.lpips"])
+    assert csv[csv["row"] == "one"].iloc[0]["status"] == "missing"
+    assert (out / "all_runs.csv").is_file() and (out / "reference_count.tex").is_file()
+
+
+class _Refs(HTMLParser):
+    def __init__(self):
+        super().__init__()
+        self.refs, self.tags = [], []
+
+    def handle_starttag(self, tag, attrs):
+        self.tags.append(tag)
+        for name, value in attrs:
+            if (tag, name) in {("img", "src"), ("video", "src"), ("a", "href"), ("source", "src")}:
+                self.refs.append(value)
+
+
+def test_html_page_links_exist_and_grids(gray_sweep, ref_sweep, tmp_path):
+    out = tmp_path / "report"
+    page = build_report([gray_sweep, ref_sweep], out)
+    parser = _Refs()
+    parser.feed(page.read_text())
+    parser.close()
+    assert parser.tags.count("table") == 2 and parser.tags.count("video") == 3
+    files = [r for r in parser.refs if not r.startswith("#")]
+    assert any(r.endswith(".png") for r in files) and any(r.endswith(".mp4") for r in files)
+    for ref in files:
+        assert not ref.startswith(("/", "http")), ref
+        assert (out / ref).is_file(), ref
+    # grid: 1 view row, columns GT + 4 rows of the table (gs2d_act has no run -> not a column)
+    import cv2
+
+    grid = cv2.imread(str(out / "grids" / "grayscale_comparison_gray.png"))
+    assert grid.shape[0] == 160 + 22
+    tile_w = round(160 * 16 / 12)
+    assert grid.shape[1] == 90 + 4 * tile_w
+    # ground truth tile (white, 255) then the plenoxels render (value 0)
+    assert grid[22 + 80, 90 + tile_w // 2, 0] == 255 and grid[22 + 80, 90 + tile_w + tile_w // 2, 0] == 0
+    color = cv2.imread(str(out / "grids" / "reference_count_color.png"))
+    # no ground-truth colour in these runs: the first tile is the grey 'missing' placeholder
+    assert color[22 + 5, 90 + 5, 0] == 200
+
+
+def test_cli_default_out_and_error(gray_sweep, tmp_path, capsys):
+    from arcsem.cli.report import main
+
+    assert main([str(gray_sweep)]) == 0
+    assert (gray_sweep / "report" / "index.html").is_file()
+    assert (gray_sweep / "report" / "grayscale_comparison.md").is_file()
+    # a second report does not pick up its own output folder
+    (gray_sweep / "report" / "stale.mp4").write_bytes(b"x")
+    assert main([str(gray_sweep)]) == 0
+    assert len(pd.read_csv(gray_sweep / "report" / "all_runs.csv")) == 3
+    assert not list((gray_sweep / "report" / "videos").rglob("*stale*"))
+    assert main([str(tmp_path / "nope")]) == 2
+    assert "no such run or multirun folder" in capsys.readouterr().err

@@ -29,8 +29,16 @@ from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-__all__ = ["STAGE1_KEYS", "cache_root", "stage1_key", "stage1_dir", "stage1_lock", "is_done",
-           "mark_done", "ensure_stage1"]
+__all__ = [
+    "STAGE1_KEYS",
+    "cache_root",
+    "ensure_stage1",
+    "is_done",
+    "mark_done",
+    "stage1_dir",
+    "stage1_key",
+    "stage1_lock",
+]
 
 STAGE1_KEYS = ("dataset", "backbone", "act", "train", "seed")
 """Top-level config keys that determine the stage-1 model (absent keys hash as ``None``)."""
@@ -43,12 +51,13 @@ def _plain(cfg: Any) -> Any:
     """A DictConfig/dict as plain containers, interpolations resolved where possible."""
     try:
         from omegaconf import DictConfig, ListConfig, OmegaConf
+        from omegaconf.errors import OmegaConfBaseException
     except ImportError:  # pragma: no cover - omegaconf is a dependency
         return cfg
     if isinstance(cfg, (DictConfig, ListConfig)):
         try:
             return OmegaConf.to_container(cfg, resolve=True)
-        except Exception:  # e.g. ${hydra:...} outside a Hydra app: hash the unresolved text
+        except (OmegaConfBaseException, ValueError):  # e.g. ${hydra:...} outside a Hydra app: hash the unresolved text
             return OmegaConf.to_container(cfg, resolve=False)
     return cfg
 

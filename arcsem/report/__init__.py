@@ -28,12 +28,11 @@ def build_report(paths: list[str | Path], out: str | Path | None = None) -> Path
 
     Returns the path of ``index.html``.
     """
+    from ..errors import DataError
     from .collect import collect
     from .grids import study_grids
     from .html import copy_videos, write_page
     from .tables import write_tables
-
-    from ..errors import DataError
 
     paths = [Path(p) for p in paths]
     for p in paths:

@@ -20,11 +20,21 @@ from typing import Any
 
 import pandas as pd
 import yaml
+from hydra.errors import OverrideParseException
 
 from ..errors import DataError
 
-__all__ = ["STUDIES", "Study", "MissingJob", "Collection", "collect", "find_runs", "flatten",
-           "parse_overrides", "expected_jobs"]
+__all__ = [
+    "STUDIES",
+    "Collection",
+    "MissingJob",
+    "Study",
+    "collect",
+    "expected_jobs",
+    "find_runs",
+    "flatten",
+    "parse_overrides",
+]
 
 
 @dataclass(frozen=True)
@@ -192,7 +202,7 @@ def _missing_in_sweep(sweep: Path, done_dirs: set[str]) -> list[MissingJob]:
             lists[sub] = [str(o) for o in ovr]
     try:
         wanted = expected_jobs(sweep / "multirun.yaml")
-    except Exception:  # an unparsable sweep: fall back to the job folders alone
+    except (OverrideParseException, DataError, AttributeError, TypeError, ValueError):  # an unparsable sweep: fall back to the job folders alone
         wanted = list(lists.values())
     missing = []
     for job in wanted:

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-__all__ = ["TILE_H", "read_image", "placeholder", "make_grid", "view_names", "gt_path", "study_grids"]
+__all__ = ["TILE_H", "gt_path", "make_grid", "placeholder", "read_image", "study_grids", "view_names"]
 
 TILE_H = 160          # tile height in pixels
 LABEL_H = 22          # height of the label band above each tile
@@ -81,7 +81,7 @@ def make_grid(paths: list[list[Path | None]], col_labels: list[str], row_labels:
     """
     imgs = [[read_image(p) for p in row] for row in paths]
     first = next((i for row in imgs for i in row if i is not None), None)
-    w = int(round(tile_h * (4 / 3 if first is None else first.shape[1] / first.shape[0])))
+    w = round(tile_h * (4 / 3 if first is None else first.shape[1] / first.shape[0]))
     rows = [np.concatenate([np.concatenate([_band(lbl, w), _fit(i, tile_h, w)], 0)
                             for i, lbl in zip(row, col_labels)], 1) for row in imgs]
     if row_labels:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from .tables import ROW_HEADER, Table
 
-__all__ = ["render_table", "copy_videos", "write_page"]
+__all__ = ["copy_videos", "render_table", "write_page"]
 
 STYLE = """body{font-family:sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;color:#222}
 table{border-collapse:collapse;margin:1em 0}th,td{padding:3px 8px;border-bottom:1px solid #ccc}
@@ -55,7 +55,7 @@ def copy_videos(study: str, runs: dict[str, Path], out: Path) -> list[tuple[str,
 
 def _section(t: Table, grids: list[tuple[str, Path]], videos: list[tuple[str, Path]], out: Path) -> str:
     e = html.escape
-    rel = lambda p: e(Path(p).relative_to(out).as_posix())  # noqa: E731
+    rel = lambda p: e(Path(p).relative_to(out).as_posix())
     links = " · ".join(f'<a href="{e(t.study)}.{ext}">{ext.upper()}</a>' for ext in ("csv", "md", "tex"))
     parts = [f'<h2 id="{e(t.study)}">{e(t.study.replace("_", " "))}</h2>', render_table(t),
              '<ol class="notes">' + "".join(f"<li>{e(n)}</li>" for n in t.notes) + "</ol>",
@@ -74,8 +74,9 @@ def write_page(out: Path, tables: dict[str, Table], grids: dict[str, list[tuple[
     e = html.escape
     when = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     toc = " · ".join(f'<a href="#{e(s)}">{e(s)}</a>' for s in tables) or "no study found"
-    body = [f"<h1>arcsem report</h1><p>{n_runs} run(s) from {e(', '.join(sources))}; generated {when}. "
-            f'All runs: <a href="all_runs.csv">all_runs.csv</a>.</p><p>{toc}</p>']
+    head = (f"<h1>arcsem report</h1><p>{n_runs} run(s) from {e(', '.join(sources))}; generated {when}. "
+            f'All runs: <a href="all_runs.csv">all_runs.csv</a>.</p><p>{toc}</p>')
+    body = [head]
     body += [_section(t, grids.get(s, []), videos.get(s, []), out) for s, t in tables.items()]
     page = ("<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>arcsem report</title>"
             f"<style>{STYLE}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")

@@ -15,8 +15,16 @@ import pandas as pd
 
 from .collect import STUDIES, Collection, MissingJob
 
-__all__ = ["Column", "LAYOUTS", "PAPER_TABLE1", "Table", "build_table", "to_markdown", "to_latex",
-           "write_tables"]
+__all__ = [
+    "LAYOUTS",
+    "PAPER_TABLE1",
+    "Column",
+    "Table",
+    "build_table",
+    "to_latex",
+    "to_markdown",
+    "write_tables",
+]
 
 
 @dataclass(frozen=True)

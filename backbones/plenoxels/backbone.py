@@ -1,0 +1,296 @@
+"""The ``plenoxels`` backbone: a sparse SH voxel grid trained on random ray batches (svox2 in PyTorch).
+
+Defaults are the paper's (ArCSEM: 128^3 growing to 304x304x128, 38,400 steps per resolution) and
+svox2's (batch 5000 rays, RMSProp beta 0.95, exponential lr decay, init sigma 0.1, SH 0, TV on 1%
+of the voxels). Optimisers are built from :meth:`Plenoxels.param_groups`; :meth:`make_optimizers`
+and :meth:`update_learning_rates` implement svox2's settings for a trainer that wants them.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from ...errors import ConfigError
+from ...plugins import BACKBONES, Backbone
+from .grid import build_index, cell_occupancy, occupied_coords
+from .render import GridData, render_grid
+from .tv import random_rows, tv_sparse
+from .upsample import max_weights, prune, resample
+
+__all__ = ["Plenoxels", "expon_lr"]
+
+
+def expon_lr(step: int, lr_init: float, lr_final: float, max_steps: int, delay_steps: int = 0,
+             delay_mult: float = 1.0) -> float:
+    """svox2's schedule: log-linear from ``lr_init`` to ``lr_final`` over ``max_steps``, with a sine warm-up."""
+    t = min(max(step / max(max_steps, 1), 0.0), 1.0)
+    lr = math.exp(math.log(lr_init) * (1 - t) + math.log(lr_final) * t)
+    if delay_steps > 0:
+        lr *= delay_mult + (1 - delay_mult) * math.sin(0.5 * math.pi * min(max(step / delay_steps, 0.0), 1.0))
+    return lr
+
+
+@BACKBONES.register("plenoxels")
+class Plenoxels(Backbone):
+    """Sparse voxel grid of density ``[M]`` and SH ``[M, K, 3]`` with an index volume ``[X, Y, Z]``."""
+
+    provides = frozenset({"rgb", "alpha", "depth", "tv"})
+    batch_mode = "rays"
+
+    @dataclass
+    class Config:
+        reso: list[list[int]] = field(default_factory=lambda: [[128, 128, 128], [256, 256, 128], [304, 304, 128]])
+        """Grid resolutions of the coarse-to-fine schedule. Paper: 128^3 up to 304x304x128 in 3 stages
+        (115,200 steps = 3 x 38,400); the middle resolution is not given in the paper (our choice)."""
+        upsample_every: int = 38400
+        """Steps per resolution (paper: 38,400)."""
+        sh_degree: int = 2
+        """SH degree (svox2: 2, 9 coefficients per channel)."""
+        init_sigma: float = 0.1
+        """Initial density (svox2), in 1 / normalised length (the box's longest half-side = 1)."""
+        init_sh: float = 0.0
+        """Initial SH coefficients (svox2: 0, i.e. grey 0.5)."""
+        step_size: float = 0.5
+        """Ray-marching step in voxels (svox2: 0.5)."""
+        stop_thresh: float = 1e-4
+        """Early stop: samples with transmittance below this are masked (svox2: 1e-4 ... 1e-7)."""
+        background: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+        """Background colour (SEM: black)."""
+        batch_size: int = 5000
+        """Rays per training step (svox2)."""
+        optimizer: str = "rmsprop"
+        """svox2 uses RMSProp for density and SH."""
+        rms_beta: float = 0.95
+        rms_eps: float = 1e-8
+        lr_sigma: float = 3e1
+        lr_sigma_final: float = 5e-2
+        lr_sigma_decay_steps: int = 250000
+        lr_sigma_delay_steps: int = 15000
+        lr_sigma_delay_mult: float = 1e-2
+        lr_sh: float = 1e-2
+        lr_sh_final: float = 5e-6
+        lr_sh_decay_steps: int = 250000
+        lr_sh_delay_steps: int = 0
+        lr_sh_delay_mult: float = 1e-2
+        lambda_tv: float = 1e-5
+        """TV weight on density (svox2 range 1e-5 .. 5e-3)."""
+        lambda_tv_sh: float = 1e-3
+        """TV weight on SH (svox2 range 1e-3 .. 5e-3)."""
+        tv_sparse_frac: float = 0.01
+        """Fraction of stored voxels on which TV is evaluated each step."""
+        tv_eps: float = 1e-5
+        prune: str = "weight"
+        """After each upsample: "weight" (svox2: max rendering weight over training rays), "density", "none"."""
+        prune_weight_thresh: float = 0.256
+        """svox2: 0.0005 * 512, divided by the new z resolution."""
+        prune_density_thresh: float = 5.0
+        prune_dilate: int = 2
+        prune_image_scale: float = 0.25
+        """Training views are rendered at this scale to find the max weights (CPU budget)."""
+        chunk: int = 8192
+        """Rays per chunk when rendering whole images."""
+
+    def __init__(self, cfg: Any, scene: Any = None, act: Any = None, **runtime: Any):
+        super().__init__(cfg, scene)
+        self._check_config(cfg)
+        bounds = scene.bounds.float() if scene is not None else torch.tensor([[-1.0] * 3, [1.0] * 3])
+        self.register_buffer("bounds", bounds.clone())
+        self.register_buffer("level", torch.tensor(0))
+        reso = list(cfg.reso[0])
+        index = build_index(torch.ones(reso, dtype=torch.bool))
+        self.register_buffer("index", index)
+        m, k = int(index.numel()), (cfg.sh_degree + 1) ** 2
+        self.density = nn.Parameter(torch.full((m,), float(cfg.init_sigma)))
+        self.sh = nn.Parameter(torch.full((m, k, 3), float(cfg.init_sh)))
+        self.__dict__["act"] = act  # owned (and checkpointed) by the trainer, not a submodule
+        self.__dict__["_train_cams"] = scene.train.cameras if scene is not None else None
+        self._cache: dict[str, Tensor] = {}
+
+    @staticmethod
+    def _check_config(cfg: Any) -> None:
+        if not cfg.reso or any(len(r) != 3 or min(r) < 2 for r in cfg.reso):
+            raise ConfigError(f"backbone 'plenoxels': reso must be a list of [X, Y, Z] with sides >= 2, got {cfg.reso}")
+        if not 0 <= cfg.sh_degree <= 3:
+            raise ConfigError(f"backbone 'plenoxels': sh_degree must be 0..3, got {cfg.sh_degree}")
+        if cfg.prune not in ("weight", "density", "none"):
+            raise ConfigError(f"backbone 'plenoxels': prune must be weight|density|none, got '{cfg.prune}'")
+
+    # ------------------------------------------------------------------ grid access
+    @property
+    def reso(self) -> list[int]:
+        return list(self.index.shape)
+
+    def _cached(self, key: str) -> Tensor:
+        if key not in self._cache:
+            fn = cell_occupancy if key == "cell_occ" else occupied_coords
+            self._cache[key] = fn(self.index)
+        return self._cache[key]
+
+    def grid(self) -> GridData:
+        return GridData(self.index, self.density, self.sh, self.bounds, self._cached("cell_occ"))
+
+    def num_primitives(self) -> int:
+        """Number of stored voxels ``M``."""
+        return int(self.density.shape[0])
+
+    def memory_bytes(self) -> int:
+        """Bytes of parameters and the index volume."""
+        return sum(t.numel() * t.element_size() for t in (self.density, self.sh, self.index))
+
+    # ------------------------------------------------------------------ rendering
+    def render_rays(self, rays_o: Tensor, rays_d: Tensor, image_ids: Tensor | None = None, **kw: Any) -> dict:
+        """Render rays ``[R, 3]`` (unit camera-z directions) -> ``rgb [R,3]``, ``alpha [R,1]``, ``depth [R,1]``, ``tv []``."""
+        out = self._render(rays_o, rays_d, image_ids)
+        out.update(self.tv_terms())
+        return out
+
+    def _render(self, rays_o: Tensor, rays_d: Tensor, image_ids: Tensor | None, **kw: Any) -> dict:
+        c = self.cfg
+        return render_grid(
+            self.grid(), rays_o.to(self.bounds.dtype), rays_d.to(self.bounds.dtype), sh_degree=c.sh_degree,
+            step_size=c.step_size, stop_thresh=c.stop_thresh, background=torch.tensor(c.background),
+            act=self.act, image_ids=image_ids, **kw,
+        )
+
+    def render(self, cams, chunk: int | None = None, **kw: Any) -> dict:
+        """Render cameras in chunks of rays -> ``rgb [C,H,W,3]``, ``alpha [C,H,W,1]``, ``depth [C,H,W,1]``, ``tv []``."""
+        cams = cams.to(self.bounds.device)
+        o, d = cams.rays()
+        C, H, W = len(cams), cams.height, cams.width
+        ids = cams.image_ids[:, None].expand(C, H * W).reshape(-1)
+        o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+        n = chunk or self.cfg.chunk
+        parts = [self._render(o[i : i + n], d[i : i + n], ids[i : i + n]) for i in range(0, o.shape[0], n)]
+        out = {k: torch.cat([p[k] for p in parts]).reshape(C, H, W, -1) for k in ("rgb", "alpha", "depth")}
+        out.update(self.tv_terms())
+        return out
+
+    def tv_terms(self) -> dict[str, Tensor]:
+        """``tv`` = lambda_tv TV(density) + lambda_tv_sh TV(SH) on a random subset (0 without gradients)."""
+        zero = torch.zeros((), device=self.bounds.device)
+        if not torch.is_grad_enabled() or not (self.density.requires_grad or self.sh.requires_grad):
+            return {"tv": zero}
+        c = self.cfg
+        rows = random_rows(self.num_primitives(), c.tv_sparse_frac, device=self.bounds.device)
+        coords, total, out = self._cached("coords"), zero, {}
+        if self.density.requires_grad and c.lambda_tv > 0:
+            tvd = tv_sparse(self.index, coords, self.density[:, None], rows, c.tv_eps)
+            total, out["tv_density"] = total + c.lambda_tv * tvd, tvd.detach()
+        if self.sh.requires_grad and c.lambda_tv_sh > 0:
+            tvs = tv_sparse(self.index, coords, self.sh.reshape(self.sh.shape[0], -1), rows, c.tv_eps)
+            total, out["tv_sh"] = total + c.lambda_tv_sh * tvs, tvs.detach()
+        out["tv"] = total
+        return out
+
+    # ------------------------------------------------------------------ optimisation
+    def param_groups(self, stage: str) -> dict[str, list[nn.Parameter]]:
+        """``geometry``: density and SH; ``color``: SH only."""
+        if stage == "geometry":
+            return {"density": [self.density], "sh": [self.sh]}
+        if stage == "color":
+            return {"sh": [self.sh]}
+        raise ConfigError(f"backbone 'plenoxels': unknown stage '{stage}' (geometry|color)")
+
+    def learning_rate(self, group: str, step: int) -> float:
+        """svox2's exponential schedule for group ``density`` or ``sh`` at ``step``."""
+        c = self.cfg
+        if group == "density":
+            return expon_lr(step, c.lr_sigma, c.lr_sigma_final, c.lr_sigma_decay_steps, c.lr_sigma_delay_steps,
+                            c.lr_sigma_delay_mult)
+        return expon_lr(step, c.lr_sh, c.lr_sh_final, c.lr_sh_decay_steps, c.lr_sh_delay_steps, c.lr_sh_delay_mult)
+
+    def make_optimizers(self, stage: str) -> dict[str, torch.optim.Optimizer]:
+        """One RMSProp (beta ``rms_beta``) per parameter group, lr at step 0."""
+        if self.cfg.optimizer != "rmsprop":
+            raise ConfigError(f"backbone 'plenoxels': optimizer '{self.cfg.optimizer}' unsupported (rmsprop)")
+        return {g: torch.optim.RMSprop(ps, lr=self.learning_rate(g, 0), alpha=self.cfg.rms_beta, eps=self.cfg.rms_eps)
+                for g, ps in self.param_groups(stage).items()}
+
+    def update_learning_rates(self, optimizers: dict[str, torch.optim.Optimizer], step: int) -> None:
+        for g, opt in optimizers.items():
+            for pg in opt.param_groups:
+                pg["lr"] = self.learning_rate(g, step)
+
+    def post_backward(self, step: int, out: dict, optimizers: dict[str, torch.optim.Optimizer]) -> None:
+        """Upsample (and prune) every ``upsample_every`` steps until the last resolution."""
+        c = self.cfg
+        if step > 0 and step % c.upsample_every == 0 and int(self.level) < len(c.reso) - 1:
+            self.upsample(optimizers)
+
+    # ------------------------------------------------------------------ coarse to fine
+    def upsample(self, optimizers: dict[str, torch.optim.Optimizer] | None = None) -> None:
+        """Resample to the next resolution, prune, and point ``optimizers`` at the new parameters (state reset)."""
+        c = self.cfg
+        new_reso = list(c.reso[int(self.level) + 1])
+        with torch.no_grad():
+            index, (dens, sh) = resample(self.index.cpu(), [self.density.cpu(), self.sh.cpu()], new_reso)
+        self._set_grid(index.to(self.bounds.device), dens.to(self.bounds.device), sh.to(self.bounds.device), optimizers)
+        self.level.fill_(int(self.level) + 1)
+        self.prune_grid(optimizers)
+
+    def prune_grid(self, optimizers: dict | None = None) -> None:
+        """Keep voxels by max training-ray weight (or density), dilated by ``prune_dilate``."""
+        c = self.cfg
+        if c.prune == "none" or (c.prune == "weight" and self._train_cams is None):
+            return
+        with torch.no_grad():
+            if c.prune == "density":
+                keep = torch.relu(self.density) >= c.prune_density_thresh
+            else:
+                keep = self.training_ray_weights() >= c.prune_weight_thresh / self.reso[2]
+            if not bool(keep.any()):
+                return  # nothing would survive: keep the grid as it is rather than empty it
+            index, rows = prune(self.index, keep.to(self.index.device), c.prune_dilate)
+            self._set_grid(index, self.density[rows], self.sh[rows], optimizers)
+
+    def training_ray_weights(self) -> Tensor:
+        """``[M]`` largest rendering weight of each stored voxel over the training views (scaled)."""
+        cams = self._train_cams.to(self.bounds.device)
+        if self.cfg.prune_image_scale != 1.0:
+            cams = cams.scaled(self.cfg.prune_image_scale)
+        samples = []
+        for i in range(len(cams)):
+            o, d = cams[i].rays()
+            o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+            for j in range(0, o.shape[0], self.cfg.chunk):
+                out = self._render(o[j : j + self.cfg.chunk], d[j : j + self.cfg.chunk], None, return_samples=True)
+                samples.append(out["samples"])
+        return max_weights(self.num_primitives(), samples)
+
+    def _set_grid(self, index: Tensor, density: Tensor, sh: Tensor, optimizers: dict | None) -> None:
+        old = {"density": self.density, "sh": self.sh}
+        self.index = index.to(torch.int32)
+        self.density = nn.Parameter(density.detach().clone().contiguous(), requires_grad=old["density"].requires_grad)
+        self.sh = nn.Parameter(sh.detach().clone().contiguous(), requires_grad=old["sh"].requires_grad)
+        self._cache.clear()
+        mapping = {id(old["density"]): self.density, id(old["sh"]): self.sh}
+        for opt in (optimizers or {}).values():
+            for pg in opt.param_groups:
+                for i, p in enumerate(pg["params"]):
+                    if id(p) in mapping:
+                        opt.state.pop(p, None)
+                        pg["params"][i] = mapping[id(p)]
+
+    # ------------------------------------------------------------------ checkpoints and export
+    def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
+        """Load a checkpoint saved at any resolution (the grid is resized to the saved one first)."""
+        if all(k in state_dict for k in ("index", "density", "sh")):
+            self.index = torch.empty_like(state_dict["index"], device=self.bounds.device)
+            self.density = nn.Parameter(torch.empty_like(state_dict["density"], device=self.bounds.device),
+                                        requires_grad=self.density.requires_grad)
+            self.sh = nn.Parameter(torch.empty_like(state_dict["sh"], device=self.bounds.device),
+                                   requires_grad=self.sh.requires_grad)
+        self._cache.clear()
+        return super().load_state_dict(state_dict, strict=strict, assign=assign)
+
+    def export(self, path: str) -> None:
+        """Write the grid as ``.npz``: index ``[X,Y,Z]`` int32, density ``[M]``, sh ``[M,K,3]``, bounds ``[2,3]``."""
+        np.savez_compressed(
+            path, index=self.index.cpu().numpy(), density=self.density.detach().cpu().numpy(),
+            sh=self.sh.detach().cpu().numpy(), bounds=self.bounds.cpu().numpy(), sh_degree=self.cfg.sh_degree,
+        )

@@ -1,0 +1,253 @@
+"""The generic training loop shared by stage 1 (grey geometry) and stage 2 (colour).
+
+One step: set the scheduled learning rates, draw a batch (whole views or random rays), let the
+stage's ``batch_hook`` add its targets to ``batch.extras``, render, sum the active loss terms, call
+``backbone.pre_backward``, backpropagate, check gradients, call ``backbone.post_backward`` (densify,
+prune, upsample: it may replace tensors in ``optimizers[group]``), step every optimiser and check
+the parameters. Any non-finite loss term, gradient or parameter stops the run with a
+:class:`TrainingError` that names the step and the term or group; the last checkpoint on disk is
+the last good one (nothing is written after the failure).
+
+Checkpoints go to ``ckpt_dir/last.pt`` every ``checkpoint_every`` steps and at the end. With
+``resume="auto"`` an existing checkpoint whose config matches is continued; ``"must"`` requires
+one; ``"never"`` starts over. Evaluation and checkpointing run under a forked RNG, so how often
+they happen does not change the trained model.
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+from tqdm.auto import tqdm
+
+from ..errors import ConfigError, TrainingError
+from ..plugins import Batch, RenderOutput
+from ..registry import validate_config
+from ..scene import Split
+from . import checkpoint as ckpt
+from .losses import LossSet
+from .optim import OptimConfig, apply_schedules, build_optimizers, group_schedules
+from .sampling import make_sampler
+
+__all__ = ["LoopConfig", "TrainResult", "train", "render_batch", "batch_psnr"]
+
+
+@dataclass
+class LoopConfig:
+    """How long and how a stage trains (the trainer keys of a ``train``/``colorize`` preset)."""
+
+    steps: int
+    stage: str = "geometry"  # passed to backbone.param_groups: "geometry" (stage 1) | "color" (stage 2)
+    batch_views: int = 1  # views per step (image backbones)
+    rays_per_batch: int = 5000  # rays per step (ray backbones; svox2's default)
+    log_every: int = 100  # progress-bar / history interval (steps)
+    eval_every: int = 0  # evaluation interval (0: only at the end, done by the caller)
+    checkpoint_every: int = 1000  # checkpoint interval (0: only at the end)
+    resume: str = "auto"  # auto | never | must
+    seed: int = 0
+    progress: bool = True  # show a tqdm bar
+    desc: str = "train"  # progress-bar label
+
+
+@dataclass
+class TrainResult:
+    steps: int  # completed steps
+    time_s: float  # training time (steps only, summed over resumed segments)
+    resumed_from: int | None  # step the run continued from, or None
+    checkpoint: Path | None
+    history: list[dict] = field(default_factory=list)  # every log_every steps: step, loss, psnr, terms
+    evals: list[dict] = field(default_factory=list)  # results of the periodic evaluation callback
+
+    @property
+    def steps_per_s(self) -> float:
+        return self.steps / self.time_s if self.time_s > 0 else float("nan")
+
+
+def render_batch(backbone: nn.Module, batch: Batch) -> RenderOutput:
+    """Render a batch: ``render_rays`` for ray batches, ``render`` for whole views."""
+    if batch.rays_o is not None:
+        return backbone.render_rays(batch.rays_o, batch.rays_d, batch.ray_image_ids)
+    return backbone.render(batch.cameras)
+
+
+def batch_psnr(rgb: torch.Tensor, target: torch.Tensor) -> float:
+    """PSNR (dB) of a training batch, for the progress bar (not an evaluation metric)."""
+    mse = float(((rgb.detach() - target) ** 2).mean())
+    return -10.0 * math.log10(mse) if mse > 0 else float("inf")
+
+
+def _groups(backbone: nn.Module, act: nn.Module | None, stage: str) -> dict[str, list[nn.Parameter]]:
+    groups = {g: list(ps) for g, ps in backbone.param_groups(stage).items() if len(list(ps))}
+    if act is not None:
+        seen = {id(p) for ps in groups.values() for p in ps}
+        extra = [p for p in act.parameters() if id(p) not in seen]
+        if extra:
+            groups["act"] = groups.get("act", []) + extra
+    if not groups:
+        raise ConfigError(f"backbone has no trainable parameters for stage '{stage}'")
+    return groups
+
+
+def _check_finite(step: int, what: str, named: Mapping[str, Any], kind: str) -> None:
+    for name, value in named.items():
+        tensors = value if isinstance(value, (list, tuple)) else [value]
+        for t in tensors:
+            if t is not None and not bool(torch.isfinite(t).all()):
+                raise TrainingError(f"step {step}: {kind} '{name}' is not finite ({what}); "
+                                    "training stopped, the last checkpoint on disk is the last good one")
+
+
+class _Run:
+    """State of one training run (kept small so :func:`train` reads as the step sequence)."""
+
+    def __init__(self, backbone, act, split, loop, optim, ckpt_dir, config):
+        self.backbone, self.act, self.loop, self.config = backbone, act, loop, dict(config or {})
+        self.path = Path(ckpt_dir) / "last.pt" if ckpt_dir is not None else None
+        self.sampler = make_sampler(split, getattr(backbone, "batch_mode", "image"), loop.batch_views,
+                                    loop.rays_per_batch, loop.seed, _device(backbone))
+        self.optim = optim
+        self.step, self.time_s, self.history, self.evals, self.resumed_from = 0, 0.0, [], [], None
+        self.act_separate = act is not None and not any(m is act for m in backbone.modules())
+
+    def build_optimizers(self, act_lr: float | None) -> None:
+        groups = _groups(self.backbone, self.act, self.loop.stage)
+        self.schedules = group_schedules(groups, self.backbone, self.loop.stage, self.optim, act_lr)
+        default = getattr(self.backbone, "optimizer", "adam")
+        self.optimizers = build_optimizers(groups, self.schedules, self.optim, default)
+
+    def state(self) -> dict:
+        return {"step": self.step, "stage": self.loop.stage, "model": self.backbone.state_dict(),
+                "act": self.act.state_dict() if self.act_separate else None,
+                "optimizers": {g: o.state_dict() for g, o in self.optimizers.items()},
+                "sampler": self.sampler.state_dict(), "rng": ckpt.rng_state(), "config": self.config,
+                "config_hash": ckpt.config_hash(self.config), "time_s": self.time_s, "history": self.history,
+                "evals": self.evals, "num_primitives": int(self.backbone.num_primitives())}
+
+    def save(self) -> None:
+        if self.path is not None:
+            ckpt.save_checkpoint(self.path, self.state())
+
+    def restore(self, act_lr: float | None) -> None:
+        """Load ``last.pt`` per ``loop.resume``; always leaves optimisers built."""
+        mode = self.loop.resume
+        if mode not in ("auto", "never", "must"):
+            raise ConfigError(f"train.resume: '{mode}' is not one of auto, never, must")
+        exists = self.path is not None and self.path.is_file()
+        if mode == "must" and not exists:
+            raise TrainingError(f"train.resume=must but there is no checkpoint at {self.path}")
+        if mode == "never" or not exists:
+            self.build_optimizers(act_lr)
+            return
+        state = ckpt.load_checkpoint(self.path, _device(self.backbone))
+        ckpt.check_config(state["config"], self.config, self.path)
+        ckpt.load_module_state(self.backbone, state["model"])
+        if self.act_separate and state.get("act") is not None:
+            ckpt.load_module_state(self.act, state["act"])
+        self.build_optimizers(act_lr)
+        for g, o in self.optimizers.items():
+            o.load_state_dict(state["optimizers"][g])
+        self.sampler.load_state_dict(state["sampler"])
+        ckpt.set_rng_state(state["rng"])
+        self.step = self.resumed_from = int(state["step"])
+        self.time_s, self.history, self.evals = state["time_s"], state["history"], state["evals"]
+
+
+def _device(backbone: nn.Module) -> torch.device:
+    p = next(iter(backbone.parameters()), None)
+    return p.device if p is not None else torch.device("cpu")
+
+
+def _step(run: _Run, losses: LossSet, batch_hook, step: int) -> tuple[float, float, dict]:
+    """One optimisation step; returns (loss, batch PSNR, {term: value})."""
+    bb = run.backbone
+    apply_schedules(run.optimizers, run.schedules, step, run.loop.steps)
+    batch = run.sampler.next()
+    if batch_hook is not None:
+        batch = batch_hook(batch)
+    out = render_batch(bb, batch)
+    total, terms = losses(out, batch, step)
+    _check_finite(step, "loss", terms, "loss term")
+    bb.pre_backward(step, out)
+    bb.zero_grad(set_to_none=True)
+    for o in run.optimizers.values():
+        o.zero_grad(set_to_none=True)
+    total.backward()
+    grads = {g: [p.grad for pg in o.param_groups for p in pg["params"]] for g, o in run.optimizers.items()}
+    _check_finite(step, "gradient", grads, "gradient of group")
+    bb.post_backward(step, out, run.optimizers)
+    for o in run.optimizers.values():
+        o.step()
+    params = {g: [p for pg in o.param_groups for p in pg["params"]] for g, o in run.optimizers.items()}
+    _check_finite(step, "after the optimiser step", params, "parameter group")
+    return float(total.detach()), batch_psnr(out["rgb"], batch.images), {k: float(v.detach()) for k, v in terms.items()}
+
+
+def train(backbone: nn.Module, split: Split, losses: LossSet, loop: LoopConfig | Mapping, *,
+          optim: OptimConfig | Mapping | None = None, ckpt_dir: str | Path | None = None,
+          config: Mapping | None = None, act: nn.Module | None = None, act_lr: float | None = None,
+          batch_hook: Callable[[Batch], Batch] | None = None, evaluate: Callable[[int], dict] | None = None,
+          on_step: Callable[[int, dict], None] | None = None) -> TrainResult:
+    """Train ``backbone`` (and ``act``) on ``split`` for ``loop.steps`` steps.
+
+    Args:
+        backbone: a :class:`arcsem.plugins.Backbone`; its ``param_groups(loop.stage)`` are optimised.
+        split: training views (images ``[N,H,W,3]``; cameras carry the ACT ``image_ids``).
+        losses: the stage's :class:`LossSet`.
+        loop: :class:`LoopConfig` or a mapping of its fields.
+        optim: :class:`OptimConfig` (``train.optim``) or a mapping.
+        ckpt_dir: where ``last.pt`` lives (None: no checkpoints, no resume).
+        config: the config that determines the result; stored in checkpoints, compared on resume.
+        act: ACT module optimised as group ``"act"`` with rate ``act_lr`` (None in stage 2).
+        batch_hook: ``batch -> batch`` run on every batch before rendering (stage-2 targets in ``extras``).
+        evaluate: ``step -> metrics`` called every ``loop.eval_every`` steps.
+        on_step: ``(completed_steps, record)`` after every step (tests, custom logging).
+    Returns:
+        :class:`TrainResult` (steps, time, loss/PSNR history, periodic evaluations).
+    """
+    loop = loop if isinstance(loop, LoopConfig) else validate_config(LoopConfig, dict(loop), "train loop")
+    optim = optim if isinstance(optim, OptimConfig) else validate_config(OptimConfig, dict(optim or {}), "train.optim")
+    run = _Run(backbone, act, split, loop, optim, ckpt_dir, config)
+    run.restore(act_lr)
+    backbone.train()
+    bar = tqdm(total=loop.steps, initial=run.step, desc=loop.desc, disable=not loop.progress, dynamic_ncols=True)
+    try:
+        while run.step < loop.steps:
+            t0 = time.perf_counter()
+            loss, psnr, terms = _step(run, losses, batch_hook, run.step)
+            run.time_s += time.perf_counter() - t0
+            run.step += 1
+            record = {"step": run.step, "loss": loss, "psnr": psnr, **terms}
+            bar.update(1)
+            if run.step % max(loop.log_every, 1) == 0 or run.step == loop.steps:
+                run.history.append(record)
+                bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{psnr:.2f}")
+            if on_step is not None:
+                on_step(run.step, record)
+            _periodic(run, evaluate, bar)
+    finally:
+        bar.close()
+    if run.resumed_from != loop.steps:  # nothing to add when resuming a finished run
+        with torch.random.fork_rng(devices=[]):
+            run.save()
+    return TrainResult(run.step, run.time_s, run.resumed_from, run.path, run.history, run.evals)
+
+
+def _periodic(run: _Run, evaluate, bar) -> None:
+    loop, s = run.loop, run.step
+    with torch.random.fork_rng(devices=[]):
+        if evaluate is not None and loop.eval_every and s % loop.eval_every == 0 and s < loop.steps:
+            run.backbone.eval()
+            with torch.no_grad():
+                metrics = evaluate(s)
+            run.backbone.train()
+            run.evals.append({"step": s, **metrics})
+            bar.write(f"[{loop.desc}] step {s}: " + ", ".join(f"{k}={v:.4g}" for k, v in metrics.items()
+                                                              if isinstance(v, (int, float))))
+        if loop.checkpoint_every and s % loop.checkpoint_every == 0 and s < loop.steps:
+            run.save()

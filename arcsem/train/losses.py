@@ -1,0 +1,103 @@
+"""The weighted sum of loss plugins that a training stage optimises.
+
+A loss set is configured as a mapping ``name -> cfg`` (``cfg`` holds ``weight``, ``start_step`` and
+the plugin's own keys; ``null`` or ``weight: 0`` switches a term off)::
+
+    losses: {l1: {weight: 0.8}, dssim: {weight: 0.2}, normal_consistency: {weight: 0.05, start_step: 7000}}
+
+Each plugin's ``requires`` is checked against the backbone's ``provides`` (and its ``batch_modes``
+against the backbone's ``batch_mode``) when the set is built, so a run cannot start with a loss the
+backbone cannot feed. A plugin registered under another name can be used twice with ``plugin:``::
+
+    losses: {l1_mask: {plugin: l1, weight: 0.1, masked: true}}
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import torch
+from omegaconf import DictConfig, OmegaConf
+from torch import Tensor, nn
+
+from ..errors import ConfigError
+from ..plugins import LOSSES, Batch, Loss, RenderOutput
+
+__all__ = ["LossSet", "build_losses", "merge_loss_cfgs"]
+
+
+def _plain(cfg: Any) -> Any:
+    return OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else cfg
+
+
+def merge_loss_cfgs(base: Mapping | None, override: Mapping | None) -> dict[str, dict | None]:
+    """``base`` updated by ``override`` term by term (``None`` in ``override`` removes a term)."""
+    out = {k: (dict(v) if v is not None else None) for k, v in (_plain(base) or {}).items()}
+    for k, v in (_plain(override) or {}).items():
+        out[k] = None if v is None else {**(out.get(k) or {}), **v}
+    return out
+
+
+class LossSet(nn.Module):
+    """Named loss plugins; ``forward`` returns the weighted total and every term (unweighted)."""
+
+    def __init__(self, terms: dict[str, Loss]):
+        super().__init__()
+        self.terms = nn.ModuleDict(terms)
+
+    def active(self, step: int) -> list[str]:
+        """Names of the terms that contribute at ``step`` (weight != 0 and ``step >= start_step``)."""
+        return [n for n, t in self.terms.items() if t.cfg.weight != 0 and step >= t.cfg.start_step]
+
+    def forward(self, out: RenderOutput, batch: Batch, step: int) -> tuple[Tensor, dict[str, Tensor]]:
+        """Returns ``(total, {name: unweighted term})`` for the terms active at ``step``."""
+        terms = {n: self.terms[n](out, batch, step) for n in self.active(step)}
+        if not terms:
+            raise ConfigError(f"no loss term is active at step {step}; losses: {', '.join(self.terms) or 'none'}")
+        total = sum(self.terms[n].cfg.weight * v for n, v in terms.items())
+        return total, terms
+
+    def requires(self, step: int | None = None) -> set[str]:
+        names = self.active(step) if step is not None else list(self.terms)
+        return set().union(*(self.terms[n].requires for n in names)) if names else set()
+
+
+def build_losses(cfg: Mapping | None, provides: frozenset[str] | set[str], batch_mode: str = "image",
+                 where: str = "train.losses", backbone: str = "backbone", **runtime: Any) -> LossSet:
+    """Build the loss plugins of ``cfg`` and check them against the backbone.
+
+    Args:
+        cfg: ``{name: {weight, start_step, plugin?, ...} | None}``.
+        provides: the render outputs the backbone produces (``Backbone.provides``).
+        batch_mode: ``"image"`` or ``"rays"`` (``Backbone.batch_mode``).
+        runtime: passed to every plugin constructor (e.g. ``scene``).
+    Raises:
+        ConfigError: a term needs an output the backbone does not provide, or a batch mode it lacks.
+    """
+    terms: dict[str, Loss] = {}
+    for name, term_cfg in (_plain(cfg) or {}).items():
+        if term_cfg is None:
+            continue
+        term_cfg = dict(term_cfg)
+        plugin = term_cfg.pop("plugin", name)
+        if float(term_cfg.get("weight", 1.0)) == 0.0:
+            continue
+        loss = LOSSES.build({"name": plugin, **term_cfg}, **runtime)
+        missing = set(loss.requires) - set(provides)
+        if missing:
+            raise ConfigError(
+                f"{where}.{name}: loss '{plugin}' needs {sorted(missing)} which backbone '{backbone}' does not "
+                f"provide (it provides {sorted(provides)}); drop the term with {where}.{name}=null")
+        modes = getattr(loss, "batch_modes", frozenset({"image", "rays"}))
+        if batch_mode not in modes:
+            raise ConfigError(
+                f"{where}.{name}: loss '{plugin}' works on {sorted(modes)} batches but backbone '{backbone}' "
+                f"trains on '{batch_mode}' batches; drop the term with {where}.{name}=null")
+        terms[name] = loss
+    if not terms:
+        raise ConfigError(f"{where}: no loss term with a non-zero weight")
+    return LossSet(terms)
+
+
+def is_finite(x: Tensor) -> bool:
+    return bool(torch.isfinite(x).all())

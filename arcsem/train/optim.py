@@ -1,0 +1,127 @@
+"""Optimisers and learning-rate schedules from config, one optimiser per parameter group.
+
+Where the numbers come from (later wins):
+
+1. the backbone: ``backbone.optim_defaults(stage) -> {group: {lr, lr_final?, decay_steps?, ...}}``
+   if it defines that method (the paper's values, already scaled by the scene extent where the
+   paper does so), else Config fields named ``lr_<group>`` / ``lr_<group>_final``;
+2. ``train.optim.groups.<group>``: per-group overrides from the preset or the command line;
+3. the ``act`` group (the ACT module's parameters): ``act.lr`` (constant).
+
+Optimiser type: ``train.optim.type`` if set, else the backbone's ``optimizer`` class attribute
+(``"adam"`` or ``"rmsprop"``), else Adam. The result is ``{group: Optimizer}`` where every optimiser
+holds ONE param group named after the group: densification code replaces tensors in
+``optimizers[group]`` and its ``state`` without touching the others.
+
+Schedules are pure functions of the step, so a resumed run sets exactly the same rates.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from torch import nn
+
+from ..errors import ConfigError
+from ..registry import validate_config
+
+__all__ = ["GroupSchedule", "OptimConfig", "lr_at", "group_schedules", "build_optimizers", "apply_schedules"]
+
+
+@dataclass
+class GroupSchedule:
+    """Learning rate of one group over the run (log-linear decay, as in 3DGS/svox2)."""
+
+    lr: float  # rate at step 0
+    lr_final: float | None = None  # rate at ``decay_steps`` (None: constant)
+    decay_steps: int | None = None  # steps of the decay (None: the run's length)
+    delay_steps: int = 0  # svox2-style warm-up: rate multiplied by a sine ramp from ``delay_mult`` to 1
+    delay_mult: float = 1.0
+
+
+@dataclass
+class OptimConfig:
+    """``train.optim``: optimiser type, its constants and per-group overrides."""
+
+    type: str | None = None  # adam | rmsprop | None (the backbone's choice, else adam)
+    eps: float = 1.0e-15  # Adam epsilon of 3DGS/2DGS
+    betas: tuple[float, float] = (0.9, 0.999)
+    rmsprop_alpha: float = 0.95  # svox2's RMSProp beta
+    rmsprop_eps: float = 1.0e-8
+    groups: dict[str, Any] = dataclasses.field(default_factory=dict)  # group -> GroupSchedule overrides
+
+
+def lr_at(s: GroupSchedule, step: int, total_steps: int) -> float:
+    """Learning rate at ``step``: ``exp(lerp(log lr, log lr_final, t))`` times the delay ramp."""
+    lr = s.lr
+    if s.lr_final is not None and s.lr_final != s.lr:
+        if s.lr <= 0 or s.lr_final <= 0:
+            raise ConfigError(f"log-linear decay needs positive rates, got lr={s.lr}, lr_final={s.lr_final}")
+        n = s.decay_steps or total_steps
+        t = min(max(step / max(n, 1), 0.0), 1.0)
+        lr = math.exp((1 - t) * math.log(s.lr) + t * math.log(s.lr_final))
+    if s.delay_steps > 0:
+        ramp = math.sin(0.5 * math.pi * min(max(step / s.delay_steps, 0.0), 1.0))
+        lr *= s.delay_mult + (1 - s.delay_mult) * ramp
+    return lr
+
+
+def _from_backbone(backbone: nn.Module, stage: str, group: str) -> dict:
+    if hasattr(backbone, "optim_defaults"):
+        return dict(backbone.optim_defaults(stage).get(group, {}))
+    cfg = getattr(backbone, "cfg", None)
+    out = {}
+    for key, field in (("lr", f"lr_{group}"), ("lr_final", f"lr_{group}_final")):
+        if cfg is not None and getattr(cfg, field, None) is not None:
+            out[key] = float(getattr(cfg, field))
+    return out
+
+
+def group_schedules(groups: dict[str, list], backbone: nn.Module, stage: str, optim: OptimConfig,
+                    act_lr: float | None = None) -> dict[str, GroupSchedule]:
+    """The schedule of every group in ``groups`` (raises ConfigError naming a group without a rate)."""
+    unknown = set(optim.groups) - set(groups)
+    if unknown:
+        raise ConfigError(f"train.optim.groups: unknown group(s) {sorted(unknown)}; "
+                          f"stage '{stage}' has {sorted(groups)}")
+    out = {}
+    for g in groups:
+        values = _from_backbone(backbone, stage, g)
+        if g == "act" and act_lr is not None:
+            values = {"lr": act_lr}
+        values.update(optim.groups.get(g) or {})
+        if "lr" not in values:
+            raise ConfigError(f"no learning rate for parameter group '{g}' (stage '{stage}'); "
+                              f"set train.optim.groups.{g}.lr")
+        out[g] = validate_config(GroupSchedule, values, where=f"train.optim.groups.{g}")
+    return out
+
+
+def build_optimizers(groups: dict[str, list[nn.Parameter]], schedules: dict[str, GroupSchedule],
+                     optim: OptimConfig, default_type: str = "adam") -> dict[str, torch.optim.Optimizer]:
+    """One optimiser per group: ``{group: Optimizer}`` with a single param group ``{"name": group}``."""
+    kind = (optim.type or default_type).lower()
+    out = {}
+    for g, params in groups.items():
+        spec = [{"params": list(params), "lr": schedules[g].lr, "name": g}]
+        if kind == "adam":
+            out[g] = torch.optim.Adam(spec, lr=schedules[g].lr, betas=tuple(optim.betas), eps=optim.eps)
+        elif kind == "rmsprop":
+            out[g] = torch.optim.RMSprop(spec, lr=schedules[g].lr, alpha=optim.rmsprop_alpha, eps=optim.rmsprop_eps)
+        else:
+            raise ConfigError(f"train.optim.type: unknown optimiser '{kind}'; expected adam or rmsprop")
+    return out
+
+
+def apply_schedules(optimizers: dict[str, torch.optim.Optimizer], schedules: dict[str, GroupSchedule],
+                    step: int, total_steps: int) -> dict[str, float]:
+    """Set every group's rate for ``step``; returns ``{group: lr}``."""
+    lrs = {}
+    for g, opt in optimizers.items():
+        lrs[g] = lr_at(schedules[g], step, total_steps)
+        for pg in opt.param_groups:
+            pg["lr"] = lrs[g]
+    return lrs

@@ -1,0 +1,120 @@
+"""What each training step sees: whole views (image backbones) or random rays (ray backbones).
+
+Both samplers draw from their own ``torch.Generator`` and expose ``state_dict`` /
+``load_state_dict``, so a resumed run draws exactly the batches an uninterrupted one would.
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from ..plugins import Batch
+from ..scene import Split
+
+__all__ = ["ViewSampler", "RaySampler", "make_sampler", "resize_split"]
+
+
+def _masks4(split: Split, idx: Tensor) -> Tensor | None:
+    """``[C,H,W,1]`` float masks of views ``idx`` (None without masks)."""
+    return None if split.masks is None else split.masks[idx].to(split.images.dtype)[..., None]
+
+
+class ViewSampler:
+    """``batch_views`` views per step, a fresh random permutation of all views every epoch."""
+
+    def __init__(self, split: Split, batch_views: int = 1, seed: int = 0, device: str | torch.device = "cpu"):
+        if len(split) == 0:
+            raise ValueError("cannot train on a split without views")
+        self.split, self.batch_views, self.device = split, min(batch_views, len(split)), torch.device(device)
+        self.gen = torch.Generator().manual_seed(seed)
+        self.order: list[int] = []
+
+    def next(self) -> Batch:
+        if len(self.order) < self.batch_views:
+            self.order += torch.randperm(len(self.split), generator=self.gen).tolist()
+        idx, self.order = self.order[: self.batch_views], self.order[self.batch_views:]
+        i = torch.tensor(idx, dtype=torch.long)
+        masks = _masks4(self.split, i)
+        return Batch(cameras=self.split.cameras[i].to(self.device), images=self.split.images[i].to(self.device),
+                     indices=i.to(self.device), masks=None if masks is None else masks.to(self.device))
+
+    def state_dict(self) -> dict:
+        return {"gen": self.gen.get_state(), "order": list(self.order)}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.gen.set_state(state["gen"])
+        self.order = list(state["order"])
+
+
+class RaySampler:
+    """``rays_per_batch`` rays drawn uniformly (with replacement) from every pixel of every view.
+
+    All rays are generated once (``[N*H*W, 3]`` origins and directions) through :class:`Cameras`.
+    """
+
+    def __init__(self, split: Split, rays_per_batch: int = 5000, seed: int = 0, device: str | torch.device = "cpu"):
+        if len(split) == 0:
+            raise ValueError("cannot train on a split without views")
+        self.split, self.R, self.device = split, rays_per_batch, torch.device(device)
+        self.gen = torch.Generator().manual_seed(seed)
+        o, d = split.cameras.rays()  # [N, H, W, 3]
+        n, h, w = split.images.shape[:3]
+        self.origins, self.dirs = o.reshape(-1, 3), d.reshape(-1, 3)
+        self.colors = split.images.reshape(-1, 3)
+        self.view = torch.arange(n).repeat_interleave(h * w)
+        self.image_ids = split.cameras.image_ids[self.view]
+        self.masks = None if split.masks is None else split.masks.reshape(-1, 1).to(self.colors.dtype)
+
+    def next(self) -> Batch:
+        k = torch.randint(0, self.origins.shape[0], (self.R,), generator=self.gen)
+        dev = self.device
+        return Batch(cameras=self.split.cameras.to(dev), images=self.colors[k].to(dev), indices=self.view[k].to(dev),
+                     masks=None if self.masks is None else self.masks[k].to(dev), rays_o=self.origins[k].to(dev),
+                     rays_d=self.dirs[k].to(dev), ray_image_ids=self.image_ids[k].to(dev))
+
+    def state_dict(self) -> dict:
+        return {"gen": self.gen.get_state()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.gen.set_state(state["gen"])
+
+
+def make_sampler(split: Split, batch_mode: str, batch_views: int = 1, rays_per_batch: int = 5000, seed: int = 0,
+                 device: str | torch.device = "cpu") -> ViewSampler | RaySampler:
+    """The sampler for a backbone's ``batch_mode`` (``"image"`` or ``"rays"``)."""
+    if batch_mode == "rays":
+        return RaySampler(split, rays_per_batch, seed, device)
+    return ViewSampler(split, batch_views, seed, device)
+
+
+def _resize(x: Tensor | None, h: int, w: int, mode: str) -> Tensor | None:
+    """``[N,H,W(,ch)]`` -> ``[N,h,w(,ch)]``: ``area`` for images, ``nearest`` for masks and depths."""
+    if x is None:
+        return None
+    squeeze = x.ndim == 3
+    y = (x[..., None] if squeeze else x).permute(0, 3, 1, 2)
+    dtype = y.dtype
+    y = F.interpolate(y.float(), size=(h, w), mode=mode)
+    y = y.permute(0, 2, 3, 1)
+    y = y[..., 0] if squeeze else y
+    return (y > 0.5) if dtype == torch.bool else y.to(dtype)
+
+
+def resize_split(split: Split, downscale: float = 1.0, width: int | None = None) -> Split:
+    """The split at a lower resolution: by ``downscale`` (2 = half size) or to ``width`` pixels.
+
+    Images and colours are box-filtered (``area``); masks, depths and normals take the nearest
+    sample (no mixing of foreground and background depths). Cameras follow via ``Cameras.scaled``.
+    """
+    factor = (width / split.cameras.width) if width else 1.0 / float(downscale)
+    if abs(factor - 1.0) < 1e-9 or len(split) == 0:
+        return split
+    cams = split.cameras.scaled(factor)
+    h, w = cams.height, cams.width
+    area = lambda t: _resize(t, h, w, "area")  # noqa: E731
+    near = lambda t: _resize(t, h, w, "nearest")  # noqa: E731
+    from dataclasses import replace
+
+    return replace(split, cameras=cams, images=area(split.images), masks=near(split.masks), depths=near(split.depths),
+                   normals=near(split.normals), colors=area(split.colors), clean=area(split.clean))

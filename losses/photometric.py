@@ -1,0 +1,125 @@
+"""Photometric loss plugins: ``l1``, ``l2`` and ``dssim`` (1 - SSIM, 11x11 Gaussian window, sigma 1.5).
+
+The stage-1 loss of the Gaussian backbones is ``0.8 * l1 + 0.2 * dssim`` (weights set by the
+trainer preset); Plenoxels uses ``l2``. ``l1``/``l2`` work on image batches ``[C,H,W,3]`` and on
+ray batches ``[R,3]``; ``dssim`` needs whole images. With ``masked: true`` only pixels inside the
+specimen mask count (falls back to every pixel when the batch has no mask).
+
+:func:`ssim_map` is the pure, differentiable SSIM used by the ``dssim`` loss (Wang et al. 2004,
+constants ``C1 = 0.01^2``, ``C2 = 0.03^2`` for data range 1, zero padding as in 3DGS/2DGS).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from arcsem.plugins import LOSSES, Batch, Loss, RenderOutput
+
+__all__ = ["L1", "L2", "DSSIM", "gaussian_window", "ssim_map", "masked_mean"]
+
+C1, C2 = 0.01**2, 0.03**2
+
+
+def gaussian_window(size: int = 11, sigma: float = 1.5, dtype=torch.float32, device=None) -> Tensor:
+    """Normalised 1-D Gaussian ``[size]`` centred on the middle tap."""
+    x = torch.arange(size, dtype=dtype, device=device) - (size - 1) / 2
+    g = torch.exp(-(x**2) / (2 * sigma**2))
+    return g / g.sum()
+
+
+def _blur(x: Tensor, g: Tensor) -> Tensor:
+    """Separable Gaussian blur of ``[B, ch, H, W]`` with zero padding (same size out)."""
+    ch, k = x.shape[1], g.numel()
+    gx = g.view(1, 1, 1, k).expand(ch, 1, 1, k)
+    gy = g.view(1, 1, k, 1).expand(ch, 1, k, 1)
+    x = F.conv2d(x, gx, padding=(0, k // 2), groups=ch)
+    return F.conv2d(x, gy, padding=(k // 2, 0), groups=ch)
+
+
+def ssim_map(x: Tensor, y: Tensor, size: int = 11, sigma: float = 1.5) -> Tensor:
+    """Per-pixel SSIM of two image batches.
+
+    Args:
+        x, y: ``[C, H, W, ch]`` images in [0, 1].
+    Returns:
+        ``[C, H, W, ch]`` SSIM per pixel and channel (1 where the images agree).
+    """
+    if x.shape != y.shape or x.ndim != 4:
+        raise ValueError(f"ssim_map: expected two [C,H,W,ch] tensors, got {tuple(x.shape)} and {tuple(y.shape)}")
+    g = gaussian_window(size, sigma, x.dtype, x.device)
+    a, b = x.permute(0, 3, 1, 2), y.permute(0, 3, 1, 2)
+    mu_a, mu_b = _blur(a, g), _blur(b, g)
+    var_a = _blur(a * a, g) - mu_a**2
+    var_b = _blur(b * b, g) - mu_b**2
+    cov = _blur(a * b, g) - mu_a * mu_b
+    num = (2 * mu_a * mu_b + C1) * (2 * cov + C2)
+    den = (mu_a**2 + mu_b**2 + C1) * (var_a + var_b + C2)
+    return (num / den).permute(0, 2, 3, 1)
+
+
+def masked_mean(x: Tensor, mask: Tensor | None) -> Tensor:
+    """Mean of ``x [..., ch]`` over entries where ``mask [..., 1]`` is set (all entries if None)."""
+    if mask is None:
+        return x.mean()
+    m = mask.to(x.dtype).expand_as(x)
+    return (x * m).sum() / m.sum().clamp_min(1.0)
+
+
+class _Pixelwise(Loss):
+    requires: ClassVar[frozenset[str]] = frozenset({"rgb"})
+    batch_modes: ClassVar[frozenset[str]] = frozenset({"image", "rays"})
+
+    @dataclass
+    class Config:
+        weight: float = 1.0
+        start_step: int = 0
+        masked: bool = False  # count only pixels inside the specimen mask (if the batch has one)
+
+    def error(self, diff: Tensor) -> Tensor:
+        raise NotImplementedError
+
+    def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
+        mask = batch.masks if self.cfg.masked else None
+        return masked_mean(self.error(out["rgb"] - batch.images), mask)
+
+
+@LOSSES.register("l1")
+class L1(_Pixelwise):
+    """Mean absolute colour error."""
+
+    def error(self, diff: Tensor) -> Tensor:
+        return diff.abs()
+
+
+@LOSSES.register("l2")
+class L2(_Pixelwise):
+    """Mean squared colour error (the Plenoxels loss)."""
+
+    def error(self, diff: Tensor) -> Tensor:
+        return diff * diff
+
+
+@LOSSES.register("dssim")
+class DSSIM(Loss):
+    """``1 - SSIM`` over whole images (11x11 Gaussian window, sigma 1.5)."""
+
+    requires: ClassVar[frozenset[str]] = frozenset({"rgb"})
+    batch_modes: ClassVar[frozenset[str]] = frozenset({"image"})
+
+    @dataclass
+    class Config:
+        weight: float = 1.0
+        start_step: int = 0
+        window: int = 11  # Gaussian window size (pixels)
+        sigma: float = 1.5  # Gaussian window standard deviation (pixels)
+        masked: bool = False  # average the SSIM map inside the specimen mask only
+
+    def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
+        if batch.images.ndim != 4:
+            raise ValueError("dssim needs image batches [C,H,W,3]; ray batches cannot compute SSIM")
+        s = ssim_map(out["rgb"], batch.images, self.cfg.window, self.cfg.sigma)
+        return 1.0 - masked_mean(s, batch.masks if self.cfg.masked else None)

@@ -25,7 +25,7 @@ from torch import Tensor
 
 from ..cameras import Cameras
 
-__all__ = ["pixel_footprint", "masked_points", "reference_cloud", "pseudo_colors", "cache_key",
+__all__ = ["pixel_footprint", "masked_points", "reference_cloud", "pseudo_colors", "cache_key", "pseudo_key",
            "cached_pseudo_colors", "save_pseudo", "load_pseudo"]
 
 log = logging.getLogger(__name__)
@@ -148,6 +148,18 @@ def cache_key(*parts) -> str:
             h.update(repr(p).encode())
         h.update(b"|")
     return h.hexdigest()
+
+
+def pseudo_key(depth_source, ref_images: Tensor, ref_names: list[str], radius: float | None,
+               radius_factor: float, masks: Tensor, cams: Cameras) -> str:
+    """Cache key of a pseudo-colour result.
+
+    ``depth_source``: the stage-1 checkpoint file (its bytes are hashed) or the depth maps ``[N,H,W]``.
+    Masks and cameras are part of the key too: changing either changes the answer.
+    """
+    src = Path(depth_source) if isinstance(depth_source, (str, Path)) else depth_source
+    return cache_key("pseudo-v1", src, ref_images, list(ref_names), radius, radius_factor, masks,
+                     cams.world_to_cam, cams.K, cams.model)
 
 
 def save_pseudo(path: Path, colors: Tensor, valid: Tensor) -> None:

@@ -21,6 +21,7 @@ log = logging.getLogger(__name__)
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 WEIGHT_FILES = {"vgg16": "vgg16-397923af.pth", "vgg19": "vgg19-dcbb9e9d.pth"}
+VGG_CFG = {"vgg16": "D", "vgg19": "E"}  # torchvision.models.vgg.cfgs keys
 
 
 def block_layers(features: nn.Sequential, blocks=(3, 4)) -> dict[int, list[int]]:
@@ -51,7 +52,9 @@ class VGGFeatures(nn.Module):
         if arch not in WEIGHT_FILES:
             raise ConfigError(f"vgg: unknown architecture '{arch}'; use vgg16 or vgg19")
         tv = import_torchvision()
-        net = getattr(tv.models, arch)(weights=None)
+        # torchvision's own layer list (features only: the classifier is never used)
+        net = nn.Module()
+        net.features = tv.models.vgg.make_layers(tv.models.vgg.cfgs[VGG_CFG[arch]], batch_norm=False)
         self.arch, self.blocks = arch, tuple(blocks)
         self.features_source, self.weights_detail = "random", "not requested"
         if load_weights:
@@ -76,7 +79,7 @@ class VGGFeatures(nn.Module):
         if sd is None:
             self._warn_random(detail)
             return
-        net.load_state_dict(sd)
+        net.features.load_state_dict({k[len("features."):]: t for k, t in sd.items() if k.startswith("features.")})
         self.features_source, self.weights_detail = "imagenet", detail
 
     def _warn_random(self, why: str) -> None:

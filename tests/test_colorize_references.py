@@ -1,0 +1,57 @@
+"""References: presets and files matched by name; wrong size, unknown view, grey/empty content refused."""
+import numpy as np
+import pytest
+import torch
+
+from arcsem.colorize.analytic import arc_cameras
+from arcsem.colorize.references import load_references
+from arcsem.errors import ConfigError, DataError
+from arcsem.scene import Scene, Split
+
+
+def _scene(refs=None, sets=None):
+    cams = arc_cameras(3, 16, 12)
+    names = ["v0", "v1", "v2"]
+    train = Split(names=names, cameras=cams, images=torch.rand(3, 12, 16, 3))
+    test = Split(names=[], cameras=cams[[]], images=torch.zeros(0, 12, 16, 3))
+    return Scene(root=".", train=train, test=test, bounds=torch.tensor([[-1.0] * 3, [1.0] * 3]),
+                 references=refs or {}, reference_sets=sets or {})
+
+
+def _png(path, arr):
+    import imageio.v3 as iio
+
+    iio.imwrite(path, (np.clip(arr, 0, 1) * 255).astype(np.uint8))
+    return path
+
+
+def test_preset_picks_named_views():
+    col = torch.rand(12, 16, 3)
+    sc = _scene({"v2": col, "v0": col}, {"two": ["v2", "v0"]})
+    r = load_references(sc, "two")
+    assert r.names == ["v2", "v0"] and r.indices.tolist() == [2, 0] and r.images.shape == (2, 12, 16, 3)
+    with pytest.raises(ConfigError, match="unknown preset 'five'"):
+        load_references(sc, "five")
+
+
+def test_files_matched_by_stem(tmp_path):
+    img = np.random.rand(12, 16, 3)
+    p = _png(tmp_path / "v1.png", img)
+    r = load_references(_scene(), [str(p)])
+    assert r.names == ["v1"] and r.indices.tolist() == [1]
+    np.testing.assert_allclose(r.images[0].numpy(), (np.clip(img, 0, 1) * 255).astype(np.uint8) / 255, atol=1e-6)
+
+
+def test_refusals_name_the_file(tmp_path):
+    sc = _scene()
+    with pytest.raises(DataError, match=r"wrong\.png.*matches no training view"):
+        load_references(sc, [str(_png(tmp_path / "wrong.png", np.random.rand(12, 16, 3)))])
+    with pytest.raises(DataError, match=r"v0\.png.*size 20x12 differs from view 'v0' \(16x12\)"):
+        load_references(sc, [str(_png(tmp_path / "v0.png", np.random.rand(12, 20, 3)))])
+    grey = np.repeat(np.random.rand(12, 16, 1), 3, -1)
+    with pytest.raises(DataError, match=r"v1\.png.*grey"):
+        load_references(sc, [str(_png(tmp_path / "v1.png", grey))])
+    with pytest.raises(DataError, match=r"v2\.png.*empty"):
+        load_references(sc, [str(_png(tmp_path / "v2.png", np.full((12, 16, 3), 0.5)))])
+    with pytest.raises(DataError, match="does not exist"):
+        load_references(sc, [str(tmp_path / "nope.png")])

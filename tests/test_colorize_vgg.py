@@ -1,0 +1,51 @@
+"""VGG extractor: torchvision's architecture, relu3_x/relu4_x blocks, ImageNet normalisation, random-weights flag."""
+import pytest
+import torch
+from torch import nn
+
+from arcsem.colorize.vgg import IMAGENET_MEAN, IMAGENET_STD, VGGFeatures
+
+
+@pytest.fixture
+def offline(tmp_path, monkeypatch):
+    monkeypatch.setenv("ARCSEM_OFFLINE", "1")
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path))  # an empty hub cache
+
+
+def test_vgg16_blocks_shapes_normalisation(offline):
+    with pytest.warns(UserWarning, match="RANDOM weights"):
+        v = VGGFeatures("vgg16")
+    assert v.features_source == "random"
+    # torchvision vgg16.features: relu3_1..3 = 11, 13, 15; relu4_1..3 = 18, 20, 22
+    assert v.layers == {3: [11, 13, 15], 4: [18, 20, 22]}
+    assert isinstance(v.trunk[10], nn.Conv2d) and v.trunk[10].in_channels == 128 and v.trunk[10].out_channels == 256
+    assert len(v.trunk) == 23
+    torch.testing.assert_close(v.mean.flatten(), torch.tensor(IMAGENET_MEAN))
+    torch.testing.assert_close(v.std.flatten(), torch.tensor(IMAGENET_STD))
+    x = torch.rand(2, 32, 48, 3, requires_grad=True)
+    f3, f4 = v(x)
+    assert f3.shape == (2, 768, 8, 12) and f4.shape == (2, 1536, 4, 6)
+    manual = v.trunk[:12]((x.permute(0, 3, 1, 2) - v.mean) / v.std)  # relu3_1 by hand
+    torch.testing.assert_close(f3[:, :256], manual)
+    f4.sum().backward()
+    assert x.grad is not None and all(p.grad is None for p in v.parameters())
+
+
+def test_vgg19_layers(offline):
+    with pytest.warns(UserWarning):
+        v = VGGFeatures("vgg19")
+    assert v.layers == {3: [11, 13, 15, 17], 4: [20, 22, 24, 26]}
+    f3, f4 = v(torch.rand(1, 32, 32, 3))
+    assert f3.shape[1] == 1024 and f4.shape[1] == 2048
+
+
+def test_weights_from_hub_cache_are_loaded(offline, tmp_path):
+    with pytest.warns(UserWarning):
+        donor = VGGFeatures("vgg16")
+    sd = {f"features.{k}": t + 0.5 for k, t in donor.trunk.state_dict().items()}
+    sd["classifier.0.weight"] = torch.zeros(1)  # extra keys of the full model are ignored
+    (tmp_path / "hub" / "checkpoints").mkdir(parents=True)
+    torch.save(sd, tmp_path / "hub" / "checkpoints" / "vgg16-397923af.pth")
+    v = VGGFeatures("vgg16")
+    assert v.features_source == "imagenet"
+    torch.testing.assert_close(v.trunk[0].weight, sd["features.0.weight"])

@@ -1,0 +1,253 @@
+// Fused CPU compositing of 2-D Gaussian surfels (2DGS) over tiles: forward and backward.
+//
+// Per (camera, splat) entry s the PyTorch side supplies:
+//   H[s]  : 9 values, rows Tu, Tv, Tw of the splat-to-pixel homography; for pixel (x, y)
+//           k = x Tw - Tu, l = y Tw - Tv, p = k x l, (u, v) = (p.x / p.z, p.y / p.z)
+//   Dz[s] : 3 values, camera-z row of the splat: depth at (u, v) = u Dz.x + v Dz.y + Dz.z
+//           (for a pinhole camera Dz = Tw; an orthographic camera has constant w, hence the extra row)
+//   c[s]  : projected centre (pixels), for the low-pass rho2d = 2 |pixel - c|^2
+//   opacity, features (colour, normal, ...)
+// Per camera, the normalised depth of the distortion loss is m = m0 + m1 z + m2 / z.
+// Rules (official 2DGS): rho = min(rho3d, rho2d); depth = hit depth if rho3d <= rho2d else centre depth;
+// skip depth < near, alpha < 1/255; alpha <= 0.99; stop before T would fall below 1e-4;
+// median depth = depth of the last splat composited while T > 0.5.
+#include <torch/extension.h>
+#include <ATen/Parallel.h>
+#include <cmath>
+#include <vector>
+
+namespace {
+
+constexpr double kMinAlpha = 1.0 / 255.0;
+constexpr double kMaxAlpha = 0.99;
+constexpr double kMinT = 1e-4;
+
+template <typename T>
+struct Hit {
+  T k[3], l[3], p[3], u, v, dx, dy, rho3d, rho2d, z, g, alpha;
+  bool use3d;
+};
+
+template <typename T>
+inline bool eval_surfel(const T* H, const T* Dz, const T* c, T op, T px, T py, T near, Hit<T>& h) {
+  for (int j = 0; j < 3; ++j) {
+    h.k[j] = px * H[6 + j] - H[j];
+    h.l[j] = py * H[6 + j] - H[3 + j];
+  }
+  h.p[0] = h.k[1] * h.l[2] - h.k[2] * h.l[1];
+  h.p[1] = h.k[2] * h.l[0] - h.k[0] * h.l[2];
+  h.p[2] = h.k[0] * h.l[1] - h.k[1] * h.l[0];
+  if (h.p[2] == T(0)) return false;
+  h.u = h.p[0] / h.p[2];
+  h.v = h.p[1] / h.p[2];
+  h.rho3d = h.u * h.u + h.v * h.v;
+  h.dx = c[0] - px;
+  h.dy = c[1] - py;
+  h.rho2d = T(2) * (h.dx * h.dx + h.dy * h.dy);
+  h.use3d = h.rho3d <= h.rho2d;
+  h.z = h.use3d ? h.u * Dz[0] + h.v * Dz[1] + Dz[2] : Dz[2];
+  if (h.z < near) return false;
+  const T power = T(-0.5) * (h.use3d ? h.rho3d : h.rho2d);
+  if (power > T(0)) return false;
+  h.g = std::exp(power);
+  h.alpha = std::min(T(kMaxAlpha), op * h.g);
+  return h.alpha >= T(kMinAlpha);
+}
+
+struct Grid {
+  int64_t C, H, W, tile, tx, ty;
+  int64_t tiles() const { return tx * ty; }
+};
+
+template <typename T>
+struct Ptrs {  // inputs
+  const T *H, *Dz, *c, *op, *f, *mc;
+  const int64_t *off, *ids;
+  int64_t K;
+  T near;
+};
+
+template <typename T>
+void forward_impl(const Grid& gr, const Ptrs<T>& in, T* out, T* tf, T* dsum, T* med, T* dist, T* m1o, T* m2o,
+                  int32_t* last, int32_t* medi) {
+  at::parallel_for(0, gr.C * gr.tiles(), 1, [&](int64_t b, int64_t e) {
+    std::vector<T> acc(in.K);
+    Hit<T> h;
+    for (int64_t ct = b; ct < e; ++ct) {
+      const int64_t c = ct / gr.tiles(), t = ct % gr.tiles();
+      const int64_t x0 = (t % gr.tx) * gr.tile, y0 = (t / gr.tx) * gr.tile;
+      const int64_t start = in.off[ct], end = in.off[ct + 1];
+      const T* mc = in.mc + 3 * c;
+      for (int64_t y = y0; y < std::min(y0 + gr.tile, gr.H); ++y) {
+        for (int64_t x = x0; x < std::min(x0 + gr.tile, gr.W); ++x) {
+          const T px = T(x) + T(0.5), py = T(y) + T(0.5);
+          std::fill(acc.begin(), acc.end(), T(0));
+          T Tr = 1, D = 0, M1 = 0, M2 = 0, dis = 0, md = 0;
+          int32_t lastc = int32_t(start) - 1, mi = -1;
+          for (int64_t i = start; i < end; ++i) {
+            const int64_t s = in.ids[i];
+            if (!eval_surfel(in.H + 9 * s, in.Dz + 3 * s, in.c + 2 * s, in.op[s], px, py, in.near, h)) continue;
+            const T next = Tr * (T(1) - h.alpha);
+            if (next < T(kMinT)) break;
+            const T w = h.alpha * Tr;
+            const T m = mc[0] + mc[1] * h.z + mc[2] / h.z;
+            dis += (m * m * (T(1) - Tr) + M2 - T(2) * m * M1) * w;
+            D += h.z * w;
+            M1 += m * w;
+            M2 += m * m * w;
+            if (Tr > T(0.5)) { md = h.z; mi = int32_t(i); }
+            for (int64_t k = 0; k < in.K; ++k) acc[k] += w * in.f[s * in.K + k];
+            Tr = next;
+            lastc = int32_t(i);
+          }
+          const int64_t pix = (c * gr.H + y) * gr.W + x;
+          for (int64_t k = 0; k < in.K; ++k) out[pix * in.K + k] = acc[k];
+          tf[pix] = Tr; dsum[pix] = D; med[pix] = md; dist[pix] = dis; m1o[pix] = M1; m2o[pix] = M2;
+          last[pix] = lastc; medi[pix] = mi;
+        }
+      }
+    }
+  });
+}
+
+// gradient of a scalar function of (u, v) back to the homography rows (adds into gH[9])
+template <typename T>
+inline void backprop_uv(const Hit<T>& h, T gu, T gv, T px, T py, T* gH) {
+  const T gp[3] = {gu / h.p[2], gv / h.p[2], -(gu * h.u + gv * h.v) / h.p[2]};
+  const T gk[3] = {h.l[1] * gp[2] - h.l[2] * gp[1], h.l[2] * gp[0] - h.l[0] * gp[2], h.l[0] * gp[1] - h.l[1] * gp[0]};
+  const T gl[3] = {gp[1] * h.k[2] - gp[2] * h.k[1], gp[2] * h.k[0] - gp[0] * h.k[2], gp[0] * h.k[1] - gp[1] * h.k[0]};
+  for (int j = 0; j < 3; ++j) {
+    gH[j] -= gk[j];
+    gH[3 + j] -= gl[j];
+    gH[6 + j] += px * gk[j] + py * gl[j];
+  }
+}
+
+struct Grads {  // offsets in the per-entry gradient row
+  static constexpr int H = 0, Dz = 9, c = 12, op = 14, f = 15;
+};
+
+template <typename T>
+void backward_impl(const Grid& gr, const Ptrs<T>& in, const T* tf, const T* m1o, const T* m2o, const int32_t* last,
+                   const int32_t* medi, const T* g_out, const T* g_alpha, const T* g_dsum, const T* g_med,
+                   const T* g_dist, int64_t M, T* gH, T* gDz, T* gc, T* gop, T* gf) {
+  const int64_t D = Grads::f + in.K;
+  std::vector<std::vector<T>> bufs(at::get_num_threads());
+  at::parallel_for(0, gr.C * gr.tiles(), 1, [&](int64_t b, int64_t e) {
+    auto& buf = bufs[at::get_thread_num()];
+    if (buf.empty()) buf.assign(M * D, T(0));
+    Hit<T> h;
+    for (int64_t ct = b; ct < e; ++ct) {
+      const int64_t c = ct / gr.tiles(), t = ct % gr.tiles();
+      const int64_t x0 = (t % gr.tx) * gr.tile, y0 = (t / gr.tx) * gr.tile;
+      const int64_t start = in.off[ct];
+      const T* mc = in.mc + 3 * c;
+      for (int64_t y = y0; y < std::min(y0 + gr.tile, gr.H); ++y) {
+        for (int64_t x = x0; x < std::min(x0 + gr.tile, gr.W); ++x) {
+          const int64_t pix = (c * gr.H + y) * gr.W + x;
+          const T px = T(x) + T(0.5), py = T(y) + T(0.5);
+          const T Tf = tf[pix], Wt = T(1) - tf[pix], M1t = m1o[pix], M2t = m2o[pix];
+          const T* go = g_out + pix * in.K;
+          const T ga = g_alpha[pix], gd = g_dsum[pix], gm = g_med[pix], gdis = g_dist[pix];
+          T Tr = Tf, S = 0;
+          for (int64_t i = last[pix]; i >= start; --i) {
+            const int64_t s = in.ids[i];
+            if (!eval_surfel(in.H + 9 * s, in.Dz + 3 * s, in.c + 2 * s, in.op[s], px, py, in.near, h)) continue;
+            const T inv = T(1) / (T(1) - h.alpha), Ti = Tr * inv, w = h.alpha * Ti;
+            const T m = mc[0] + mc[1] * h.z + mc[2] / h.z, dm_dz = mc[1] - mc[2] / (h.z * h.z);
+            T* gb = buf.data() + s * D;
+            // dL/dw_i: every output is a sum over w_i of a per-splat value
+            T gw = ga + gd * h.z + gdis * (m * m * Wt - T(2) * m * M1t + M2t);
+            for (int64_t k = 0; k < in.K; ++k) {
+              gw += go[k] * in.f[s * in.K + k];
+              gb[Grads::f + k] += w * go[k];
+            }
+            T gz = w * gd + gdis * T(2) * w * (m * Wt - M1t) * dm_dz + (medi[pix] == i ? gm : T(0));
+            const T dalpha = gw * Ti - S * inv;
+            S += gw * w;
+            Tr = Ti;
+            T dpow = 0;
+            if (in.op[s] * h.g <= T(kMaxAlpha)) {
+              gb[Grads::op] += dalpha * h.g;
+              dpow = dalpha * in.op[s] * h.g;
+            }
+            const T* Dz = in.Dz + 3 * s;
+            if (h.use3d) {  // power = -0.5 (u^2 + v^2); z = u Dz.x + v Dz.y + Dz.z
+              gb[Grads::Dz] += gz * h.u;
+              gb[Grads::Dz + 1] += gz * h.v;
+              gb[Grads::Dz + 2] += gz;
+              backprop_uv(h, -dpow * h.u + gz * Dz[0], -dpow * h.v + gz * Dz[1], px, py, gb + Grads::H);
+            } else {  // power = -(dx^2 + dy^2) with d = centre - pixel; z = Dz.z
+              gb[Grads::Dz + 2] += gz;
+              gb[Grads::c] += dpow * T(-2) * h.dx;
+              gb[Grads::c + 1] += dpow * T(-2) * h.dy;
+            }
+          }
+        }
+      }
+    }
+  });
+  for (auto& buf : bufs) {
+    if (buf.empty()) continue;
+    for (int64_t s = 0; s < M; ++s) {
+      const T* gb = buf.data() + s * D;
+      for (int j = 0; j < 9; ++j) gH[9 * s + j] += gb[Grads::H + j];
+      for (int j = 0; j < 3; ++j) gDz[3 * s + j] += gb[Grads::Dz + j];
+      gc[2 * s] += gb[Grads::c];
+      gc[2 * s + 1] += gb[Grads::c + 1];
+      gop[s] += gb[Grads::op];
+      for (int64_t k = 0; k < in.K; ++k) gf[s * in.K + k] += gb[Grads::f + k];
+    }
+  }
+}
+
+template <typename T>
+Ptrs<T> ptrs(const torch::Tensor& H, const torch::Tensor& Dz, const torch::Tensor& c, const torch::Tensor& op,
+             const torch::Tensor& f, const torch::Tensor& mc, const torch::Tensor& off, const torch::Tensor& ids,
+             double near) {
+  for (auto* t : {&H, &Dz, &c, &op, &f, &mc, &off, &ids})
+    TORCH_CHECK(t->is_contiguous() && t->device().is_cpu(), "composite2d: inputs must be contiguous CPU tensors");
+  return Ptrs<T>{H.data_ptr<T>(), Dz.data_ptr<T>(), c.data_ptr<T>(), op.data_ptr<T>(), f.data_ptr<T>(),
+                 mc.data_ptr<T>(), off.data_ptr<int64_t>(), ids.data_ptr<int64_t>(), f.size(1), T(near)};
+}
+
+}  // namespace
+
+std::vector<torch::Tensor> forward2d(torch::Tensor H, torch::Tensor Dz, torch::Tensor c, torch::Tensor op,
+                                     torch::Tensor f, torch::Tensor mc, torch::Tensor off, torch::Tensor ids,
+                                     double near, int64_t C, int64_t Hh, int64_t W, int64_t tile) {
+  const Grid gr{C, Hh, W, tile, (W + tile - 1) / tile, (Hh + tile - 1) / tile};
+  TORCH_CHECK(off.numel() == C * gr.tiles() + 1, "composite2d: tile offsets must have C*tiles+1 entries");
+  auto o = f.options();
+  auto out = torch::empty({C, Hh, W, f.size(1)}, o);
+  auto tf = torch::empty({C, Hh, W}, o), dsum = torch::empty_like(tf), med = torch::empty_like(tf),
+       dist = torch::empty_like(tf), m1 = torch::empty_like(tf), m2 = torch::empty_like(tf);
+  auto last = torch::empty({C, Hh, W}, o.dtype(torch::kInt32)), medi = torch::empty_like(last);
+  AT_DISPATCH_FLOATING_TYPES(f.scalar_type(), "forward2d", [&] {
+    forward_impl<scalar_t>(gr, ptrs<scalar_t>(H, Dz, c, op, f, mc, off, ids, near), out.data_ptr<scalar_t>(),
+                           tf.data_ptr<scalar_t>(), dsum.data_ptr<scalar_t>(), med.data_ptr<scalar_t>(),
+                           dist.data_ptr<scalar_t>(), m1.data_ptr<scalar_t>(), m2.data_ptr<scalar_t>(),
+                           last.data_ptr<int32_t>(), medi.data_ptr<int32_t>());
+  });
+  return {out, tf, dsum, med, dist, m1, m2, last, medi};
+}
+
+std::vector<torch::Tensor> backward2d(torch::Tensor H, torch::Tensor Dz, torch::Tensor c, torch::Tensor op,
+                                      torch::Tensor f, torch::Tensor mc, torch::Tensor off, torch::Tensor ids,
+                                      double near, int64_t C, int64_t Hh, int64_t W, int64_t tile,
+                                      torch::Tensor tf, torch::Tensor m1, torch::Tensor m2, torch::Tensor last,
+                                      torch::Tensor medi, torch::Tensor g_out, torch::Tensor g_alpha,
+                                      torch::Tensor g_dsum, torch::Tensor g_med, torch::Tensor g_dist) {
+  const Grid gr{C, Hh, W, tile, (W + tile - 1) / tile, (Hh + tile - 1) / tile};
+  auto gH = torch::zeros_like(H), gDz = torch::zeros_like(Dz), gc = torch::zeros_like(c),
+       gop = torch::zeros_like(op), gf = torch::zeros_like(f);
+  AT_DISPATCH_FLOATING_TYPES(f.scalar_type(), "backward2d", [&] {
+    backward_impl<scalar_t>(gr, ptrs<scalar_t>(H, Dz, c, op, f, mc, off, ids, near), tf.data_ptr<scalar_t>(),
+                            m1.data_ptr<scalar_t>(), m2.data_ptr<scalar_t>(), last.data_ptr<int32_t>(),
+                            medi.data_ptr<int32_t>(), g_out.data_ptr<scalar_t>(), g_alpha.data_ptr<scalar_t>(),
+                            g_dsum.data_ptr<scalar_t>(), g_med.data_ptr<scalar_t>(), g_dist.data_ptr<scalar_t>(),
+                            f.size(0), gH.data_ptr<scalar_t>(), gDz.data_ptr<scalar_t>(), gc.data_ptr<scalar_t>(),
+                            gop.data_ptr<scalar_t>(), gf.data_ptr<scalar_t>());
+  });
+  return {gH, gDz, gc, gop, gf};
+}

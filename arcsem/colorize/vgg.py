@@ -57,13 +57,13 @@ class VGGFeatures(nn.Module):
         net.features = tv.models.vgg.make_layers(tv.models.vgg.cfgs[VGG_CFG[arch]], batch_norm=False)
         self.arch, self.blocks = arch, tuple(blocks)
         self.features_source, self.weights_detail = "random", "not requested"
-        if load_weights:
-            self._load(net)
-        else:
-            self._warn_random("weights not requested")
         self.layers = block_layers(net.features, self.blocks)
         last = max(i for ids in self.layers.values() for i in ids)
         self.trunk = net.features[: last + 1]
+        if load_weights:
+            self._load()
+        else:
+            self._warn_random("weights not requested")
         # ReLUs in place would overwrite the activations we keep
         for m in self.trunk:
             if isinstance(m, nn.ReLU):
@@ -72,14 +72,20 @@ class VGGFeatures(nn.Module):
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 
-    def _load(self, net: nn.Module) -> None:
+    def _load(self) -> None:
         from ..weights import load_state_dict_from_hub
 
         sd, detail = load_state_dict_from_hub(WEIGHT_FILES[self.arch])
         if sd is None:
             self._warn_random(detail)
             return
-        net.features.load_state_dict({k[len("features."):]: t for k, t in sd.items() if k.startswith("features.")})
+        own = {k[len("features."):]: t for k, t in sd.items() if k.startswith("features.")}
+        wanted = self.trunk.state_dict()
+        bad = [k for k, t in wanted.items() if k not in own or own[k].shape != t.shape]
+        if bad:
+            self._warn_random(f"{detail} lacks or mis-shapes features.{bad[0]}")
+            return
+        self.trunk.load_state_dict({k: own[k] for k in wanted})
         self.features_source, self.weights_detail = "imagenet", detail
 
     def _warn_random(self, why: str) -> None:

@@ -4,22 +4,29 @@ PY      ?= python3
 VENV    := .venv
 BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.arcsem-installed
+EXT     := $(VENV)/.arcsem-ext
+CPP     := $(wildcard backbones/gaussians/cpp/*.cpp)
 JOBS    ?= 2
 export PIP_DISABLE_PIP_VERSION_CHECK=1
 
 .PHONY: setup demo test bench clean-venv
 
-setup: $(STAMP)
+setup: $(EXT)
 
 $(STAMP): pyproject.toml constraints.txt
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test]"
 	@touch $(STAMP)
 
-demo: $(STAMP)
+# JIT-build the fused C++ rasteriser once (about a minute); failure is not fatal: PyTorch path is used.
+$(EXT): $(STAMP) $(CPP)
+	-$(BIN)/python -m arcsem.backbones.gaussians.fused
+	@touch $(EXT)
+
+demo: $(EXT)
 	$(BIN)/arcsem experiment=demo
 
-test: $(STAMP)
+test: $(EXT)
 	$(BIN)/python -m pytest -q -n $(JOBS) --dist loadgroup
 
 clean-venv:

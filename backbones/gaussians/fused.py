@@ -135,3 +135,12 @@ def composite2d(Hm: Tensor, Dz: Tensor, centers: Tensor, opacities: Tensor, feat
     c = lambda t: t.contiguous()  # noqa: E731
     return _Composite2D.apply(c(Hm), c(Dz), c(centers), c(opacities), c(feats), c(mcoef), c(offsets), c(ids),
                               float(near), C, H, W, tile)
+
+
+if __name__ == "__main__":  # `python -m arcsem.backbones.gaussians.fused`: build now (make setup does this)
+    import time
+
+    t0 = time.perf_counter()
+    ok = load_extension(verbose=False) is not None
+    print(f"fused C++ rasteriser: {'ready' if ok else 'unavailable, PyTorch path will be used'} "
+          f"({time.perf_counter() - t0:.1f} s)")

@@ -18,7 +18,9 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-__all__ = ["load_extension", "resolve_impl", "composite2d", "composite3d"]
+__all__ = [
+    "load_extension", "resolve_impl", "composite2d", "composite3d", "composite_2dgs_packed", "composite_3dgs_packed",
+]
 
 SOURCES = [Path(__file__).parent / "cpp" / name for name in ("composite3d.cpp", "composite2d.cpp", "module.cpp")]
 
@@ -135,6 +137,32 @@ def composite2d(Hm: Tensor, Dz: Tensor, centers: Tensor, opacities: Tensor, feat
     c = lambda t: t.contiguous()  # noqa: E731
     return _Composite2D.apply(c(Hm), c(Dz), c(centers), c(opacities), c(feats), c(mcoef), c(offsets), c(ids),
                               float(near), C, H, W, tile)
+
+
+
+def composite_2dgs_packed(Hm: Tensor, centre2d: Tensor, opacities: Tensor, feats: Tensor, binning,
+                          dist_near: float, dist_far: float) -> Tensor:
+    """The 2DGS torch shader's packed per-pixel output, from the fused kernel.
+
+    Args: Hm ``[C*N, 4, 3]`` rows Tu, Tv, Tw, Tz; centre2d ``[C*N, 2]``; opacities ``[C*N]``;
+        feats ``[C*N, 6]`` (colour, normal); binning: :class:`~arcsem.backbones.gaussians.raster.Binning`.
+    Returns: ``[C, H, W, 10]`` = rgb(3), alpha, sum w z, normal(3), distortion, median depth.
+    """
+    b = binning
+    a = dist_far / (dist_far - dist_near)  # m = a (1 - near / z) = a - a near / z
+    mcoef = Hm.new_tensor([a, 0.0, -a * dist_near]).expand(b.C, 3)
+    f, alpha, dsum, med, dist = composite2d(
+        Hm[:, :3, :].reshape(-1, 9), Hm[:, 3, :], centre2d, opacities, feats, mcoef, b.offsets, b.splat,
+        float("-inf"), b.C, b.H, b.W, b.tile)
+    return torch.cat([f[..., :3], alpha[..., None], dsum[..., None], f[..., 3:6], dist[..., None],
+                      med[..., None]], -1)
+
+
+def composite_3dgs_packed(means2d: Tensor, conics: Tensor, opacities: Tensor, feats: Tensor, binning) -> Tensor:
+    """The 3DGS torch shader's packed output ``[C, H, W, K + 1]`` = features (colour, depth), alpha."""
+    b = binning
+    f, alpha = composite3d(means2d, conics, opacities, feats, b.offsets, b.splat, b.C, b.H, b.W, b.tile)
+    return torch.cat([f, alpha[..., None]], -1)
 
 
 if __name__ == "__main__":  # `python -m arcsem.backbones.gaussians.fused`: build now (make setup does this)

@@ -1,0 +1,247 @@
+"""Projection-agnostic tile rasteriser: binning, (tile, depth) sort, chunked front-to-back compositing.
+
+The semantics are those of the official 2DGS/3DGS CUDA rasterisers (Kerbl et al. 2023, Huang et al.
+2024):
+
+* a splat is considered by every pixel of every ``tile x tile`` tile touched by its screen rectangle
+  (:func:`tile_rects`, the official ``getRect``), in the order of its centre depth (ties: index);
+* ``alpha = min(0.99, opacity * G)``; a splat with ``alpha < 1/255`` is skipped;
+* a pixel stops before the splat that would leave its transmittance ``T * (1 - alpha) < 1e-4``
+  (that splat and every later one are not composited).
+
+How it is vectorised (no Python loop over tiles or splats): splats are expanded to (camera-tile,
+splat) pairs with a cumulative sum over tiles-per-splat and sorted by one int64 key
+``camera_tile << 32 | depth_rank``. Pairs are processed in chunks of tiles. Inside a chunk each pair
+is expanded to the pixels of its tile that lie inside the splat's *effective rectangle*: a box the
+caller guarantees to contain every pixel where ``opacity * G >= 1/255`` (outside it the alpha would
+be skipped anyway, so this changes nothing but the amount of work). The pair-pixels are sorted by
+(pixel, pair order) so every pixel's splats form one contiguous segment, and the transmittance is a
+segmented exclusive cumulative sum of ``log(1 - alpha)`` (in float64; ``alpha <= 0.99`` keeps the
+logarithm finite). Everything is plain PyTorch, so autograd gives the gradients.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import torch
+from torch import Tensor
+
+__all__ = [
+    "MIN_ALPHA", "MAX_ALPHA", "MIN_T", "Binning", "Segments", "tile_rects", "bin_tiles", "composite",
+    "rasterize", "effective_cutoff2",
+]
+
+MIN_ALPHA = 1.0 / 255.0  # skip splats fainter than this (official value)
+MAX_ALPHA = 0.99  # clamp (keeps log(1 - alpha) finite)
+MIN_T = 1e-4  # stop before the transmittance would fall below this
+PAIR_PIXEL_BUDGET = 1 << 21  # pair-pixels per chunk when chunk_tiles is None (bounds memory)
+
+
+@dataclass
+class Binning:
+    """(camera-tile, splat) pairs sorted by tile then depth.
+
+    Attributes:
+        splat: ``[P]`` long, index into the flattened ``[C*N]`` splats.
+        ctile: ``[P]`` long, camera-tile id ``c * TY * TX + ty * TX + tx`` (non-decreasing).
+        offsets: ``[C*TY*TX + 1]`` long, start of each camera-tile in the pair list.
+        C, H, W, tile, TX, TY: sizes.
+    """
+
+    splat: Tensor
+    ctile: Tensor
+    offsets: Tensor
+    C: int
+    H: int
+    W: int
+    tile: int
+    TX: int
+    TY: int
+
+
+def effective_cutoff2(opacities: Tensor) -> Tensor:
+    """``[...]`` squared Mahalanobis radius beyond which ``opacity * G < 1/255`` (with a safety margin).
+
+    ``opacity * exp(-rho/2) >= 1/255  <=>  rho <= 2 ln(255 opacity)``; non-positive means never visible.
+    """
+    c2 = 2.0 * torch.log(255.0 * opacities.detach().double().clamp_min(1e-30))
+    return c2 * (1 + 1e-4) + 1e-4
+
+
+def tile_rects(center: Tensor, radius: Tensor, W: int, H: int, tile: int) -> Tensor:
+    """Tile rectangle of each splat, as the official ``getRect`` (pixel centres at ``i + 0.5`` here).
+
+    Args:
+        center: ``[..., 2]`` screen centre in pixels; radius: ``[...]`` long, 0 = not rendered.
+    Returns:
+        ``[..., 4]`` long ``(tx0, tx1, ty0, ty1)``, upper bounds exclusive, clipped to the grid.
+    """
+    TX, TY = -(-W // tile), -(-H // tile)
+    ok = radius > 0
+    c = torch.where(ok[..., None], center.detach().double(), torch.zeros_like(center, dtype=torch.double)) - 0.5
+    r = radius.double()
+    big = 4.0 * (W + H + tile)  # keep the float->long conversion finite
+    lo = ((c - r[..., None]) / tile).clamp(-big, big).floor().long()
+    hi = ((c + r[..., None] + tile - 1) / tile).clamp(-big, big).floor().long()
+    tx0, ty0 = lo[..., 0].clamp(0, TX), lo[..., 1].clamp(0, TY)
+    tx1, ty1 = hi[..., 0].clamp(0, TX), hi[..., 1].clamp(0, TY)
+    tx1, ty1 = torch.where(ok, tx1, tx0), torch.where(ok, ty1, ty0)
+    return torch.stack([tx0, tx1, ty0, ty1], -1)
+
+
+def bin_tiles(rects: Tensor, depth: Tensor, W: int, H: int, tile: int) -> Binning:
+    """Expand splats to sorted (camera-tile, splat) pairs.
+
+    Args:
+        rects: ``[C, N, 4]`` long tile rectangles from :func:`tile_rects` (empty = not rendered).
+        depth: ``[C, N]`` sort key (centre depth); ties keep the splat index order.
+    """
+    C, N = depth.shape
+    TX, TY = -(-W // tile), -(-H // tile)
+    dev = depth.device
+    rank = torch.empty(C, N, dtype=torch.long, device=dev)
+    order = torch.argsort(depth.detach(), dim=1, stable=True)
+    rank.scatter_(1, order, torch.arange(N, device=dev).expand(C, N).contiguous())
+    rects = rects.reshape(C * N, 4)
+    nx = (rects[:, 1] - rects[:, 0]).clamp_min(0)
+    ny = (rects[:, 3] - rects[:, 2]).clamp_min(0)
+    count = nx * ny
+    splat = torch.repeat_interleave(torch.arange(C * N, device=dev), count)
+    start = torch.cumsum(count, 0) - count
+    k = torch.arange(splat.numel(), device=dev) - start[splat]
+    nxs = nx[splat]
+    tx = rects[splat, 0] + k % nxs.clamp_min(1)
+    ty = rects[splat, 2] + torch.div(k, nxs.clamp_min(1), rounding_mode="floor")
+    cam = torch.div(splat, N, rounding_mode="floor")
+    ctile = cam * (TX * TY) + ty * TX + tx
+    key = (ctile << 32) | rank.reshape(-1)[splat]
+    key, perm = torch.sort(key)
+    splat, ctile = splat[perm], key >> 32
+    offsets = torch.searchsorted(ctile, torch.arange(C * TX * TY + 1, device=dev))
+    return Binning(splat, ctile, offsets, C, H, W, tile, TX, TY)
+
+
+@dataclass
+class Segments:
+    """Pair-pixels grouped by pixel: every pixel's splats are one contiguous, depth-ordered segment.
+
+    Attributes:
+        seg: ``[Q]`` long segment (pixel) id per pair-pixel; start: ``[Q]`` index of its segment's first
+        entry; n: number of segments; pixel: ``[n]`` long flat pixel id ``c*H*W + y*W + x``.
+    """
+
+    seg: Tensor
+    start: Tensor
+    n: int
+    pixel: Tensor
+
+    def excl_cumsum(self, x: Tensor) -> Tensor:
+        """``[Q, ...]`` exclusive cumulative sum within each segment (accumulated in float64)."""
+        cs = torch.cumsum(x.double(), 0) - x.double()
+        return (cs - cs[self.start]).to(x.dtype)
+
+    def sum(self, x: Tensor) -> Tensor:
+        """``[Q, K]`` -> ``[n, K]`` sum per segment."""
+        return x.new_zeros(self.n, x.shape[1]).index_add(0, self.seg, x)
+
+    def last(self, mask: Tensor) -> Tensor:
+        """``[n]`` index of the last entry with ``mask`` in each segment, or -1."""
+        pos = torch.where(mask, torch.arange(mask.numel(), device=mask.device), -1)
+        out = torch.full((self.n,), -1, dtype=torch.long, device=mask.device)
+        return out.scatter_reduce(0, self.seg, pos, reduce="amax", include_self=True)
+
+
+def composite(alpha: Tensor, segs: Segments) -> tuple[Tensor, Tensor, Tensor]:
+    """Front-to-back weights with the official skip / clamp / early-stop rules.
+
+    Args:
+        alpha: ``[Q]`` raw ``opacity * G`` of each pair-pixel, in segment (depth) order.
+    Returns:
+        w ``[Q]`` compositing weights ``alpha_i T_i`` (0 where not composited), T ``[Q]`` transmittance
+        before each entry, keep ``[Q]`` bool (composited).
+    """
+    a = torch.where(alpha < MIN_ALPHA, torch.zeros_like(alpha), alpha.clamp(max=MAX_ALPHA))
+    T = torch.exp(segs.excl_cumsum(torch.log1p(-a)))
+    keep = (a > 0) & (T.detach() * (1 - a.detach()) >= MIN_T)
+    w = torch.where(keep, a * T, torch.zeros_like(a))
+    return w, T, keep
+
+
+def _chunks(b: Binning, q_tile: Tensor, chunk_tiles: int | None) -> list[tuple[int, int]]:
+    """Pair ranges ``[(p0, p1)]`` of consecutive camera-tiles."""
+    n_ct = b.offsets.numel() - 1
+    if chunk_tiles is not None:
+        bounds = torch.arange(0, n_ct, max(1, int(chunk_tiles)), device=b.offsets.device)
+    else:
+        cum = torch.cumsum(q_tile, 0) - q_tile
+        cid = torch.div(cum, PAIR_PIXEL_BUDGET, rounding_mode="floor")
+        bounds = torch.nonzero(torch.diff(cid, prepend=cid[:1] - 1)).flatten()
+    edges = b.offsets[torch.cat([bounds, bounds.new_tensor([n_ct])])].tolist()
+    return [(p0, p1) for p0, p1 in zip(edges[:-1], edges[1:]) if p1 > p0]
+
+
+def _pair_boxes(b: Binning, eff: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Pixel box of every pair: effective rectangle clipped to the pair's tile. ``[P]`` x0, y0 and size."""
+    tloc = b.ctile % (b.TX * b.TY)
+    tx0 = (tloc % b.TX) * b.tile
+    ty0 = torch.div(tloc, b.TX, rounding_mode="floor") * b.tile
+    e = eff[b.splat]
+    x0 = torch.maximum(e[:, 0], tx0)
+    x1 = torch.minimum(torch.minimum(e[:, 1], tx0 + b.tile - 1), torch.full_like(tx0, b.W - 1))
+    y0 = torch.maximum(e[:, 2], ty0)
+    y1 = torch.minimum(torch.minimum(e[:, 3], ty0 + b.tile - 1), torch.full_like(ty0, b.H - 1))
+    nx, ny = (x1 - x0 + 1).clamp_min(0), (y1 - y0 + 1).clamp_min(0)
+    return torch.stack([x0, y0], -1), nx, ny
+
+
+def _expand(b: Binning, p0: int, p1: int, xy0: Tensor, nx: Tensor, ny: Tensor):
+    """Pair-pixels of pairs ``[p0, p1)`` grouped by pixel: (splat ``[Q]``, xy ``[Q, 2]`` long, Segments)."""
+    dev = xy0.device
+    nx, ny, xy0 = nx[p0:p1], ny[p0:p1], xy0[p0:p1]
+    count = nx * ny
+    pair = torch.repeat_interleave(torch.arange(p1 - p0, device=dev), count)
+    k = torch.arange(pair.numel(), device=dev) - (torch.cumsum(count, 0) - count)[pair]
+    nxp = nx[pair]
+    x = xy0[pair, 0] + k % nxp
+    y = xy0[pair, 1] + torch.div(k, nxp, rounding_mode="floor")
+    cam = torch.div(b.ctile[p0 + pair], b.TX * b.TY, rounding_mode="floor")
+    pix = (cam * b.H + y) * b.W + x
+    key, perm = torch.sort(pix * (p1 - p0) + pair)
+    pix = torch.div(key, p1 - p0, rounding_mode="floor")
+    pair, x, y = pair[perm], x[perm], y[perm]
+    upix, counts = torch.unique_consecutive(pix, return_counts=True)
+    seg = torch.repeat_interleave(torch.arange(upix.numel(), device=dev), counts)
+    start = (torch.cumsum(counts, 0) - counts)[seg]
+    return b.splat[p0 + pair], torch.stack([x, y], -1), Segments(seg, start, upix.numel(), upix)
+
+
+Shade = Callable[[Tensor, Tensor, Segments], Tensor]
+
+
+def rasterize(b: Binning, eff: Tensor, shade: Shade, K: int, dtype: torch.dtype,
+              chunk_tiles: int | None = None) -> Tensor:
+    """Run ``shade`` on every chunk of tiles and assemble the per-pixel results.
+
+    Args:
+        b: the sorted pairs; eff: ``[C*N, 4]`` long inclusive pixel box ``(x0, x1, y0, y1)`` that contains
+            every pixel where the splat's alpha can reach 1/255 (empty when ``x1 < x0``).
+        shade: ``(splat [Q], xy [Q, 2] pixel centres, segs) -> [segs.n, K]`` per-pixel values of a chunk.
+        chunk_tiles: camera-tiles per chunk; None = automatic (bounded pair-pixels per chunk).
+    Returns:
+        ``[C*H*W, K]`` per-pixel values (0 where no splat reaches).
+    """
+    xy0, nx, ny = _pair_boxes(b, eff)
+    q_tile = torch.zeros(b.offsets.numel() - 1, dtype=torch.long, device=xy0.device)
+    q_tile.index_add_(0, b.ctile, nx * ny)
+    pixels, values = [], []
+    for p0, p1 in _chunks(b, q_tile, chunk_tiles):
+        splat, xy, segs = _expand(b, p0, p1, xy0, nx, ny)
+        if splat.numel() == 0:
+            continue
+        values.append(shade(splat, xy.to(dtype) + 0.5, segs))
+        pixels.append(segs.pixel)
+    out = torch.zeros(b.C * b.H * b.W, K, dtype=dtype, device=xy0.device)
+    if not pixels:
+        return out
+    return out.index_put((torch.cat(pixels),), torch.cat(values))

@@ -1,0 +1,106 @@
+"""Dense reference renderer for 2DGS: every splat against every pixel, one splat at a time.
+
+Plain code written for clarity, not speed; tests and benchmarks compare :func:`render_2dgs` with it.
+It computes the intersection independently of the homography: a world-space ray (from
+``Cameras.rays``) meets the splat plane ``p + u t_u + v t_v`` (a 3x3 linear solve), the hit depth
+is the ray parameter (rays have unit camera z and start at camera z = 0 for both models). Only the
+discrete footprint (which tiles a splat touches, the culling) is taken from the renderer, since it
+is a definition rather than maths to check.
+"""
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from arcsem.backbones.gaussians.raster import MAX_ALPHA, MIN_ALPHA, MIN_T
+from arcsem.backbones.gs2d.render import DIST_FAR, DIST_NEAR, footprint_2dgs, splat_homographies
+from arcsem.cameras import Cameras
+
+__all__ = ["render_2dgs_dense", "rotate_by_quat"]
+
+
+def rotate_by_quat(quats: Tensor, v: Tensor) -> Tensor:
+    """Rotate ``v [3]`` by each unit quaternion ``[N, 4]`` (w, x, y, z): ``q v q*`` -> ``[N, 3]``."""
+    q = quats / quats.norm(dim=-1, keepdim=True)
+    w, r = q[:, :1], q[:, 1:]
+    v = v.expand_as(r)
+    t = 2 * torch.cross(r, v, dim=-1)
+    return v + w * t + torch.cross(r, t, dim=-1)
+
+
+def _tile_mask(rects: Tensor, W: int, H: int, tile: int) -> Tensor:
+    """``[N, 4]`` tile rectangles -> ``[H*W, N]`` bool: the pixel's tile is inside the splat's rectangle."""
+    ys, xs = torch.meshgrid(torch.arange(H), torch.arange(W), indexing="ij")
+    tx, ty = (xs.reshape(-1, 1) // tile), (ys.reshape(-1, 1) // tile)
+    return (tx >= rects[:, 0]) & (tx < rects[:, 1]) & (ty >= rects[:, 2]) & (ty < rects[:, 3])
+
+
+def _one_camera(means, quats, scales, opac, colors, cam: Cameras, rects, radius, tile):
+    N = means.shape[0]
+    eye = torch.eye(3, dtype=means.dtype)
+    tu = rotate_by_quat(quats, eye[0]) * scales[:, :1]
+    tv = rotate_by_quat(quats, eye[1]) * scales[:, 1:]
+    n = rotate_by_quat(quats, eye[2])
+    toward = cam.forward[0] if cam.is_ortho else means - cam.centers[0]
+    n = torch.where((n * toward).sum(-1, keepdim=True) > 0, -n, n)
+    o, d = cam.rays()
+    o, d = o.reshape(-1, 1, 3), d.reshape(-1, 1, 3)
+    P = o.shape[0]
+    A = torch.stack([tu.expand(P, N, 3), tv.expand(P, N, 3), -d.expand(P, N, 3)], -1)
+    uvs = torch.linalg.solve(A, (o - means)[..., None])[..., 0]  # [P, N, 3]
+    rho3d = uvs[..., 0] ** 2 + uvs[..., 1] ** 2
+    c2d, cz = cam.project(means)
+    pix = cam.pixel_grid(means.dtype).reshape(-1, 1, 2)
+    rho2d = 2 * ((pix - c2d) ** 2).sum(-1)
+    alpha = (opac * torch.exp(-0.5 * torch.minimum(rho3d, rho2d))).clamp(max=MAX_ALPHA)
+    z = torch.where(rho3d <= rho2d, uvs[..., 2], cz.expand(P, N))
+    m = DIST_FAR / (DIST_FAR - DIST_NEAR) * (1 - DIST_NEAR / z)
+    mask = _tile_mask(rects, cam.width, cam.height, tile) & (radius > 0)
+    return _composite_loop(alpha, mask, z, m, colors, n, torch.argsort(cz[0], stable=True))
+
+
+def _composite_loop(alpha, mask, z, m, colors, n, order):
+    """Front-to-back loop over splats in ``order`` with the official skip / clamp / stop rules."""
+    P = alpha.shape[0]
+    T = alpha.new_ones(P)
+    done = torch.zeros(P, dtype=torch.bool)
+    rgb, nrm = alpha.new_zeros(P, 3), alpha.new_zeros(P, 3)
+    acc, wz, dist, M1, M2, med = (alpha.new_zeros(P) for _ in range(6))
+    for j in order.tolist():
+        a = alpha[:, j]
+        active = mask[:, j] & ~done & (a >= MIN_ALPHA)
+        test_T = T * (1 - a)
+        stop = active & (test_T < MIN_T)
+        done = done | stop
+        active = active & ~stop
+        w = torch.where(active, a * T, torch.zeros_like(a))
+        mj = m[:, j]
+        dist = dist + w * (mj * mj * (1 - T) + M2 - 2 * mj * M1)
+        M1, M2 = M1 + w * mj, M2 + w * mj * mj
+        med = torch.where(active & (T > 0.5), z[:, j], med)
+        rgb = rgb + w[:, None] * colors[j]
+        nrm = nrm + w[:, None] * n[j]
+        acc, wz = acc + w, wz + w * z[:, j]
+        T = torch.where(active, test_T, T)
+    depth = torch.where(acc > 0, wz / acc.clamp_min(1e-30), torch.zeros_like(wz))
+    return rgb, acc, depth, med, nrm, dist
+
+
+def render_2dgs_dense(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
+                      cams: Cameras, *, background: Tensor | None = None, tile: int = 16,
+                      near: float = 0.01) -> dict[str, Tensor]:
+    """Same inputs and image outputs as :func:`arcsem.backbones.gs2d.render.render_2dgs`."""
+    cams = cams.to(dtype=means.dtype)
+    C, N, H, W = len(cams), means.shape[0], cams.height, cams.width
+    with torch.no_grad():
+        Hm, _ = splat_homographies(means, quats, scales, cams)
+        radius, rects, _, _ = footprint_2dgs(Hm, opacities, cams, tile, near)
+    colors = colors.expand(C, N, 3) if colors.ndim == 2 else colors
+    outs = [_one_camera(means, quats, scales, opacities, colors[c], cams[c], rects[c], radius[c], tile)
+            for c in range(C)]
+    rgb, acc, depth, med, nrm, dist = (torch.stack([o[i] for o in outs]) for i in range(6))
+    if background is not None:
+        rgb = rgb + (1 - acc[..., None]) * background.to(rgb)
+    img = lambda x, k: x.reshape(C, H, W, k)  # noqa: E731
+    return {"rgb": img(rgb, 3), "alpha": img(acc, 1), "depth": img(depth, 1), "median_depth": img(med, 1),
+            "normal": img(nrm, 3), "distortion": img(dist, 1)}

@@ -1,0 +1,163 @@
+"""2D Gaussian splat rendering (Huang et al. 2024) on the tile rasteriser, pinhole and orthographic.
+
+Ray-splat intersection via the homography ``T = P @ S`` (METHOD.md): ``S`` maps splat coordinates
+``(u, v, 1)`` to homogeneous world points ``p + u t_u + v t_v`` and ``P`` (:func:`pixel_projection`)
+maps world points to ``(x w, y w, w, z)``; the rows of ``T`` are ``Tu, Tv, Tw`` and the depth row
+``Tz``. For pixel ``(x, y)``: ``k = x Tw - Tu``, ``l = y Tw - Tv``, ``(u, v, 1) ~ k x l``. For an
+orthographic camera ``Tw = (0, 0, 1)``, so the same code applies.
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from arcsem.backbones.gaussians.raster import (
+    Segments, bin_tiles, composite, effective_cutoff2, rasterize, tile_rects,
+)
+from arcsem.backbones.gaussians.raster_camera import camera_facing_normals, pixel_projection, quat_to_rotmat
+from arcsem.cameras import Cameras
+
+__all__ = ["render_2dgs", "splat_homographies", "footprint_2dgs", "DIST_NEAR", "DIST_FAR", "FILTER_RADIUS"]
+
+DIST_NEAR, DIST_FAR = 0.2, 100.0  # normalised depth m = far/(far-near) (1 - near/z) (official 2DGS)
+FILTER_RADIUS = 3.0 / math.sqrt(2.0)  # 3 sigma of the low-pass filter rho2d = 2 |d|^2, in pixels
+
+
+def splat_homographies(means: Tensor, quats: Tensor, scales: Tensor, cams: Cameras) -> tuple[Tensor, Tensor]:
+    """Per camera and splat homography ``[C, N, 4, 3]`` (rows Tu, Tv, Tw, Tz) and rotations ``[N, 3, 3]``."""
+    R = quat_to_rotmat(quats)
+    N = means.shape[0]
+    S = means.new_zeros(N, 4, 3)
+    S[:, :3, 0] = R[:, :, 0] * scales[:, :1]
+    S[:, :3, 1] = R[:, :, 1] * scales[:, 1:2]
+    S[:, :3, 2] = means
+    S[:, 3, 2] = 1.0
+    P = pixel_projection(cams).to(means.dtype)
+    return torch.einsum("cij,njk->cnik", P, S), R
+
+
+def _conic_box(T: Tensor, cut2: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Bounding box of the image of the disk ``u^2 + v^2 <= cut2`` (dual conic ``T diag(1,1,-1/cut2) T^T``).
+
+    Args: T ``[..., 3, 3]`` rows Tu, Tv, Tw (float64, detached); cut2 ``[...]``.
+    Returns: centre ``[..., 2]``, half extent ``[..., 2]``, valid ``[...]`` (the disk lies in front of
+    the camera, so the image is an ellipse).
+    """
+    f = torch.stack([torch.ones_like(cut2), torch.ones_like(cut2), -1.0 / cut2], -1)
+    D = torch.einsum("...ik,...k,...jk->...ij", T, f, T)
+    d22 = D[..., 2, 2]
+    valid = d22 < 0  # signature (+,+,-): the line at infinity misses the conic -> ellipse
+    d22s = torch.where(valid, d22, torch.ones_like(d22))
+    c = torch.stack([D[..., 0, 2], D[..., 1, 2]], -1) / d22s[..., None]
+    e2 = c * c - torch.stack([D[..., 0, 0], D[..., 1, 1]], -1) / d22s[..., None]
+    return c, e2.clamp_min(1e-4).sqrt(), valid
+
+
+def footprint_2dgs(H: Tensor, opacities: Tensor, cams: Cameras, tile: int, near: float):
+    """Screen footprint of 2-D splats (no gradient).
+
+    Args: H ``[C, N, 4, 3]`` homographies; opacities ``[N]``.
+    Returns: radii ``[C, N]`` long (3 sigma, official: ``ceil(max(extent, 3/sqrt(2)))``), rects
+    ``[C, N, 4]`` tile rectangles, effective pixel boxes ``[C, N, 4]`` long, centre depth ``[C, N]``.
+    """
+    T = H.detach().double()
+    depth = T[..., 3, 2]
+    centre2d = T[..., :2, 2] / T[..., 2, 2:3]
+    c3, e3, ok3 = _conic_box(T[..., :3, :], torch.full_like(depth, 9.0))
+    ok = ok3 & (depth > near) & torch.isfinite(e3).all(-1)
+    radius = torch.maximum(e3.amax(-1), torch.full_like(depth, FILTER_RADIUS)).ceil()
+    radius = torch.where(ok, radius.clamp(max=1e7), torch.zeros_like(radius)).long()
+    rects = tile_rects(c3, radius, cams.width, cams.height, tile)
+    # effective box: union of the low-pass circle and the ellipse with the opacity cutoff
+    cut2 = effective_cutoff2(opacities).expand_as(depth)
+    ce, ee, oke = _conic_box(T[..., :3, :], cut2.clamp_min(1e-6))
+    r2d = (cut2.clamp_min(0) / 2).sqrt()[..., None]
+    inf = torch.full_like(ce, float("inf"))
+    lo = torch.minimum(torch.where(oke[..., None], ce - ee, -inf), centre2d - r2d) - 0.01
+    hi = torch.maximum(torch.where(oke[..., None], ce + ee, inf), centre2d + r2d) + 0.01
+    eff = _pixel_box(lo, hi, cams.width, cams.height, cut2 > 0)
+    return radius, rects, eff, depth
+
+
+def _pixel_box(lo: Tensor, hi: Tensor, W: int, H: int, ok: Tensor) -> Tensor:
+    """``[..., 2]`` float bounds -> ``[..., 4]`` long inclusive pixel-index box (pixel centres inside)."""
+    lo = (lo - 0.5).clamp(-1, max(W, H) + 1).ceil().long()
+    hi = (hi - 0.5).clamp(-2, max(W, H) + 1).floor().long()
+    box = torch.stack([lo[..., 0].clamp_min(0), hi[..., 0].clamp(max=W - 1),
+                       lo[..., 1].clamp_min(0), hi[..., 1].clamp(max=H - 1)], -1)
+    box[..., 1] = torch.where(ok, box[..., 1], torch.full_like(box[..., 1], -1))
+    return box
+
+
+def _shade_2dgs(Hf: Tensor, centre2d: Tensor, opac: Tensor, feats: Tensor):
+    """Shader for :func:`rasterize`: per-pixel ``[rgb(3), alpha, sum w z, normal(3), distortion, median]``."""
+
+    def shade(splat: Tensor, xy: Tensor, segs: Segments) -> Tensor:
+        Tm = Hf[splat]
+        Tu, Tv, Tw, Tz = Tm.unbind(1)
+        x, y = xy[:, :1], xy[:, 1:]
+        q = torch.cross(x * Tw - Tu, y * Tw - Tv, dim=-1)
+        qz = torch.where(q[:, 2].abs() < 1e-12, torch.full_like(q[:, 2], 1e-12), q[:, 2])
+        u, v = q[:, 0] / qz, q[:, 1] / qz
+        rho3d = u * u + v * v
+        rho2d = 2.0 * ((xy - centre2d[splat]) ** 2).sum(-1)
+        use3d = rho3d <= rho2d
+        alpha = opac[splat] * torch.exp(-0.5 * torch.where(use3d, rho3d, rho2d))
+        z = torch.where(use3d, u * Tz[:, 0] + v * Tz[:, 1] + Tz[:, 2], Tz[:, 2])
+        w, T, keep = composite(alpha, segs)
+        m = DIST_FAR / (DIST_FAR - DIST_NEAR) * (1 - DIST_NEAR / z)
+        wm = w * m
+        dist = w * (m * m * (1 - T) + segs.excl_cumsum(wm * m) - 2 * m * segs.excl_cumsum(wm))
+        f = feats[splat]
+        sums = segs.sum(torch.cat([w[:, None] * f[:, :3], w[:, None], (w * z)[:, None],
+                                   w[:, None] * f[:, 3:6], dist[:, None]], -1))
+        last = segs.last(keep & (T.detach() > 0.5))
+        median = torch.where(last >= 0, z[last.clamp_min(0)], torch.zeros_like(sums[:, 0]))
+        return torch.cat([sums, median[:, None]], -1)
+
+    return shade
+
+
+def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
+                cams: Cameras, *, background: Tensor | None = None, tile: int = 16,
+                chunk_tiles: int | None = None, near: float = 0.01, impl: str = "torch") -> dict[str, Tensor]:
+    """Render 2-D Gaussian splats.
+
+    Args:
+        means ``[N, 3]``, quats ``[N, 4]`` (w, x, y, z; unnormalised), scales ``[N, 2]``, opacities ``[N]``
+        in (0, 1), colors ``[C, N, 3]`` or ``[N, 3]`` (decoded), cams: ``C`` cameras (pinhole or
+        orthographic); background ``[3]`` composited as ``rgb + (1 - alpha) bg``; splats whose centre
+        depth is ``<= near`` are culled.
+    Returns:
+        rgb ``[C, H, W, 3]``, alpha, depth (``sum w z / alpha``), median_depth, distortion ``[C, H, W, 1]``,
+        normal ``[C, H, W, 3]`` (world, ``sum w n``), radii ``[C, N]`` long, visible ``[C, N]`` bool.
+    """
+    if impl != "torch":
+        raise NotImplementedError(f"render_2dgs: impl='{impl}' is not available (only 'torch')")
+    C, N, Hh, W = len(cams), means.shape[0], cams.height, cams.width
+    cams = cams.to(dtype=means.dtype)
+    Hm, R = splat_homographies(means, quats, scales, cams)
+    radius, rects, eff, depth = footprint_2dgs(Hm, opacities, cams, tile, near)
+    b = bin_tiles(rects, depth, W, Hh, tile)
+    normals = camera_facing_normals(R[:, :, 2], means, cams)
+    colors = colors.expand(C, N, 3) if colors.ndim == 2 else colors
+    feats = torch.cat([colors, normals], -1).reshape(C * N, 6)
+    centre2d = (Hm[..., :2, 2] / Hm[..., 2, 2:3]).reshape(C * N, 2)
+    shade = _shade_2dgs(Hm.reshape(C * N, 4, 3), centre2d, opacities.repeat(C), feats)
+    out = rasterize(b, eff.reshape(C * N, 4), shade, 10, means.dtype, chunk_tiles).reshape(C, Hh, W, 10)
+    return _outputs(out, background, radius, rects)
+
+
+def _outputs(out: Tensor, background: Tensor | None, radius: Tensor, rects: Tensor) -> dict[str, Tensor]:
+    rgb, alpha, wz = out[..., :3], out[..., 3:4], out[..., 4:5]
+    depth = torch.where(alpha > 0, wz / alpha.clamp_min(1e-30), torch.zeros_like(wz))
+    if background is not None:
+        rgb = rgb + (1 - alpha) * background.to(rgb)
+    visible = (radius > 0) & (rects[..., 1] > rects[..., 0]) & (rects[..., 3] > rects[..., 2])
+    return {
+        "rgb": rgb, "alpha": alpha, "depth": depth, "median_depth": out[..., 9:10],
+        "normal": out[..., 5:8], "distortion": out[..., 8:9],
+        "radii": torch.where(visible, radius, torch.zeros_like(radius)), "visible": visible,
+    }

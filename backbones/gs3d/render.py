@@ -1,0 +1,113 @@
+"""3D Gaussian splat rendering (Kerbl et al. 2023) on the tile rasteriser, pinhole and orthographic.
+
+EWA splatting: ``Sigma2d = J W Sigma W^T J^T + 0.3 I`` with the Jacobian ``J`` of the camera
+projection at the Gaussian's centre (pinhole ``[[fx/z, s/z, -(fx x + s y)/z^2], [0, fy/z, -fy y/z^2]]``,
+orthographic ``[[fx, s, 0], [0, fy, 0]]``); conic = ``Sigma2d^-1``; radius ``ceil(3 sqrt(lambda_max))``;
+``alpha = opacity exp(-d^T conic d / 2)`` (skipped where the exponent is positive, as the official code).
+"""
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from arcsem.backbones.gaussians.raster import (
+    Segments, bin_tiles, composite, effective_cutoff2, rasterize, tile_rects,
+)
+from arcsem.backbones.gaussians.raster_camera import pixel_projection, quat_to_rotmat
+from arcsem.cameras import Cameras
+
+__all__ = ["render_3dgs", "project_gaussians", "footprint_3dgs", "COV2D_BLUR"]
+
+COV2D_BLUR = 0.3  # added to the diagonal of Sigma2d (official low-pass)
+
+
+def project_gaussians(means: Tensor, quats: Tensor, scales: Tensor, cams: Cameras):
+    """EWA projection.
+
+    Returns: means2d ``[C, N, 2]``, depth ``[C, N]`` (camera z), cov2d ``[C, N, 2, 2]`` (with blur).
+    """
+    P = pixel_projection(cams).to(means.dtype)  # [C, 4, 4]: (x w, y w, w, z)
+    hom = torch.einsum("cij,nj->cni", P[:, :, :3], means) + P[:, None, :, 3]
+    w, depth = hom[..., 2], hom[..., 3]
+    means2d = hom[..., :2] / w[..., None]
+    # d(pixel)/d(world) = (P[:2] - pixel * P[2]) / w for both models (P[2] = 0 for orthographic)
+    Jw = (P[:, None, :2, :3] - means2d[..., None] * P[:, None, 2:3, :3]) / w[..., None, None]
+    R = quat_to_rotmat(quats)
+    M = R * scales[:, None, :]  # R S
+    JM = Jw @ M[None]
+    cov2d = JM @ JM.transpose(-1, -2) + COV2D_BLUR * torch.eye(2, dtype=means.dtype, device=means.device)
+    return means2d, depth, cov2d
+
+
+def footprint_3dgs(means2d: Tensor, depth: Tensor, cov2d: Tensor, opacities: Tensor, cams: Cameras,
+                   tile: int, near: float):
+    """Radii ``[C, N]`` long, tile rects ``[C, N, 4]``, effective pixel boxes ``[C, N, 4]``, conic validity."""
+    cov = cov2d.detach().double()
+    a, b, c = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
+    det = a * c - b * b
+    mid = 0.5 * (a + c)
+    lam = mid + (mid * mid - det).clamp_min(0.1).sqrt()
+    ok = (det > 0) & (depth.detach() > near) & torch.isfinite(lam)
+    radius = torch.where(ok, (3 * lam.clamp_min(0).sqrt()).ceil().clamp(max=1e7), torch.zeros_like(lam)).long()
+    rects = tile_rects(means2d, radius, cams.width, cams.height, tile)
+    cut2 = effective_cutoff2(opacities).expand_as(a)
+    half = torch.stack([(cut2.clamp_min(0) * a).sqrt(), (cut2.clamp_min(0) * c).sqrt()], -1) * 1.001 + 0.01
+    m2 = means2d.detach().double()
+    lo = (m2 - half - 0.5).clamp(-1, max(cams.width, cams.height) + 1).ceil().long()
+    hi = (m2 + half - 0.5).clamp(-2, max(cams.width, cams.height) + 1).floor().long()
+    eff = torch.stack([lo[..., 0].clamp_min(0), hi[..., 0].clamp(max=cams.width - 1),
+                       lo[..., 1].clamp_min(0), hi[..., 1].clamp(max=cams.height - 1)], -1)
+    eff[..., 1] = torch.where(cut2 > 0, eff[..., 1], torch.full_like(eff[..., 1], -1))
+    return radius, rects, eff, ok
+
+
+def _shade_3dgs(means2d: Tensor, conics: Tensor, opac: Tensor, feats: Tensor):
+    """Shader: per-pixel ``[rgb(3), alpha, sum w z]``."""
+
+    def shade(splat: Tensor, xy: Tensor, segs: Segments) -> Tensor:
+        d = xy - means2d[splat]
+        cn = conics[splat]
+        power = -0.5 * (cn[:, 0] * d[:, 0] ** 2 + cn[:, 2] * d[:, 1] ** 2) - cn[:, 1] * d[:, 0] * d[:, 1]
+        alpha = torch.where(power > 0, torch.zeros_like(power), opac[splat] * torch.exp(power))
+        w, _, _ = composite(alpha, segs)
+        return segs.sum(w[:, None] * torch.cat([feats[splat], torch.ones_like(w[:, None])], -1))
+
+    return shade
+
+
+def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
+                cams: Cameras, *, background: Tensor | None = None, tile: int = 16,
+                chunk_tiles: int | None = None, near: float = 0.01, impl: str = "torch") -> dict[str, Tensor]:
+    """Render 3-D Gaussians.
+
+    Args:
+        means ``[N, 3]``, quats ``[N, 4]`` (w, x, y, z; unnormalised), scales ``[N, 3]``, opacities ``[N]``,
+        colors ``[C, N, 3]`` or ``[N, 3]``, cams: ``C`` cameras; background ``[3]``; centres with depth
+        ``<= near`` are culled.
+    Returns:
+        rgb ``[C, H, W, 3]``, alpha ``[C, H, W, 1]``, depth ``[C, H, W, 1]`` (``sum w z / alpha``),
+        radii ``[C, N]`` long, visible ``[C, N]`` bool, means2d ``[C, N, 2]``.
+    """
+    if impl != "torch":
+        raise NotImplementedError(f"render_3dgs: impl='{impl}' is not available (only 'torch')")
+    C, N, H, W = len(cams), means.shape[0], cams.height, cams.width
+    cams = cams.to(dtype=means.dtype)
+    means2d, depth, cov2d = project_gaussians(means, quats, scales, cams)
+    radius, rects, eff, ok = footprint_3dgs(means2d, depth, cov2d, opacities, cams, tile, near)
+    b = bin_tiles(rects, depth, W, H, tile)
+    det = cov2d[..., 0, 0] * cov2d[..., 1, 1] - cov2d[..., 0, 1] ** 2
+    det = torch.where(ok, det, torch.ones_like(det))
+    conics = torch.stack([cov2d[..., 1, 1], -cov2d[..., 0, 1], cov2d[..., 0, 0]], -1) / det[..., None]
+    colors = colors.expand(C, N, 3) if colors.ndim == 2 else colors
+    feats = torch.cat([colors, depth[..., None]], -1).reshape(C * N, 4)
+    shade = _shade_3dgs(means2d.reshape(C * N, 2), conics.reshape(C * N, 3), opacities.repeat(C), feats)
+    out = rasterize(b, eff.reshape(C * N, 4), shade, 5, means.dtype, chunk_tiles).reshape(C, H, W, 5)
+    rgb, wz, alpha = out[..., :3], out[..., 3:4], out[..., 4:5]
+    if background is not None:
+        rgb = rgb + (1 - alpha) * background.to(rgb)
+    visible = (radius > 0) & (rects[..., 1] > rects[..., 0]) & (rects[..., 3] > rects[..., 2])
+    return {
+        "rgb": rgb, "alpha": alpha,
+        "depth": torch.where(alpha > 0, wz / alpha.clamp_min(1e-30), torch.zeros_like(wz)),
+        "radii": torch.where(visible, radius, torch.zeros_like(radius)), "visible": visible, "means2d": means2d,
+    }

@@ -1,0 +1,140 @@
+"""2DGS rasteriser: values and gradients against the dense reference, gradcheck, chunking, ortho limit."""
+import pytest
+import torch
+
+from arcsem.backbones.gaussians.raster_scenes import orbit_cameras, random_splats
+from arcsem.backbones.gs2d.reference import render_2dgs_dense
+from arcsem.backbones.gs2d.render import render_2dgs, splat_homographies
+
+OUTS = ["rgb", "alpha", "depth", "median_depth", "normal", "distortion"]
+
+
+def hard_scene(N=20, C=2, seed=0):
+    """Random splats plus a stack in front of each other (early termination) and opacity-clamped ones."""
+    s = random_splats(N, C, seed=seed)
+    s.means[:5] = torch.tensor([0.05, -0.02, 0.0], dtype=torch.float64) + torch.linspace(-0.3, 0.3, 5)[:, None] * \
+        torch.tensor([0.02, 0.01, 1.0], dtype=torch.float64)
+    s.scales[:5] = 0.25
+    s.quats[:5] = torch.tensor([1.0, 0.05, -0.04, 0.02], dtype=torch.float64)
+    s.opacities[:5] = torch.tensor([0.93, 0.999, 0.96, 0.9, 0.97], dtype=torch.float64)
+    s.opacities[7] = 0.995
+    return s
+
+
+def rel_err(a, b):
+    return ((a - b).abs().max() / b.abs().max().clamp_min(1e-12)).item()
+
+
+def compare(s, cams, tile, chunk_tiles=None, background=None):
+    pa, pb = s.params(2), s.params(2)
+    a = render_2dgs(*pa, cams, tile=tile, chunk_tiles=chunk_tiles, background=background)
+    b = render_2dgs_dense(*pb, cams, tile=tile, background=background)
+    g = torch.Generator().manual_seed(1)
+    loss_a = loss_b = 0.0
+    for k in OUTS:
+        assert rel_err(a[k], b[k]) < 1e-6, k
+        wgt = torch.rand(b[k].shape, generator=g, dtype=torch.float64)
+        loss_a, loss_b = loss_a + (a[k] * wgt).sum(), loss_b + (b[k] * wgt).sum()
+    ga = torch.autograd.grad(loss_a, pa)
+    gb = torch.autograd.grad(loss_b, pb)
+    for name, x, y in zip(["means", "quats", "scales", "opacities", "colors"], ga, gb):
+        assert rel_err(x, y) < 1e-6, name
+    return a, b
+
+
+@pytest.mark.parametrize("ortho", [False, True])
+@pytest.mark.parametrize("tile", [8, 16])
+def test_matches_dense_reference(ortho, tile):
+    s = hard_scene()
+    cams = orbit_cameras(2, 20, 16, ortho=ortho)
+    a, b = compare(s, cams, tile, background=torch.tensor([0.2, 0.5, 0.9], dtype=torch.float64))
+    assert b["alpha"].max() > 0.999  # some pixels are early-terminated (T would fall below 1e-4)
+    assert (b["alpha"] == 0).any()  # and some pixels see nothing
+    assert a["visible"].sum() >= 15 and (a["radii"][a["visible"]] > 0).all()
+
+
+def test_tile_grid_edges_and_straddling():
+    """Splats straddling tile borders and the image border, a non-multiple-of-tile image size."""
+    s = random_splats(16, 1, seed=3, extent=1.6, scale=(0.05, 0.3))
+    compare(s, orbit_cameras(1, 21, 13), tile=4)
+
+
+def test_chunked_equals_unchunked():
+    s = hard_scene(seed=2)
+    cams = orbit_cameras(2, 20, 16)
+    pa, pb = s.params(2), s.params(2)
+    a = render_2dgs(*pa, cams, tile=4, chunk_tiles=1)
+    b = render_2dgs(*pb, cams, tile=4, chunk_tiles=None)
+    for k in OUTS:
+        torch.testing.assert_close(a[k], b[k], rtol=1e-12, atol=1e-12)
+    ga = torch.autograd.grad(sum(a[k].sum() for k in OUTS), pa)
+    gb = torch.autograd.grad(sum(b[k].sum() for k in OUTS), pb)
+    for x, y in zip(ga, gb):
+        torch.testing.assert_close(x, y, rtol=1e-10, atol=1e-12)
+
+
+def test_gradcheck_tiny():
+    s = random_splats(4, 1, seed=5, scale=(0.15, 0.3), opacity=(0.3, 0.8))
+    cams = orbit_cameras(1, 8, 8, focal=10.0)
+
+    def f(*p):
+        out = render_2dgs(*p, cams, tile=4)
+        return tuple(out[k] for k in OUTS)
+
+    assert torch.autograd.gradcheck(f, tuple(s.params(2)), eps=1e-6, atol=1e-5, fast_mode=True)
+
+
+def _shift_back(cams_o, d, d0):
+    """Pinhole camera pushed back by ``d`` along its axis, focal scaled so the magnification at d0 holds."""
+    pin = orbit_cameras(len(cams_o), cams_o.width, cams_o.height)
+    pin.world_to_cam = cams_o.world_to_cam.clone()
+    pin.world_to_cam[:, 2, 3] += d
+    pin.K = cams_o.K.clone()
+    pin.K[:, :2, :2] *= d0 + d
+    return pin
+
+
+def test_orthographic_is_limit_of_far_pinhole():
+    s = random_splats(12, 1, seed=7)
+    ortho = orbit_cameras(1, 20, 16, ortho=True)
+    o = render_2dgs(*s.params(2), ortho)
+    errs = []
+    for d in [1e2, 1e3, 1e4, 1e5]:
+        p = render_2dgs(*s.params(2), _shift_back(ortho, d, 3.0))
+        depth_err = ((p["depth"] - d - o["depth"]) * (o["alpha"] > 0) * (p["alpha"] > 0)).abs().max()
+        errs.append(max((p["rgb"] - o["rgb"]).abs().max().item(), depth_err.item(),
+                        (p["normal"] - o["normal"]).abs().max().item()))
+    assert all(e2 < e1 for e1, e2 in zip(errs, errs[1:])), errs
+    assert errs[-1] < 1e-4 and o["alpha"].max() > 0.5
+
+
+def test_homography_matches_ray_plane_intersection():
+    """The centre of a splat projects to T's third column, for both camera models."""
+    s = random_splats(5, 1, seed=1)
+    for ortho in (False, True):
+        cams = orbit_cameras(1, 20, 16, ortho=ortho)
+        H, _ = splat_homographies(s.means, s.quats, s.scales[:, :2], cams)
+        uv, z = cams.project(s.means)
+        torch.testing.assert_close(H[..., :2, 2] / H[..., 2, 2:3], uv)
+        torch.testing.assert_close(H[..., 3, 2], z)
+
+
+def test_near_culling_and_cpp_reserved():
+    s = random_splats(6, 1, seed=4)
+    s.means[0] = torch.tensor([0.0, 0.0, -3.5], dtype=torch.float64)  # behind the camera at z=-3
+    cams = orbit_cameras(1, 20, 16)
+    out = render_2dgs(*s.params(2), cams)
+    assert not out["visible"][0, 0] and out["radii"][0, 0] == 0 and out["visible"][0, 1:].any()
+    assert out["radii"].dtype == torch.long
+    with pytest.raises(NotImplementedError):
+        render_2dgs(*s.params(2), cams, impl="cpp")
+
+
+def test_float32_close_to_float64():
+    s = hard_scene()
+    cams = orbit_cameras(2, 20, 16)
+    a = render_2dgs(*[p.detach().float() for p in s.params(2)], cams.to(dtype=torch.float32))
+    b = render_2dgs(*[p.detach() for p in s.params(2)], cams)
+    for k in ["rgb", "alpha", "normal"]:
+        assert a[k].dtype == torch.float32
+        torch.testing.assert_close(a[k].double(), b[k], atol=1e-4, rtol=1e-4)

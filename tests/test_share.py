@@ -1,0 +1,110 @@
+"""arcsem.share: content-addressed stage-1 folders and the lock that makes parallel jobs train once."""
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import time
+from pathlib import Path
+
+import pytest
+from omegaconf import OmegaConf
+
+from arcsem.share import cache_root, ensure_stage1, is_done, stage1_dir, stage1_key, stage1_lock
+
+BASE = {"dataset": {"name": "synthetic", "resolution": 64}, "backbone": {"name": "gs2d"},
+        "act": {"enabled": True, "mode": "rgb"}, "train": {"steps": 100}, "seed": 0,
+        "colorize": {"references": "five"}, "stage": "all", "device": "cpu"}
+
+
+def _cfg(**changes):
+    cfg = OmegaConf.create(BASE)
+    for key, value in changes.items():
+        OmegaConf.update(cfg, key, value)
+    return cfg
+
+
+def test_key_depends_on_stage1_config_only():
+    k = stage1_key(_cfg())
+    assert len(k) == 16 and all(c in "0123456789abcdef" for c in k)
+    # stage-2 settings, device and stage do not change the stage-1 model
+    assert stage1_key(_cfg(**{"colorize.references": "one", "stage": "gray", "device": "cuda"})) == k
+    assert stage1_key(dict(reversed(list(BASE.items())))) == k  # order of keys irrelevant; plain dicts too
+    for change in ({"seed": 1}, {"act.enabled": False}, {"backbone.name": "gs3d"}, {"train.steps": 101},
+                   {"dataset.resolution": 32}):
+        assert stage1_key(_cfg(**change)) != k, change
+
+
+def test_dir_root_and_description(tmp_path, monkeypatch):
+    monkeypatch.setenv("ARCSEM_CACHE", str(tmp_path / "env"))
+    assert cache_root(_cfg()) == tmp_path / "env"
+    path = stage1_dir(_cfg())
+    assert path == tmp_path / "env" / "stage1" / stage1_key(_cfg()) and path.is_dir()
+    assert '"seed": 0' in (path / "key.json").read_text()
+    cfg = _cfg(cache_dir=str(tmp_path / "cfg"))  # cfg.cache_dir wins over the environment
+    assert stage1_dir(cfg).parent.parent == tmp_path / "cfg"
+    monkeypatch.delenv("ARCSEM_CACHE")
+    assert cache_root({}) == Path("~/.cache/arcsem").expanduser()
+
+
+def _worker(root: str, log: str, barrier) -> None:
+    cfg = _cfg(cache_dir=root)
+
+    def train(path: Path) -> None:
+        with open(log, "a") as fh:
+            fh.write(f"train {os.getpid()} {time.monotonic()}\n")
+        time.sleep(1.0)  # long enough that the other process is surely waiting on the lock
+        (path / "model.pt").write_text(str(os.getpid()))
+        with open(log, "a") as fh:
+            fh.write(f"done {os.getpid()} {time.monotonic()}\n")
+
+    barrier.wait()
+    path, trained = ensure_stage1(cfg, train)
+    with open(log, "a") as fh:
+        fh.write(f"{'trained' if trained else 'reused'} {os.getpid()} {time.monotonic()} "
+                 f"{(path / 'model.pt').read_text()}\n")
+
+
+def test_two_processes_train_once(tmp_path):
+    ctx = mp.get_context("fork")
+    barrier = ctx.Barrier(2)
+    log = tmp_path / "log.txt"
+    procs = [ctx.Process(target=_worker, args=(str(tmp_path), str(log), barrier)) for _ in range(2)]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(60)
+        assert p.exitcode == 0
+    lines = [ln.split() for ln in log.read_text().splitlines()]
+    kinds = [ln[0] for ln in lines]
+    assert kinds.count("train") == 1 and kinds.count("trained") == 1 and kinds.count("reused") == 1
+    trainer = next(ln for ln in lines if ln[0] == "train")[1]
+    done_t = float(next(ln for ln in lines if ln[0] == "done")[2])
+    reused = next(ln for ln in lines if ln[0] == "reused")
+    # the waiting process got the model the other one trained, after training had finished
+    assert reused[1] != trainer and reused[3] == trainer and float(reused[2]) >= done_t
+    assert is_done(stage1_dir(_cfg(cache_dir=str(tmp_path))))
+
+
+def test_failed_training_is_retried(tmp_path):
+    cfg = _cfg(cache_dir=str(tmp_path))
+
+    def boom(path):
+        raise RuntimeError("diverged")
+
+    with pytest.raises(RuntimeError):
+        ensure_stage1(cfg, boom)
+    assert not is_done(stage1_dir(cfg))
+    calls = []
+    path, trained = ensure_stage1(cfg, calls.append)
+    assert trained and calls == [path] and is_done(path)
+    assert ensure_stage1(cfg, calls.append) == (path, False) and len(calls) == 1
+
+
+def test_lock_is_exclusive(tmp_path):
+    import fcntl
+
+    # while held, a second open file description cannot take it
+    with stage1_lock(tmp_path / "x") as path, open(path / ".lock") as fh, pytest.raises(BlockingIOError):
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    with open(tmp_path / "x" / ".lock") as fh:  # released after the block
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)

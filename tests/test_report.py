@@ -215,3 +215,30 @@ def test_cli_default_out_and_error(gray_sweep, tmp_path, capsys):
     assert not list((gray_sweep / "report" / "videos").rglob("*stale*"))
     assert main([str(tmp_path / "nope")]) == 2
     assert "no such run or multirun folder" in capsys.readouterr().err
+
+
+def test_single_run_in_app_layout(tmp_path):
+    """A plain run (no sweep) whose stage results are only under ``stages.gray``; report inside it."""
+    run = tmp_path / "outputs" / "run1"
+    run.mkdir(parents=True)
+    (run / "config.yaml").write_text(yaml.safe_dump({"seed": 3, "dataset": {"path": str(tmp_path / "ds")}}))
+    metrics = {"seed": 3, "git_revision": "f00", "overrides": ["experiment=grayscale_comparison", "+variant=gs3d"],
+               "stages": {"gray": {"train": {"psnr": 31.0, "ssim": 0.8, "lpips": 0.3}}}}
+    (run / "metrics.json").write_text(json.dumps(metrics))
+    _png(run / "renders/test/v1.png", 50)
+    _png(tmp_path / "ds" / "test" / "v1.png", 250)  # ground truth found in the dataset folder
+    (run / "turntable.mp4").write_bytes(b"mp4")
+    coll = collect([run])
+    rec = coll.runs.iloc[0]
+    assert (rec["study"], rec["row"], rec["git"], rec["seed"]) == ("grayscale_comparison", "gs3d", "f00", 3)
+    assert rec["stage1.train.psnr"] == 31.0 and coll.missing == []
+    page = build_report([run])
+    assert page == run / "report" / "index.html"
+    build_report([run])  # again: the report's own video copy is not collected a second time
+    assert [p.name for p in (run / "report" / "videos").rglob("*.mp4")] == ["3DGS_turntable.mp4"]
+    import cv2
+
+    grid = cv2.imread(str(run / "report" / "grids" / "grayscale_comparison_gray.png"))
+    assert grid[22 + 80, 95, 0] == 250 and grid[22 + 80, grid.shape[1] - 5, 0] == 50
+    md = (run / "report" / "grayscale_comparison.md").read_text()
+    assert "| 3DGS | **31.00** | **0.800** | **0.300** | **37.50** |" in md

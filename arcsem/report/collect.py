@@ -148,10 +148,15 @@ def read_run(run: Path) -> dict[str, Any]:
     ovr = parse_overrides(_job_overrides(run, metrics))
     study, row = identify(ovr, _choices(run), config)
     rec: dict[str, Any] = {"run_dir": str(run), "study": study, "row": row,
-                           "seed": metrics.get("seed", config.get("seed")), "git": metrics.get("git")}
+                           "seed": metrics.get("seed", config.get("seed")),
+                           "git": metrics.get("git", metrics.get("git_revision"))}
     rec.update(ovr)
-    skip = {"overrides", "seed", "git"}
+    skip = {"overrides", "seed", "git", "git_revision"}
     rec.update(flatten({k: v for k, v in metrics.items() if k not in skip}))
+    stages = metrics.get("stages") if isinstance(metrics.get("stages"), dict) else {}
+    for stage, alias in (("gray", "stage1"), ("color", "stage2")):  # results not wrapped in stage1/2
+        if alias not in metrics and isinstance(stages.get(stage), dict):
+            rec.update(flatten(stages[stage].get(alias, stages[stage]), f"{alias}."))
     return rec
 
 

@@ -23,6 +23,15 @@ from arcsem.train.optim import GroupSchedule, lr_at
 from arcsem.train.sampling import RaySampler, ViewSampler, resize_split
 
 
+@pytest.fixture(autouse=True)
+def _one_thread():
+    """Tiny tensors: one thread avoids oversubscription on the shared 2-core machine (20x slower otherwise)."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
 def tiny_scene(n: int = 4, w: int = 24, h: int = 16, test: int = 2, seed: int = 0) -> Scene:
     """``n`` training + ``test`` held-out pinhole cameras on an arc; images = one smooth pattern x gain."""
     g = torch.Generator().manual_seed(seed)

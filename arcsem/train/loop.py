@@ -32,7 +32,7 @@ from ..registry import validate_config
 from ..scene import Split
 from . import checkpoint as ckpt
 from .losses import LossSet
-from .optim import OptimConfig, apply_schedules, build_optimizers, group_schedules
+from .optim import OptimConfig, apply_schedules, group_schedules, make_optimizers
 from .sampling import make_sampler
 
 __all__ = ["LoopConfig", "TrainResult", "train", "render_batch", "batch_psnr"]
@@ -118,8 +118,7 @@ class _Run:
     def build_optimizers(self, act_lr: float | None) -> None:
         groups = _groups(self.backbone, self.act, self.loop.stage)
         self.schedules = group_schedules(groups, self.backbone, self.loop.stage, self.optim, act_lr)
-        default = getattr(self.backbone, "optimizer", "adam")
-        self.optimizers = build_optimizers(groups, self.schedules, self.optim, default)
+        self.optimizers = make_optimizers(self.backbone, groups, self.schedules, self.optim, self.loop.stage)
 
     def state(self) -> dict:
         return {"step": self.step, "stage": self.loop.stage, "model": self.backbone.state_dict(),

@@ -2,16 +2,17 @@
 
 Where the numbers come from (later wins):
 
-1. the backbone: ``backbone.optim_defaults(stage) -> {group: {lr, lr_final?, decay_steps?, ...}}``
-   if it defines that method (the paper's values, already scaled by the scene extent where the
-   paper does so), else Config fields named ``lr_<group>`` / ``lr_<group>_final``;
-2. ``train.optim.groups.<group>``: per-group overrides from the preset or the command line;
-3. the ``act`` group (the ACT module's parameters): ``act.lr`` (constant).
+1. ``train.optim.groups.<group>`` (a :class:`GroupSchedule`): overrides from a preset or the command line;
+2. else the backbone's own schedule, the first of: ``backbone.learning_rates(step) -> {group: lr}``
+   (Gaussians), ``backbone.learning_rate(group, step) -> lr`` (Plenoxels),
+   ``backbone.optim_defaults(stage) -> {group: GroupSchedule fields}``, or Config fields
+   ``lr_<group>`` / ``lr_<group>_final``;
+3. the ``act`` group (the ACT module's parameters): ``act.lr`` (constant, Adam).
 
-Optimiser type: ``train.optim.type`` if set, else the backbone's ``optimizer`` class attribute
-(``"adam"`` or ``"rmsprop"``), else Adam. The result is ``{group: Optimizer}`` where every optimiser
-holds ONE param group named after the group: densification code replaces tensors in
-``optimizers[group]`` and its ``state`` without touching the others.
+Optimiser type: ``train.optim.type`` if set; else the backbone's ``make_optimizers(stage)`` if it
+has one (Plenoxels: RMSProp); else Adam. The result is ``{group: Optimizer}``: one optimiser per
+group, so densification code replaces tensors in ``optimizers[group]`` and its ``state`` without
+touching the others.
 
 Schedules are pure functions of the step, so a resumed run sets exactly the same rates.
 """
@@ -20,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from collections.abc import Callable
 from typing import Any
 
 import torch
@@ -28,7 +30,8 @@ from torch import nn
 from ..errors import ConfigError
 from ..registry import validate_config
 
-__all__ = ["GroupSchedule", "OptimConfig", "lr_at", "group_schedules", "build_optimizers", "apply_schedules"]
+__all__ = ["GroupSchedule", "OptimConfig", "lr_at", "group_schedules", "build_optimizers", "make_optimizers",
+           "apply_schedules"]
 
 
 @dataclass
@@ -54,8 +57,13 @@ class OptimConfig:
     groups: dict[str, Any] = dataclasses.field(default_factory=dict)  # group -> GroupSchedule overrides
 
 
-def lr_at(s: GroupSchedule, step: int, total_steps: int) -> float:
-    """Learning rate at ``step``: ``exp(lerp(log lr, log lr_final, t))`` times the delay ramp."""
+def lr_at(s: "Schedule", step: int, total_steps: int) -> float:
+    """Learning rate at ``step``: ``exp(lerp(log lr, log lr_final, t))`` times the delay ramp.
+
+    ``s`` may also be a callable ``step -> lr`` (a backbone's own schedule).
+    """
+    if callable(s):
+        return s(step)
     lr = s.lr
     if s.lr_final is not None and s.lr_final != s.lr:
         if s.lr <= 0 or s.lr_final <= 0:
@@ -69,7 +77,14 @@ def lr_at(s: GroupSchedule, step: int, total_steps: int) -> float:
     return lr
 
 
-def _from_backbone(backbone: nn.Module, stage: str, group: str) -> dict:
+Schedule = GroupSchedule | Callable[[int], float]
+
+
+def _from_backbone(backbone: nn.Module, stage: str, group: str) -> dict | Callable[[int], float]:
+    if hasattr(backbone, "learning_rates") and group in backbone.learning_rates(0):
+        return lambda step: float(backbone.learning_rates(step)[group])
+    if hasattr(backbone, "learning_rate"):
+        return lambda step: float(backbone.learning_rate(group, step))
     if hasattr(backbone, "optim_defaults"):
         return dict(backbone.optim_defaults(stage).get(group, {}))
     cfg = getattr(backbone, "cfg", None)
@@ -81,7 +96,7 @@ def _from_backbone(backbone: nn.Module, stage: str, group: str) -> dict:
 
 
 def group_schedules(groups: dict[str, list], backbone: nn.Module, stage: str, optim: OptimConfig,
-                    act_lr: float | None = None) -> dict[str, GroupSchedule]:
+                    act_lr: float | None = None) -> dict[str, Schedule]:
     """The schedule of every group in ``groups`` (raises ConfigError naming a group without a rate)."""
     unknown = set(optim.groups) - set(groups)
     if unknown:
@@ -89,9 +104,15 @@ def group_schedules(groups: dict[str, list], backbone: nn.Module, stage: str, op
                           f"stage '{stage}' has {sorted(groups)}")
     out = {}
     for g in groups:
-        values = _from_backbone(backbone, stage, g)
         if g == "act" and act_lr is not None:
             values = {"lr": act_lr}
+        elif optim.groups.get(g):
+            values = {}
+        else:
+            values = _from_backbone(backbone, stage, g)
+            if callable(values):
+                out[g] = values
+                continue
         values.update(optim.groups.get(g) or {})
         if "lr" not in values:
             raise ConfigError(f"no learning rate for parameter group '{g}' (stage '{stage}'); "
@@ -100,23 +121,38 @@ def group_schedules(groups: dict[str, list], backbone: nn.Module, stage: str, op
     return out
 
 
-def build_optimizers(groups: dict[str, list[nn.Parameter]], schedules: dict[str, GroupSchedule],
+def build_optimizers(groups: dict[str, list[nn.Parameter]], schedules: dict[str, Schedule],
                      optim: OptimConfig, default_type: str = "adam") -> dict[str, torch.optim.Optimizer]:
     """One optimiser per group: ``{group: Optimizer}`` with a single param group ``{"name": group}``."""
     kind = (optim.type or default_type).lower()
     out = {}
     for g, params in groups.items():
-        spec = [{"params": list(params), "lr": schedules[g].lr, "name": g}]
+        lr = lr_at(schedules[g], 0, 1)
+        spec = [{"params": list(params), "lr": lr, "name": g}]
         if kind == "adam":
-            out[g] = torch.optim.Adam(spec, lr=schedules[g].lr, betas=tuple(optim.betas), eps=optim.eps)
+            out[g] = torch.optim.Adam(spec, lr=lr, betas=tuple(optim.betas), eps=optim.eps)
         elif kind == "rmsprop":
-            out[g] = torch.optim.RMSprop(spec, lr=schedules[g].lr, alpha=optim.rmsprop_alpha, eps=optim.rmsprop_eps)
+            out[g] = torch.optim.RMSprop(spec, lr=lr, alpha=optim.rmsprop_alpha, eps=optim.rmsprop_eps)
         else:
             raise ConfigError(f"train.optim.type: unknown optimiser '{kind}'; expected adam or rmsprop")
     return out
 
 
-def apply_schedules(optimizers: dict[str, torch.optim.Optimizer], schedules: dict[str, GroupSchedule],
+def make_optimizers(backbone: nn.Module, groups: dict[str, list[nn.Parameter]], schedules: dict[str, Schedule],
+                    optim: OptimConfig, stage: str) -> dict[str, torch.optim.Optimizer]:
+    """Backbone's ``make_optimizers(stage)`` for its groups (unless ``optim.type`` is set), Adam for the rest."""
+    out: dict[str, torch.optim.Optimizer] = {}
+    if optim.type is None and hasattr(backbone, "make_optimizers"):
+        out = dict(backbone.make_optimizers(stage))
+        unknown = set(out) - set(groups)
+        if unknown:
+            raise ConfigError(f"backbone.make_optimizers('{stage}') returned unknown group(s) {sorted(unknown)}")
+    rest = {g: ps for g, ps in groups.items() if g not in out}
+    out.update(build_optimizers(rest, schedules, optim))
+    return out
+
+
+def apply_schedules(optimizers: dict[str, torch.optim.Optimizer], schedules: dict[str, Schedule],
                     step: int, total_steps: int) -> dict[str, float]:
     """Set every group's rate for ``step``; returns ``{group: lr}``."""
     lrs = {}

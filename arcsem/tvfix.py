@@ -50,24 +50,36 @@ def ensure_torchvision_ops() -> list[str]:
     return missing
 
 
+def _compiled_ops_load() -> bool:
+    """True if torchvision's compiled ``_C`` library loads (it defines the real ops), without importing
+    the torchvision package itself."""
+    import importlib.util
+    from pathlib import Path
+
+    import torch
+
+    spec = importlib.util.find_spec("torchvision")
+    if spec is None or not spec.submodule_search_locations:
+        return False
+    libs = sorted(Path(next(iter(spec.submodule_search_locations))).glob("_C*.so")) + \
+        sorted(Path(next(iter(spec.submodule_search_locations))).glob("_C*.pyd"))
+    for lib in libs:
+        try:
+            torch.ops.load_library(str(lib))
+            return True
+        except (OSError, RuntimeError):
+            return False
+    return False
+
+
 def import_torchvision() -> ModuleType:
     """``import torchvision`` with the workaround applied first when (and only when) it is needed.
 
-    The compiled ops are tried first: ``torchvision.extension`` loads ``_C`` if it can, which defines
-    the real ops; only the schemas still missing afterwards are defined here.
+    The compiled ops are tried first (loading ``torchvision/_C``, as torchvision itself does); only
+    when they do not load and the schemas are still missing are they defined here.
     """
-    if "torchvision" in sys.modules:
-        return sys.modules["torchvision"]
-    try:
-        import torchvision
-
-        return torchvision
-    except RuntimeError as exc:
-        if "torchvision::" not in str(exc):
-            raise
-    for mod in [m for m in sys.modules if m == "torchvision" or m.startswith("torchvision.")]:
-        del sys.modules[mod]  # drop the half-imported package before retrying
-    ensure_torchvision_ops()
+    if "torchvision" not in sys.modules and not _compiled_ops_load():
+        ensure_torchvision_ops()
     import torchvision
 
     return torchvision

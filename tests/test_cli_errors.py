@@ -1,0 +1,122 @@
+"""Bad input ends with one ``error:`` line naming the file/view/key, exit code 2, no traceback.
+
+Each case runs the ``arcsem`` console script as a subprocess with ``stage=check`` (load the scene,
+build the backbone, train nothing) on a tiny hand-written dataset.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from conftest import write_transforms_scene
+
+CONF = Path(__file__).resolve().parent.parent / "conf"
+
+
+def arcsem_command() -> list[str]:
+    exe = Path(sys.executable).with_name("arcsem")
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "arcsem.cli.main"]
+
+
+def missing_defaults(overrides=()) -> list[str]:
+    """``~group`` for defaults of conf/config.yaml whose file does not exist (yet) and that the
+    overrides do not choose."""
+    chosen = {o.split("=")[0] for o in overrides if "=" in o}
+    out = []
+    for entry in yaml.safe_load((CONF / "config.yaml").read_text())["defaults"]:
+        if isinstance(entry, dict):
+            (group, option), = entry.items()
+            if option is not None and group not in chosen and not (CONF / group / f"{option}.yaml").is_file():
+                out.append(f"~{group}")
+    return out
+
+
+def run_cli(tmp_path: Path, *overrides: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    args = [*arcsem_command(), "stage=check", f"hydra.run.dir={tmp_path / 'run'}", *missing_defaults(overrides),
+            *overrides]
+    full_env = {k: v for k, v in os.environ.items() if k not in ("ARCSEM_DEBUG", "HYDRA_FULL_ERROR")}
+    full_env.update(env or {})
+    return subprocess.run(args, capture_output=True, text=True, timeout=300, cwd=tmp_path, env=full_env)
+
+
+def assert_one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> str:
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    lines = [ln for ln in proc.stderr.strip().splitlines() if ln.strip()]
+    errors = [ln for ln in lines if ln.startswith("error:")]
+    assert len(errors) == 1 and lines[-1] == errors[0], proc.stderr
+    for needle in needles:
+        assert needle in errors[0], errors[0]
+    return errors[0]
+
+
+def dataset(tmp_path: Path, edit=None) -> list[str]:
+    path = write_transforms_scene(tmp_path / "scene", n=3)
+    if edit is not None:
+        edit(path)
+    return ["dataset=transforms", f"dataset.path={path.parent}"]
+
+
+def edit_json(change):
+    def edit(path: Path) -> None:
+        meta = json.loads(path.read_text())
+        change(meta)
+        path.write_text(json.dumps(meta))
+    return edit
+
+
+def test_missing_image_file(tmp_path):
+    ds = dataset(tmp_path, edit_json(lambda m: m["frames"][1].update(file_path="gone.png")))
+    assert_one_line_error(run_cli(tmp_path, *ds), "frame 1", "gone.png", "not found")
+
+
+def test_image_size_differs_from_camera(tmp_path):
+    ds = dataset(tmp_path, lambda p: cv2.imwrite(str(p.parent / "view_02.png"), np.zeros((7, 16), np.uint8)))
+    assert_one_line_error(run_cli(tmp_path, *ds), "view 'view_02'", "view_02.png", "16x7", "16x12")
+
+
+def test_unknown_camera_model(tmp_path):
+    ds = dataset(tmp_path, edit_json(lambda m: m.update(camera_model="FISHEYE_X")))
+    assert_one_line_error(run_cli(tmp_path, *ds), "transforms.json", "unknown camera_model 'FISHEYE_X'")
+
+
+def test_malformed_json(tmp_path):
+    ds = dataset(tmp_path, lambda p: p.write_text('{"fl_x": 20, "frames": [ {"file_path": "a.png",, } ]}'))
+    assert_one_line_error(run_cli(tmp_path, *ds), "transforms.json", "malformed JSON at line 1")
+
+
+def test_dataset_path_does_not_exist(tmp_path):
+    proc = run_cli(tmp_path, "dataset=transforms", f"dataset.path={tmp_path / 'nowhere'}")
+    assert_one_line_error(proc, "does not exist", str(tmp_path / "nowhere"))
+
+
+@pytest.mark.parametrize("override,needles", [
+    ("backbone=nope", ["backbone/nope", "gs2d"]),  # Hydra: no such config option, lists options
+    ("backbone.name=nope", ["unknown backbone 'nope'", "available: ", "gs2d"]),  # registry
+])
+def test_unknown_plugin(tmp_path, override, needles):
+    assert_one_line_error(run_cli(tmp_path, *dataset(tmp_path), override), *needles)
+
+
+@pytest.mark.parametrize("override,needles", [
+    ("seeed=3", ["'seeed'"]),  # Hydra (struct config)
+    ("+backbone.sh_degre=2", ["unknown key(s) 'sh_degre'", "valid keys:"]),  # plugin Config dataclass
+])
+def test_mistyped_config_key(tmp_path, override, needles):
+    assert_one_line_error(run_cli(tmp_path, *dataset(tmp_path), "backbone=gs3d", override), *needles)
+
+
+@pytest.mark.parametrize("how", ["override", "env"])
+def test_debug_shows_traceback(tmp_path, how):
+    ds = dataset(tmp_path, lambda p: p.write_text("{ not json"))
+    proc = run_cli(tmp_path, *ds, *(["debug=true"] if how == "override" else []),
+                   env={"ARCSEM_DEBUG": "1"} if how == "env" else None)
+    assert proc.returncode != 0
+    assert "Traceback" in proc.stderr and "DataError" in proc.stderr and "malformed JSON" in proc.stderr

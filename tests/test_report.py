@@ -242,3 +242,13 @@ def test_single_run_in_app_layout(tmp_path):
     assert grid[22 + 80, 95, 0] == 250 and grid[22 + 80, grid.shape[1] - 5, 0] == 50
     md = (run / "report" / "grayscale_comparison.md").read_text()
     assert "| 3DGS | **31.00** | **0.800** | **0.300** | **37.50** |" in md
+
+
+def test_lpips_note_ignores_missing_rows(gray_sweep):
+    """Only rows that ran decide the LPIPS note: the missing 2DGS + ACT row does not make it 'n/a'."""
+    for job in ("0", "1", "2"):
+        m = json.loads((gray_sweep / job / "metrics.json").read_text())
+        del m["stage1"]["lpips_weights"]
+        (gray_sweep / job / "metrics.json").write_text(json.dumps(m))
+    notes = build_table(collect([gray_sweep]), "grayscale_comparison").notes
+    assert "LPIPS weights: not recorded." in notes and not any("n/a" in n for n in notes)

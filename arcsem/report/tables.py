@@ -119,15 +119,15 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
         notes.append("non-ref. train views: training views that are not colour references; held-out: test "
                      "views; metrics against ground-truth colour.")
     lp = _distinct(df, "lpips_weights")
+    ran = nums[nums["status"] != "missing"] if len(nums) else nums
     lp_nan = any(math.isnan(v) for c in columns if c.label == "LPIPS" and not c.key.startswith("paper.")
-                 for v in nums.get(c.key, []))
+                 for v in ran.get(c.key, []))
     bad = [w for w in lp if not w.lower().startswith(("alex", "vgg", "squeeze"))]
     if bad or (lp_nan and not lp):
         notes.append("LPIPS: n/a: weights missing (" + "; ".join(bad or ["not recorded"]) + ").")
-    if lp:
-        good = [w for w in lp if w not in bad]
-        if good:
-            notes.append("LPIPS weights: " + ", ".join(good) + ".")
+    good = [w for w in lp if w not in bad]
+    if good or not (bad or lp_nan):
+        notes.append("LPIPS weights: " + (", ".join(good) or "not recorded") + ".")
     feats = _distinct(df, "features")
     if study != "grayscale_comparison":
         if "random" in feats:

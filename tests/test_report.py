@@ -252,3 +252,24 @@ def test_lpips_note_ignores_missing_rows(gray_sweep):
         (gray_sweep / job / "metrics.json").write_text(json.dumps(m))
     notes = build_table(collect([gray_sweep]), "grayscale_comparison").notes
     assert "LPIPS weights: not recorded." in notes and not any("n/a" in n for n in notes)
+
+
+def test_runs_of_no_study_get_a_table_and_grids(tmp_path):
+    """A demo run (experiment=demo, stage all) is reported as a row of the generic 'runs' table."""
+    run = tmp_path / "outputs" / "2026-01-01" / "12-00-00"
+    s1 = _stage1(33.0, 0.9, math.nan, 31.0, 0.5, "missing: no alexnet weights")
+    s2 = {"stage2": {"train_nonref": {"psnr": 27.0, "ssim": 0.9, "lpips": math.nan},
+                     "test": {"psnr": 26.0, "ssim": 0.88, "lpips": math.nan}, "features": "imagenet"}}
+    _job(run.parent, 0, ["experiment=demo"], {**s1, **s2})
+    (run.parent / "0").rename(run)
+    _png(run / "renders/test/t0.png", 30)
+    _png(run / "colored/v0.png", 90)
+    _png(run / "colored/v0_gt.png", 91)
+    page = build_report([tmp_path / "outputs"], tmp_path / "rep")
+    md = (tmp_path / "rep" / "runs.md").read_text()
+    assert "| 2026-01-01/12-00-00 | **33.00** | **0.900** | n/a | **31.00** |" in md
+    assert "LPIPS: n/a: weights missing (missing: no alexnet weights)" in md
+    assert "VGG weights (features): imagenet." in md
+    grids = sorted(p.name for p in (tmp_path / "rep" / "grids").iterdir())
+    assert grids == ["runs_color.png", "runs_gray.png"]  # no depth files -> no depth grid
+    assert 'src="grids/runs_color.png"' in page.read_text()

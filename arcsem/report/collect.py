@@ -25,6 +25,7 @@ from hydra.errors import OverrideParseException
 from ..errors import DataError
 
 __all__ = [
+    "OTHER",
     "STUDIES",
     "Collection",
     "MissingJob",
@@ -55,8 +56,10 @@ STUDIES: dict[str, Study] = {
                "no_all": "w/o all"}),
         Study("reference_count", "colorize.references",
               {"five": "5", "four": "4", "three": "3", "two": "2", "one": "1"}),
+        Study("runs", "", {}),  # every run of no known study (demo, single runs): one row per run folder
     )
 }
+OTHER = "runs"
 
 
 @dataclass
@@ -127,11 +130,12 @@ def identify(overrides: dict[str, str], choices: dict[str, str], config: dict | 
     config = config or {}
     study_cfg = config.get("study") if isinstance(config.get("study"), dict) else {}
     name = (overrides.get("experiment") or choices.get("experiment") or study_cfg.get("name"))
-    if name not in STUDIES:  # infer from the row key present
-        name = next((s.name for s in STUDIES.values() if s.key in overrides or s.key in choices), name)
+    if name not in STUDIES or name == OTHER:  # infer from the row key present
+        name = next((s.name for s in STUDIES.values() if s.key and (s.key in overrides or s.key in choices)),
+                    None)
     study = STUDIES.get(name)
     if study is None:
-        return name, None
+        return OTHER, None
     row = overrides.get(study.key) or choices.get(study.key) or study_cfg.get("row")
     if row is None and study.key == "colorize.references":
         row = ((config.get("colorize") or {}).get("references"))
@@ -147,6 +151,7 @@ def read_run(run: Path) -> dict[str, Any]:
     config = _read_yaml(run / "config.yaml") or _read_yaml(run / ".hydra" / "config.yaml") or {}
     ovr = parse_overrides(_job_overrides(run, metrics))
     study, row = identify(ovr, _choices(run), config)
+    row = row if study != OTHER else "/".join(run.parts[-2:])
     rec: dict[str, Any] = {"run_dir": str(run), "study": study, "row": row,
                            "seed": metrics.get("seed", config.get("seed")),
                            "git": metrics.get("git", metrics.get("git_revision"))}
@@ -217,6 +222,8 @@ def _missing_in_sweep(sweep: Path, done_dirs: set[str]) -> list[MissingJob]:
             continue
         study, row = identify(dict(key), {}, {})
         ovr = list(job) if sub is None else lists[sub]
+        if study == OTHER:
+            row = "/".join(Path(sub).parts[-2:]) if sub is not None else " ".join(ovr)
         missing.append(MissingJob(str(sweep), ovr, None if sub is None else str(sub), study, row))
     return missing
 

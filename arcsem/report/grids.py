@@ -138,24 +138,26 @@ def _write(img: np.ndarray, path: Path) -> Path:
     return path
 
 
+KINDS = {"grayscale_comparison": ("gray", "depth"), "colorization_ablation": ("color",),
+         "reference_count": ("color",)}
+"""Grid kinds per study; any other study (``runs``) gets every kind that has files."""
+GRID = {  # kind -> (folder of the run, file suffix, ground-truth kind, first column, title)
+    "gray": ("renders/test", "", "gray", "ground truth", "renders"),
+    "depth": ("renders/test", "_depth", "depth", "GT depth", "depth maps"),
+    "color": ("colored", "", "color", "GT colour", "coloured views"),
+}
+
+
 def study_grids(study: str, runs: Mapping[str, Path], out: Path) -> list[tuple[str, Path]]:
     """Grids of one study: ``runs`` maps row label -> one run folder. Returns ``[(title, png)]``."""
-    if not runs:
-        return []
     labels, dirs = list(runs), [Path(d) for d in runs.values()]
     grids = []
-    if study == "grayscale_comparison":
-        names = next((n for d in dirs if (n := view_names(d / "renders" / "test"))), [])
-        for kind, suffix, title in (("gray", "", "renders"), ("depth", "_depth", "depth maps")):
-            paths = [[gt_path(dirs[0], n, kind)] + [d / "renders" / "test" / f"{n}{suffix}.png" for d in dirs]
-                     for n in names]
-            if paths:
-                img = make_grid(paths, ["ground truth"] + labels, names)
-                grids.append((f"{study}: {title}", _write(img, out / f"{study}_{kind}.png")))
-    else:
-        names = next((n for d in dirs if (n := view_names(d / "colored"))), [])
-        paths = [[gt_path(dirs[0], n, "color")] + [d / "colored" / f"{n}.png" for d in dirs] for n in names]
-        if paths:
-            img = make_grid(paths, ["GT colour"] + labels, names)
-            grids.append((f"{study}: coloured views", _write(img, out / f"{study}_color.png")))
+    for kind in KINDS.get(study, ("gray", "depth", "color")):
+        folder, suffix, gt_kind, gt_label, title = GRID[kind]
+        names = next((n for d in dirs if (n := view_names(d / folder))), [])
+        if not names or not any((d / folder / f"{n}{suffix}.png").is_file() for d in dirs for n in names):
+            continue
+        paths = [[gt_path(dirs[0], n, gt_kind)] + [d / folder / f"{n}{suffix}.png" for d in dirs] for n in names]
+        img = make_grid(paths, [gt_label, *labels], names)
+        grids.append((f"{study}: {title}", _write(img, out / f"{study}_{kind}.png")))
     return grids

@@ -54,9 +54,12 @@ LAYOUTS: dict[str, list[Column]] = {
         Column("depth", "err.", "stage1.depth.median_abs", "min", 4)] + PAPER_COLUMNS,
     "colorization_ablation": _ims("non-ref. train views", "stage2.train_nonref") + _ims("held-out", "stage2.test"),
     "reference_count": _ims("non-ref. train views", "stage2.train_nonref") + _ims("held-out", "stage2.test"),
+    "runs": _ims("grey train", "stage1.train") + _ims("grey held-out", "stage1.test") + [
+        Column("depth", "err. %", "stage1.depth.median_abs_pct", "min", 2)]
+    + _ims("colour non-ref.", "stage2.train_nonref") + _ims("colour held-out", "stage2.test"),
 }
 ROW_HEADER = {"grayscale_comparison": "Model", "colorization_ablation": "Variant",
-              "reference_count": "References"}
+              "reference_count": "References", "runs": "Run"}
 
 
 @dataclass
@@ -115,6 +118,9 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
                      "(% of the specimen diameter, and in scene units).")
         notes.append("paper Table 1: ArCSEM's published numbers on real SEM data (32 views, 3072x2048); "
                      "not the same scene as ours.")
+    elif study == "runs":
+        notes.append("runs of no study (e.g. the demo), one row per run folder; grey metrics on training "
+                     "views (paper's protocol) and held-out views, colour metrics against ground-truth colour.")
     else:
         notes.append("non-ref. train views: training views that are not colour references; held-out: test "
                      "views; metrics against ground-truth colour.")
@@ -129,7 +135,7 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
     if good or not (bad or lp_nan):
         notes.append("LPIPS weights: " + (", ".join(good) or "not recorded") + ".")
     feats = _distinct(df, "features")
-    if study != "grayscale_comparison":
+    if study != "grayscale_comparison" and (feats or study != "runs"):
         if "random" in feats:
             notes.append("VGG features: RANDOM weights in some runs (ImageNet weights unavailable): TCM/CCM "
                          "numbers are not the standard ones.")

@@ -18,15 +18,23 @@ import random
 import subprocess
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
 from .errors import ConfigError, PluginError
 
-__all__ = ["run", "write_json_atomic", "write_text_atomic", "git_revision", "seed_everything",
-           "run_directory", "STAGES"]
+__all__ = [
+    "STAGES",
+    "git_revision",
+    "run",
+    "run_directory",
+    "seed_everything",
+    "write_json_atomic",
+    "write_text_atomic",
+]
 
 STAGES = ("gray", "color", "all", "check")
 

@@ -22,10 +22,10 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["psnr", "ssim", "lpips", "lpips_model", "image_metrics", "ALEXNET_FILE", "SSIM_SETTINGS"]
+__all__ = ["ALEXNET_FILE", "SSIM_SETTINGS", "image_metrics", "lpips", "lpips_model", "psnr", "ssim"]
 
 ALEXNET_FILE = "alexnet-owt-7be5be79.pth"
-SSIM_SETTINGS = dict(gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1.0)
+SSIM_SETTINGS = {"gaussian_weights": True, "sigma": 1.5, "use_sample_covariance": False, "data_range": 1.0}
 _LPIPS_CACHE: dict[str, tuple[Any, str]] = {}
 
 
@@ -130,7 +130,7 @@ def lpips(pred: Any, gt: Any, mask: Any = None, device: str = "cpu") -> tuple[fl
     p, g, m = _check(pred, gt, mask)
     if m is not None:
         p, g = p * m[..., None], g * m[..., None]
-    to_t = lambda a: torch.from_numpy(a).float().permute(2, 0, 1)[None].to(device)  # noqa: E731
+    to_t = lambda a: torch.from_numpy(a).float().permute(2, 0, 1)[None].to(device)
     with torch.no_grad():
         val = model(to_t(p), to_t(g), normalize=True)  # normalize: [0,1] -> [-1,1]
     return float(val.reshape(-1)[0]), status

@@ -13,7 +13,7 @@ from __future__ import annotations
 import sys
 from types import ModuleType
 
-__all__ = ["import_torchvision", "ensure_torchvision_ops", "MISSING_OP_SCHEMAS"]
+__all__ = ["MISSING_OP_SCHEMAS", "ensure_torchvision_ops", "import_torchvision"]
 
 # Schemas of the ops that torchvision registers fake kernels for at import time.
 MISSING_OP_SCHEMAS = {

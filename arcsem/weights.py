@@ -12,7 +12,7 @@ import socket
 from pathlib import Path
 from urllib.parse import urlparse
 
-__all__ = ["KNOWN_URLS", "hub_checkpoint_dir", "find_hub_weights", "load_state_dict_from_hub", "network_available"]
+__all__ = ["KNOWN_URLS", "find_hub_weights", "hub_checkpoint_dir", "load_state_dict_from_hub", "network_available"]
 
 # torchvision's ImageNet checkpoints (file names carry the hash prefix checked by torch.hub).
 KNOWN_URLS = {
@@ -76,9 +76,9 @@ def load_state_dict_from_hub(url_or_filename: str) -> tuple[dict | None, str]:
         try:
             sd = torch.hub.load_state_dict_from_url(url, map_location="cpu", progress=False, check_hash=True)
             return sd, str(where / filename)
-        except Exception as exc:  # network flakiness, hash mismatch, ...
+        except Exception as exc:  # noqa: BLE001 (network flakiness, hash mismatch, ...)
             return None, f"download of {url} failed: {exc!r}"
     try:
         return torch.load(found, map_location="cpu", weights_only=True), str(found)
-    except Exception as exc:
+    except Exception as exc:  # noqa: BLE001 (any unreadable checkpoint)
         return None, f"{found} is unreadable: {exc!r}"

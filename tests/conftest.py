@@ -2,11 +2,13 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+import yaml
 
 
 def ring_poses(n: int, radius: float = 4.0) -> np.ndarray:
@@ -60,3 +62,25 @@ def tiny_transforms(tmp_path):
         return write_transforms_scene(tmp_path / sub, **kw)
 
     return make
+
+
+# ------------------------------------------------------------------ console scripts
+CONF = Path(__file__).resolve().parent.parent / "conf"
+
+
+def arcsem_command() -> list[str]:
+    exe = Path(sys.executable).with_name("arcsem")
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", "arcsem.cli.main"]
+
+
+def missing_defaults(overrides=()) -> list[str]:
+    """``~group`` for defaults of conf/config.yaml whose file does not exist (yet) and that the
+    overrides do not choose."""
+    chosen = {o.split("=")[0] for o in overrides if "=" in o}
+    out = []
+    for entry in yaml.safe_load((CONF / "config.yaml").read_text())["defaults"]:
+        if isinstance(entry, dict):
+            (group, option), = entry.items()
+            if option is not None and group not in chosen and not (CONF / group / f"{option}.yaml").is_file():
+                out.append(f"~{group}")
+    return out

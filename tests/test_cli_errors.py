@@ -8,34 +8,12 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
-import yaml
-from conftest import write_transforms_scene
-
-CONF = Path(__file__).resolve().parent.parent / "conf"
-
-
-def arcsem_command() -> list[str]:
-    exe = Path(sys.executable).with_name("arcsem")
-    return [str(exe)] if exe.exists() else [sys.executable, "-m", "arcsem.cli.main"]
-
-
-def missing_defaults(overrides=()) -> list[str]:
-    """``~group`` for defaults of conf/config.yaml whose file does not exist (yet) and that the
-    overrides do not choose."""
-    chosen = {o.split("=")[0] for o in overrides if "=" in o}
-    out = []
-    for entry in yaml.safe_load((CONF / "config.yaml").read_text())["defaults"]:
-        if isinstance(entry, dict):
-            (group, option), = entry.items()
-            if option is not None and group not in chosen and not (CONF / group / f"{option}.yaml").is_file():
-                out.append(f"~{group}")
-    return out
+from conftest import arcsem_command, missing_defaults, write_transforms_scene
 
 
 def run_cli(tmp_path: Path, *overrides: str, env: dict | None = None) -> subprocess.CompletedProcess:
@@ -43,7 +21,8 @@ def run_cli(tmp_path: Path, *overrides: str, env: dict | None = None) -> subproc
             *overrides]
     full_env = {k: v for k, v in os.environ.items() if k not in ("ARCSEM_DEBUG", "HYDRA_FULL_ERROR")}
     full_env.update(env or {})
-    return subprocess.run(args, capture_output=True, text=True, timeout=300, cwd=tmp_path, env=full_env)
+    return subprocess.run(args, capture_output=True, text=True, timeout=300, cwd=tmp_path, env=full_env,
+                          check=False)
 
 
 def assert_one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> str:

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
-from conftest import ring_poses, w2c_to_opengl_c2w, write_transforms_scene
+from conftest import ring_poses, write_transforms_scene
 
 from arcsem.data import ReaderOptions, load_scene, read_colmap, read_ply, read_transforms, write_ply
 from arcsem.errors import DataError

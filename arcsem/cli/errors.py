@@ -9,11 +9,12 @@ from __future__ import annotations
 import functools
 import os
 import sys
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from ..errors import ArcsemError
 
-__all__ = ["with_error_handling", "one_line", "debug_requested", "EXIT_USER_ERROR"]
+__all__ = ["EXIT_USER_ERROR", "debug_requested", "one_line", "with_error_handling"]
 
 EXIT_USER_ERROR = 2
 

@@ -13,7 +13,7 @@ from omegaconf import DictConfig
 
 from .errors import with_error_handling
 
-__all__ = ["main", "hydra_main"]
+__all__ = ["hydra_main", "main"]
 
 
 @hydra.main(config_path="pkg://arcsem.conf", config_name="config", version_base="1.3")

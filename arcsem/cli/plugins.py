@@ -13,7 +13,7 @@ from typing import Any
 
 from .errors import with_error_handling
 
-__all__ = ["main", "plugin_rows", "format_rows"]
+__all__ = ["format_rows", "main", "plugin_rows"]
 
 
 def _origin(registry: Any, name: str) -> str:
@@ -57,7 +57,7 @@ def plugin_rows(kinds: list[str] | None = None) -> list[dict[str, str]]:
             row = {"kind": registry.kind, "name": name, "origin": _origin(registry, name)}
             try:
                 cls = registry.get(name)
-            except Exception as exc:  # listed, not fatal
+            except Exception as exc:  # noqa: BLE001 (listed, not fatal)
                 row.update(caps="-", config="", error=str(exc).splitlines()[0] if str(exc) else repr(exc))
                 rows.append(row)
                 continue
@@ -73,7 +73,7 @@ def format_rows(rows: list[dict[str, str]]) -> str:
     head = {"kind": "KIND", "name": "NAME", "origin": "ORIGIN", "caps": "PROVIDES / REQUIRES"}
     cols = ["kind", "name", "origin"]
     width = {c: max(len(r[c]) for r in [head, *rows]) for c in cols}
-    line = lambda r: "  ".join(r[c].ljust(width[c]) for c in cols) + "  " + r["caps"]  # noqa: E731
+    line = lambda r: "  ".join(r[c].ljust(width[c]) for c in cols) + "  " + r["caps"]
     out = [line(head)]
     for r in rows:
         out.append(line(r))

@@ -15,8 +15,17 @@ from .colmap import read_colmap
 from .io import read_image, read_ply, write_ply
 from .transforms import read_transforms
 
-__all__ = ["load_scene", "read_transforms", "read_colmap", "read_image", "read_ply", "write_ply",
-           "ReaderOptions", "reader_options", "KINDS"]
+__all__ = [
+    "KINDS",
+    "ReaderOptions",
+    "load_scene",
+    "read_colmap",
+    "read_image",
+    "read_ply",
+    "read_transforms",
+    "reader_options",
+    "write_ply",
+]
 
 KINDS = ("transforms", "colmap", "synthetic")
 # Keys of a dataset config that are reader options, not parameters of the synthetic generator.

@@ -6,9 +6,10 @@ images and returns the :class:`~arcsem.scene.Scene`.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import torch
@@ -18,8 +19,15 @@ from ..errors import ConfigError, DataError
 from ..scene import Scene, Split
 from .io import read_array, read_image, read_mask, resize
 
-__all__ = ["ViewSpec", "ReaderOptions", "reader_options", "select_views", "assemble_scene",
-           "bounds_from_points", "bounds_from_cameras"]
+__all__ = [
+    "ReaderOptions",
+    "ViewSpec",
+    "assemble_scene",
+    "bounds_from_cameras",
+    "bounds_from_points",
+    "reader_options",
+    "select_views",
+]
 
 SPLIT_MODES = ("auto", "every_k", "none")
 
@@ -143,7 +151,7 @@ def _load_split(views: list[ViewSpec], size: tuple[int, int], factor: float, tra
     cams = Cameras(w2c, K, w, h, model, image_ids=ids)
     if factor != 1.0:
         cams = cams.scaled(1.0 / factor)
-    col = lambda k: _stack([d[k] for d in data], k, views)  # noqa: E731
+    col = lambda k: _stack([d[k] for d in data], k, views)
     images = col("image") if views else torch.zeros(0, size[1], size[0], 3)
     split = Split([v.name for v in views], cams, images, masks=col("mask"), depths=col("depth"),
                   normals=col("normal"), colors=col("color"), clean=col("clean"),
@@ -211,7 +219,7 @@ def assemble_scene(root: Path, views: list[ViewSpec], opts: ReaderOptions, *, bo
         box = bounds_from_points(points)
     else:
         box = bounds_from_cameras(train.cameras)
-    to_t = lambda a: None if a is None else torch.as_tensor(np.asarray(a, dtype=np.float32))  # noqa: E731
+    to_t = lambda a: None if a is None else torch.as_tensor(np.asarray(a, dtype=np.float32))
     return Scene(str(root), train, test, box, points=to_t(points), point_colors=to_t(point_colors),
                  references=refs, reference_sets=sets)
 

@@ -21,7 +21,7 @@ from ..scene import Scene
 from .build import ReaderOptions, ViewSpec, assemble_scene
 from .io import IMAGE_EXTS, resolve_file
 
-__all__ = ["read_colmap", "find_colmap_model", "colmap_intrinsics"]
+__all__ = ["colmap_intrinsics", "find_colmap_model", "read_colmap"]
 
 # model -> (fx, fy, cx, cy, [k1, k2, p1, p2, k3, k4, k5, k6]) from the params vector
 _MODELS = {
@@ -85,7 +85,7 @@ def read_colmap(path: str | Path, opts: ReaderOptions | None = None, *, images: 
     model_dir = find_colmap_model(root)
     try:
         rec = pycolmap.Reconstruction(str(model_dir))
-    except Exception as exc:  # pycolmap raises plain RuntimeError/ValueError for broken files
+    except Exception as exc:  # noqa: BLE001 (pycolmap raises plain RuntimeError/ValueError for broken files)
         raise DataError(f"{model_dir}: cannot read COLMAP model: {str(exc).splitlines()[0]}") from None
     intr = {cid: colmap_intrinsics(cam, undistort) for cid, cam in rec.cameras.items()}
     views = []

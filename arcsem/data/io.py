@@ -10,8 +10,16 @@ import numpy as np
 
 from ..errors import DataError
 
-__all__ = ["IMAGE_EXTS", "resolve_file", "read_image", "read_mask", "read_array", "resize",
-           "read_ply", "write_ply"]
+__all__ = [
+    "IMAGE_EXTS",
+    "read_array",
+    "read_image",
+    "read_mask",
+    "read_ply",
+    "resize",
+    "resolve_file",
+    "write_ply",
+]
 
 IMAGE_EXTS = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".exr")
 

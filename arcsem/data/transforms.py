@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -32,7 +31,7 @@ from ..scene import Scene
 from .build import ReaderOptions, ViewSpec, assemble_scene
 from .io import read_image, read_ply, resolve_file
 
-__all__ = ["read_transforms", "find_transforms_files", "frame_views"]
+__all__ = ["find_transforms_files", "frame_views", "read_transforms"]
 
 MODELS = {"PINHOLE": "pinhole", "SIMPLE_PINHOLE": "pinhole", "OPENCV": "pinhole", "ORTHOGRAPHIC": "orthographic"}
 DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
@@ -108,6 +107,15 @@ def _pose(frame: dict, where: str) -> np.ndarray:
     return np.linalg.inv(c2w_cv)
 
 
+OPTIONAL = ("mask", "depth", "normal", "color", "clean", "reference")  # frame keys <name>_path
+
+
+def _optional_file(base: Path, frame: dict, key: str, where: str) -> Path | None:
+    if not frame.get(key):
+        return None
+    return resolve_file(base, str(frame[key]), f"{where} {key}", (".npy", ".png", ".tif", ".tiff"))
+
+
 def frame_views(path: Path, data: dict, split: str | None) -> list[ViewSpec]:
     """:class:`ViewSpec` of every frame of one parsed transforms file."""
     base, top = path.parent, {k: data[k] for k in INTRINSIC_KEYS if k in data}
@@ -118,13 +126,9 @@ def frame_views(path: Path, data: dict, split: str | None) -> list[ViewSpec]:
         where = f"{path}: frame {i} ('{frame['file_path']}')"
         image = resolve_file(base, str(frame["file_path"]), where)
         K, w, h, model = _intrinsics({**top, **{k: frame[k] for k in INTRINSIC_KEYS if k in frame}}, image, where)
-        opt = lambda key: resolve_file(base, str(frame[key]), f"{where} {key}", (".npy", ".png", ".tif")) \
-            if frame.get(key) else None  # noqa: E731
         views.append(ViewSpec(
             name=image.stem, image=image, w2c=_pose(frame, where), K=K, width=w, height=h, model=model,
-            split=frame.get("split", split), mask=opt("mask_path"), depth=opt("depth_path"),
-            normal=opt("normal_path"), color=opt("color_path"), clean=opt("clean_path"),
-            reference=opt("reference_path")))
+            split=frame.get("split", split), **{k: _optional_file(base, frame, f"{k}_path", where) for k in OPTIONAL}))
     return views
 
 

@@ -1,0 +1,2 @@
+"""A template third-party arcsem plugin (a constant-colour backbone)."""
+__all__: list[str] = []

@@ -1,1 +1,18 @@
-__all__: list[str] = []
+"""Training: the generic loop (stage 1 and 2), optimisers, samplers, loss sets, checkpoints, evaluation.
+
+``run_stage1(cfg, scene, run_dir)`` trains and evaluates stage 1; ``train(...)`` is the loop the
+colourisation stage reuses (``stage="color"``, its own losses and ``batch_hook``); ``load_stage1``
+rebuilds a trained ``(backbone, act)`` from ``run_dir/checkpoints/last.pt``.
+"""
+from .checkpoint import load_checkpoint, save_checkpoint
+from .evaluate import evaluate_split
+from .loop import LoopConfig, TrainResult, render_batch, train
+from .losses import LossSet, build_losses, merge_loss_cfgs
+from .optim import GroupSchedule, OptimConfig
+from .stage1 import EvalConfig, TrainConfig, build_model, evaluate, load_stage1, prepare_scene, run_stage1
+
+__all__ = [
+    "run_stage1", "load_stage1", "train", "evaluate", "evaluate_split", "build_model", "prepare_scene",
+    "LoopConfig", "TrainResult", "TrainConfig", "EvalConfig", "OptimConfig", "GroupSchedule",
+    "LossSet", "build_losses", "merge_loss_cfgs", "render_batch", "save_checkpoint", "load_checkpoint",
+]

@@ -1,0 +1,155 @@
+"""Evaluation of a trained scene: image metrics, depth error, renders, per-view CSV, turntable video.
+
+Protocol: training views are rendered with their own ACT (the paper's Table 1 protocol), held-out
+views with the mean ACT (their cameras carry ``image_id = -1``). The reference image is the
+noise-free ``split.clean`` when the dataset has it, else the observed image. With masks, masked
+variants (``psnr_masked`` ...) are added. With ground-truth depth, the median absolute depth error
+over the pixels inside the GT mask (``depth > 0`` and the specimen mask) is reported, also as a
+percentage of ``scene.size`` (the bounding-box diagonal). The rendered depth is ``median_depth``
+when the backbone provides it (2DGS), else the expected ``depth``.
+
+Metrics come from :mod:`arcsem.metrics` (the one implementation); LPIPS is NaN when its ImageNet
+weights are missing, and the reason is recorded as ``lpips_weights``.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..scene import Split
+
+__all__ = ["evaluate_split", "depth_error", "depth_image", "write_views_csv", "to_uint8", "mean_metrics"]
+
+METRICS = ("psnr", "ssim", "lpips")
+
+
+def to_uint8(img: torch.Tensor) -> np.ndarray:
+    """``[H,W,3]`` in [0,1] -> uint8 array."""
+    return (img.detach().clamp(0, 1).cpu().numpy() * 255.0 + 0.5).astype(np.uint8)
+
+
+def depth_image(depth: torch.Tensor, valid: torch.Tensor, lo: float | None = None, hi: float | None = None) -> np.ndarray:
+    """Depth ``[H,W]`` -> uint8 ``[H,W,3]``: near bright, far dark (inverted grey), invalid black.
+
+    ``lo``/``hi`` fix the range (e.g. from the ground truth) so renders and GT are comparable.
+    """
+    d = depth.detach().cpu().double()
+    v = valid.cpu().bool() & torch.isfinite(d)
+    if not bool(v.any()):
+        return np.zeros((*d.shape, 3), np.uint8)
+    lo = float(d[v].min()) if lo is None else lo
+    hi = float(d[v].max()) if hi is None else hi
+    x = 1.0 - ((d - lo) / max(hi - lo, 1e-12)).clamp(0, 1)
+    x = torch.where(v, 0.15 + 0.85 * x, torch.zeros_like(x))
+    return (x[..., None].expand(-1, -1, 3).numpy() * 255 + 0.5).astype(np.uint8)
+
+
+def depth_error(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+    """Absolute depth errors ``[P]`` over the valid pixels (``gt > 0``, inside ``mask``) of ``[H,W]`` maps."""
+    valid = (gt > 0) & torch.isfinite(pred)
+    if mask is not None:
+        valid &= mask.bool()
+    return (pred[valid].double() - gt[valid].double()).abs()
+
+
+def _render_view(backbone: nn.Module, split: Split, i: int) -> dict[str, torch.Tensor]:
+    with torch.no_grad():
+        out = backbone.render(split.cameras[i : i + 1])
+    return {k: v[0].detach().cpu() for k, v in out.items() if torch.is_tensor(v) and v.ndim == 4}
+
+
+def _image_row(pred, gt, mask, with_lpips: bool) -> dict[str, Any]:
+    from ..metrics import image_metrics
+
+    row = image_metrics(pred, gt, None, with_lpips)
+    if mask is not None:
+        masked = image_metrics(pred, gt, mask, with_lpips)
+        row.update({f"{k}_masked": masked[k] for k in METRICS})
+    return row
+
+
+def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test", scene_size: float = 1.0,
+                   out_dir: str | Path | None = None, with_lpips: bool = True, max_views: int | None = None,
+                   ) -> tuple[list[dict[str, Any]], dict[str, Any], list[torch.Tensor]]:
+    """Render and score every view of ``split`` (up to ``max_views``, evenly spaced).
+
+    Returns:
+        rows: one dict per view (``split``, ``name``, metrics, ``depth_mae``, ``depth_mae_pct``).
+        summary: means over views (NaN-aware), pooled-median depth error, ``lpips_weights``.
+        errors: the per-view absolute depth errors (for pooling across calls).
+    Writes ``out_dir/renders/<split_name>/<name>.png`` and ``<name>_depth.png`` when ``out_dir`` is set.
+    """
+    n = len(split)
+    views = range(n) if not max_views or max_views >= n else np.linspace(0, n - 1, max_views).round().astype(int)
+    target = split.clean if split.clean is not None else split.images
+    render_dir = Path(out_dir) / "renders" / split_name if out_dir is not None else None
+    if render_dir is not None:
+        render_dir.mkdir(parents=True, exist_ok=True)
+    rows, errors, weights = [], [], set()
+    for i in (int(v) for v in views):
+        out = _render_view(backbone, split, i)
+        pred, mask = out["rgb"].clamp(0, 1), None if split.masks is None else split.masks[i]
+        row = {"split": split_name, "name": split.names[i], **_image_row(pred, target[i], mask, with_lpips)}
+        weights.add(row.pop("lpips_weights", "skipped"))
+        depth = out.get("median_depth", out.get("depth"))
+        if split.depths is not None and depth is not None:
+            err = depth_error(depth[..., 0], split.depths[i], mask)
+            errors.append(err)
+            row["depth_mae"] = float(err.median()) if err.numel() else math.nan
+            row["depth_mae_pct"] = 100.0 * row["depth_mae"] / scene_size
+        rows.append(row)
+        if render_dir is not None:
+            _write_view(render_dir, split, i, out, depth)
+    summary = mean_metrics(rows)
+    if errors:
+        pooled = torch.cat(errors)
+        summary["depth_mae"] = float(pooled.median()) if pooled.numel() else math.nan
+        summary["depth_mae_pct"] = 100.0 * summary["depth_mae"] / scene_size
+    summary["lpips_weights"] = sorted(weights)[0] if len(weights) == 1 else "; ".join(sorted(weights))
+    return rows, summary, errors
+
+
+def _write_view(render_dir: Path, split: Split, i: int, out: dict, depth: torch.Tensor | None) -> None:
+    import imageio.v2 as imageio
+
+    name = split.names[i]
+    imageio.imwrite(render_dir / f"{name}.png", to_uint8(out["rgb"]))
+    if depth is not None:
+        gt = split.depths[i] if split.depths is not None else None
+        lo, hi = (float(gt[gt > 0].min()), float(gt[gt > 0].max())) if gt is not None and bool((gt > 0).any()) else (None, None)
+        valid = out["alpha"][..., 0] > 0.5 if "alpha" in out else torch.ones_like(depth[..., 0], dtype=torch.bool)
+        imageio.imwrite(render_dir / f"{name}_depth.png", depth_image(depth[..., 0], valid, lo, hi))
+
+
+def mean_metrics(rows: Iterable[dict[str, Any]]) -> dict[str, float]:
+    """NaN-aware means of every numeric column of ``rows`` (``nan`` when no view has a value)."""
+    rows = list(rows)
+    keys = [k for k in (rows[0] if rows else {}) if isinstance(rows[0][k], (int, float)) and k not in ("depth_mae",)]
+    out = {}
+    for k in keys:
+        vals = [float(r[k]) for r in rows if k in r and isinstance(r[k], (int, float)) and math.isfinite(float(r[k]))]
+        out[k] = float(np.mean(vals)) if vals else math.nan
+    out.pop("depth_mae_pct", None)  # split-level depth error is the pooled median, set by the caller
+    return out
+
+
+def write_views_csv(path: str | Path, rows: list[dict[str, Any]]) -> Path:
+    """Per-view metrics as CSV (columns: union of the rows' keys, first-seen order)."""
+    cols: list[str] = []
+    for r in rows:
+        cols += [k for k in r if k not in cols]
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=cols, restval="")
+        w.writeheader()
+        w.writerows(rows)
+    tmp.replace(path)
+    return path

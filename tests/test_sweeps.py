@@ -78,6 +78,7 @@ def test_reference_count_composes_and_cli_wins(conf_dir):
     assert cfg.hydra.runtime.choices["train"] == "quick"  # the command line beats the preset
     assert cfg.hydra.runtime.choices["colorize"] == "paper"
     assert cfg.hydra.sweeper.params["colorize.references"] == "five,four,three,two,one"
+    assert _compose(conf_dir, ["experiment=reference_count", "backbone=gs3d"]).backbone.name == "gs3d"
 
 
 APP = '''

@@ -16,8 +16,9 @@ Example::
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from importlib import metadata
-from typing import Any, Callable
+from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
@@ -40,7 +41,8 @@ class Registry:
 
         def deco(cls: type) -> type:
             old = self._classes.get(name)
-            if old is not None and old.__qualname__ != cls.__qualname__:
+            # the same class defined again (a module re-executed) is allowed; any other class is not
+            if old is not None and (old.__module__, old.__qualname__) != (cls.__module__, cls.__qualname__):
                 raise PluginError(f"{self.kind} '{name}' registered twice: {old} and {cls}")
             cls.name = name
             self._classes[name] = cls

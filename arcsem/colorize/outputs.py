@@ -1,0 +1,82 @@
+"""Stage-2 outputs: colour metrics against ground truth, coloured views, previews, video, export."""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import torch
+
+__all__ = ["evaluate_colour", "write_outputs", "colour_split"]
+
+
+def colour_split(split, idx: list[int]):
+    """The views ``idx`` of ``split`` with ground-truth COLOUR as their target images."""
+    sub = split.subset(idx)
+    return dataclasses.replace(sub, images=sub.colors, clean=None, depths=None)
+
+
+def evaluate_colour(backbone, scene, refs, run_dir: Path, cc) -> dict:
+    """PSNR/SSIM/LPIPS (whole image and ``_masked``) vs ground-truth colour over non-reference training
+    views (``train_nonref``), reference views (``train_ref``) and held-out views (``test``)."""
+    from ..train.evaluate import evaluate_split, write_views_csv
+
+    out: dict = {}
+    rows: list = []
+    ref_set = set(refs.indices.tolist())
+    train = scene.train
+    parts = []
+    if train.colors is not None:
+        parts += [("train_nonref", train, [i for i in range(len(train)) if i not in ref_set]),
+                  ("train_ref", train, sorted(ref_set))]
+    if scene.test.colors is not None and len(scene.test):
+        parts.append(("test", scene.test, list(range(len(scene.test)))))
+    if not parts:
+        return {"train_nonref": {}, "test": {}, "note": "the dataset has no ground-truth colour: no colour metrics"}
+    weights = set()
+    for name, split, idx in parts:
+        if not idx:
+            out[name] = {}
+            continue
+        limit = cc.eval.max_train_views if name.startswith("train") else None
+        r, summary, _ = evaluate_split(backbone, colour_split(split, idx), split_name=name, scene_size=scene.size,
+                                       with_lpips=cc.eval.lpips, max_views=limit)
+        weights.add(summary.pop("lpips_weights", "skipped"))
+        for k in [k for k in summary if k.startswith("depth")]:
+            summary.pop(k)
+        out[name], rows = summary, rows + r
+    out["lpips_weights"] = "; ".join(sorted(weights))
+    write_views_csv(Path(run_dir) / "colorize" / "views.csv", rows)
+    return out
+
+
+def _png(path: Path, img: torch.Tensor) -> None:
+    import imageio.v2 as imageio
+
+    from ..train.evaluate import to_uint8
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    imageio.imwrite(path, to_uint8(img))
+
+
+def write_outputs(backbone, scene, run_dir: Path, cc, pseudo: torch.Tensor, valid: torch.Tensor) -> dict:
+    """``colored/<input name>.png`` (every training view), ``colorize/pseudo/<name>.png``,
+    ``colored_turntable.*`` and ``colored_model.<ext>``; returns their paths."""
+    from ..train.stage1 import turntable
+
+    run_dir = Path(run_dir)
+    split = scene.train
+    with torch.no_grad():
+        for i in range(len(split)):
+            stem = Path(split.files[i]).stem if split.files else split.names[i]
+            _png(run_dir / "colored" / f"{stem}.png", backbone.render(split.cameras[i:i + 1])["rgb"][0].clamp(0, 1).cpu())
+            _png(run_dir / "colorize" / "pseudo" / f"{split.names[i]}.png", pseudo[i] * valid[i][..., None])
+    out = {"colored_dir": str(run_dir / "colored")}
+    if cc.eval.video:
+        out["video"] = str(turntable(backbone, scene, run_dir / "colored_turntable", cc.eval.video_frames, cc.eval.fps))
+    suffix = getattr(backbone, "export_suffix", None) or (".npz" if backbone.batch_mode == "rays" else ".ply")
+    try:
+        backbone.export(str(run_dir / f"colored_model{suffix}"))
+        out["export"] = str(run_dir / f"colored_model{suffix}")
+    except NotImplementedError:
+        out["export"] = None
+    return out

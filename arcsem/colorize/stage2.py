@@ -1,0 +1,199 @@
+"""Stage 2: colour a trained grey model from a few artist references (geometry frozen, no ACT).
+
+``run_stage2(cfg, scene, run_dir)`` is what ``arcsem stage=color`` (and the second half of
+``stage=all``) runs. Reference views get ``20 x L1``; every other view gets
+``lambda_pc * pseudo + lambda_tcm * TCM + lambda_cc * CCM`` (each switchable, ``weight: 0`` = off).
+It writes into ``run_dir``: ``colored/<name>.png`` for every training view (input names),
+``colorize/pseudo/<name>.png`` (pseudo-colour previews), ``colored_turntable.mp4``, the coloured
+model (``colored_model.ply`` for Gaussians), ``colorize/views.csv``, and returns the metrics
+against ground-truth colour (where the dataset has it) plus ``features: imagenet|random``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from omegaconf import DictConfig, OmegaConf
+
+from ..errors import DataError
+from ..plugins import Batch
+from ..registry import validate_config
+from .config import ColorizeConfig
+from .guidance import Guidance
+from .masks import specimen_masks
+from .pseudocolor import cached_pseudo_colors, pseudo_colors, pseudo_key
+from .references import References, load_references
+
+__all__ = ["run_stage2", "ColorTargets", "colorize_config", "find_stage1", "render_depths"]
+
+log = logging.getLogger(__name__)
+
+
+def _plain(x: Any) -> Any:
+    return OmegaConf.to_container(x, resolve=True) if isinstance(x, DictConfig) else x
+
+
+def colorize_config(cfg: Any) -> ColorizeConfig:
+    return validate_config(ColorizeConfig, dict(_plain(cfg.get("colorize")) or {}), where="colorize")
+
+
+def find_stage1(cfg: Any, cc: ColorizeConfig, run_dir: Path) -> Path:
+    """The stage-1 checkpoint: ``colorize.stage1`` (file or run folder), this run's, or the shared cache's."""
+    cands = []
+    if cc.stage1:
+        p = Path(cc.stage1)
+        cands = [p] if p.is_file() else [p / "checkpoints" / "last.pt"]
+    else:
+        cands.append(run_dir / "checkpoints" / "last.pt")
+        try:
+            from ..share import stage1_dir
+
+            cands.append(stage1_dir(cfg, create=False) / "checkpoints" / "last.pt")
+        except Exception:  # no shared cache configured
+            pass
+    for c in cands:
+        if c.is_file():
+            return c
+    raise DataError(f"colorize: no stage-1 checkpoint (looked for {', '.join(map(str, cands))}); "
+                    "run stage=gray first or set colorize.stage1=<run dir or checkpoint>")
+
+
+def _resize_images(x: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    """``[N, H, W, 3]`` -> ``[N, h, w, 3]`` box-filtered (as the training images are)."""
+    if x.shape[1:3] == (h, w):
+        return x
+    return F.interpolate(x.permute(0, 3, 1, 2).float(), size=(h, w), mode="area").permute(0, 2, 3, 1)
+
+
+def render_depths(backbone, split, alpha_min: float = 0.5) -> torch.Tensor:
+    """z-depth ``[N, H, W]`` of every view from the model (median depth if provided); 0 where alpha < alpha_min."""
+    out = []
+    with torch.no_grad():
+        for i in range(len(split)):
+            r = backbone.render(split.cameras[i:i + 1])
+            d = r.get("median_depth", r["depth"])[0, ..., 0]
+            a = r["alpha"][0, ..., 0] if "alpha" in r else torch.ones_like(d)
+            out.append(torch.where(a >= alpha_min, d, torch.zeros_like(d)).cpu())
+    return torch.stack(out)
+
+
+class ColorTargets:
+    """The stage-2 ``batch_hook``: fills ``batch.extras`` from the cached pseudo-colours and guidance."""
+
+    def __init__(self, refs: References, pseudo: torch.Tensor, valid: torch.Tensor, guidance: Guidance | None,
+                 vgg=None, tcm_downscale: int = 4, ccm_downscale: int = 16):
+        self.ref_pos = {int(v): k for k, v in enumerate(refs.indices.tolist())}
+        self.refs, self.pseudo, self.valid, self.guidance = refs, pseudo, valid, guidance
+        self.vgg, self.tcm_downscale, self.ccm_downscale = vgg, tcm_downscale, ccm_downscale
+
+    def __call__(self, batch: Batch) -> Batch:
+        idx = batch.indices.cpu().tolist()
+        dev = batch.images.device
+        is_ref = torch.tensor([i in self.ref_pos for i in idx], device=dev)
+        ref = torch.stack([self.refs.images[self.ref_pos[i]] if i in self.ref_pos
+                           else torch.zeros_like(self.refs.images[0]) for i in idx])
+        ex = dict(batch.extras or {})
+        ex.update(is_reference=is_ref, reference=ref.to(dev), pseudo=self.pseudo[idx].to(dev),
+                  pseudo_valid=self.valid[idx].to(dev), tcm_downscale=self.tcm_downscale,
+                  ccm_downscale=self.ccm_downscale, vgg=self.vgg)
+        if self.guidance is not None:
+            t = [self.guidance.targets(i) for i in idx]
+            ex["tcm_guidance"] = [torch.stack([x["tcm_guidance"][b] for x in t]).to(dev)
+                                  for b in range(len(t[0]["tcm_guidance"]))]
+            ex["ccm_target"] = torch.stack([x["ccm_target"] for x in t]).to(dev)
+            ex["ccm_valid"] = torch.stack([x["ccm_valid"] for x in t]).to(dev)
+        return dataclasses.replace(batch, extras=ex)
+
+
+def _prepare_scene(scene, ckpt: Path, cc: ColorizeConfig):
+    """The scene at the colourisation resolution (stage 1's unless ``colorize.downscale/width`` say otherwise)."""
+    from ..train.checkpoint import load_checkpoint
+    from ..train.sampling import resize_split
+
+    saved = (load_checkpoint(ckpt).get("config") or {}).get("train") or {}
+    down, width = (cc.downscale, cc.width) if (cc.downscale != 1.0 or cc.width) else \
+        (float(saved.get("downscale", 1.0)), saved.get("width"))
+    return dataclasses.replace(scene, train=resize_split(scene.train, down, width),
+                               test=resize_split(scene.test, down, width))
+
+
+def _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir):
+    t0 = time.perf_counter()
+    depth_src = ckpt if cc.depth == "model" else split.depths
+    if cc.depth == "dataset" and split.depths is None:
+        raise DataError("colorize.depth=dataset but the dataset has no depth maps; use depth: model")
+    key = pseudo_key(depth_src, refs.images, refs.names, cc.radius, cc.radius_factor, masks, split.cameras)
+
+    def compute():
+        depths = render_depths(backbone, split) if cc.depth == "model" else split.depths
+        return pseudo_colors(split.cameras, depths, masks, refs.indices.tolist(), refs.images, cc.radius,
+                             cc.radius_factor, progress=cc.progress)
+
+    colors, valid, hit = cached_pseudo_colors(cache_dir, key, compute)
+    return colors, valid, {"cache_hit": hit, "time_s": time.perf_counter() - t0, "key": key}
+
+
+def _pseudo_quality(split, masks, refs, colors, valid) -> dict:
+    others = [i for i in range(len(split)) if i not in set(refs.indices.tolist())]
+    out = {"coverage": float(valid[others].sum() / masks[others].sum().clamp_min(1)) if others else float("nan")}
+    if split.colors is not None and others and bool(valid[others].any()):
+        err = (colors[others] - split.colors[others]).abs()[valid[others]]
+        out["mae_vs_gt"] = float(err.mean())
+    return out
+
+
+def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
+    """Colour the stage-1 model; returns ``{"stage2": {...}, "features": "imagenet"|"random"}``."""
+    from ..train import LoopConfig, build_losses, load_stage1, train
+    from ..share import cache_root
+    from .outputs import evaluate_colour, write_outputs
+    from .vgg import get_vgg
+
+    run_dir = Path(run_dir)
+    cc = colorize_config(cfg)
+    ckpt = find_stage1(cfg, cc, run_dir)
+    refs = load_references(scene, cc.references)  # validated against the dataset's views
+    scene = _prepare_scene(scene, ckpt, cc)
+    backbone, _ = load_stage1(ckpt, scene, cfg)
+    backbone.act = None  # stage 2 never uses ACT (the paper found it hurt colourisation)
+    split = scene.train
+    refs.images = _resize_images(refs.images, split.cameras.height, split.cameras.width)
+    masks = specimen_masks(split, cc.masks, cc.mask_folder, cc.sam_checkpoint)
+    cache_dir = Path(cc.cache_dir) if cc.cache_dir else cache_root(cfg) / "colorize"
+    pseudo, valid, pinfo = _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir)
+    terms = {k: v for k, v in (_plain(cc.losses) or {}).items() if v is not None and float(v.get("weight", 1)) != 0}
+    losses = build_losses(terms, backbone.provides, backbone.batch_mode, where="colorize.losses",
+                          backbone=backbone.name)
+    use_guidance = any(n in losses.terms for n in ("tcm", "ccm"))
+    vgg = get_vgg(cc.vgg) if use_guidance else None
+    t0 = time.perf_counter()
+    guidance = Guidance(vgg, split.images, refs.indices.tolist(), refs.images, cc.tcm_downscale, cc.ccm_downscale,
+                        cc.ccm_max_dist, cc.ccm_white, cache_dir) if use_guidance else None
+    if guidance is not None:
+        for i in range(len(split)):  # once per view, before training (cached on disk)
+            guidance.matches(i)
+    t_guid = time.perf_counter() - t0
+    hook = ColorTargets(refs, pseudo, valid, guidance, vgg, cc.tcm_downscale, cc.ccm_downscale)
+    loop = LoopConfig(steps=cc.steps, stage="color", batch_views=cc.batch_views, log_every=cc.log_every,
+                      checkpoint_every=cc.checkpoint_every, resume=cc.resume, seed=int(cfg.get("seed", 0)),
+                      progress=cc.progress, desc=f"stage 2 ({backbone.name})")
+    res = train(backbone, split, losses, loop, optim=cc.optim, ckpt_dir=run_dir / "colorize" / "checkpoints",
+                config={"colorize": _plain(cfg.get("colorize")), "stage1": str(ckpt), "pseudo": pinfo["key"]},
+                batch_hook=hook)
+    backbone.eval()
+    features = vgg.features_source if vgg is not None else "unused"
+    result = evaluate_colour(backbone, scene, refs, run_dir, cc)
+    result.update(write_outputs(backbone, scene, run_dir, cc, pseudo, valid))
+    result.update(
+        features=features, references=refs.names, losses=sorted(losses.terms), steps=res.steps, time_s=res.time_s,
+        steps_per_s=res.steps_per_s, stage1_checkpoint=str(ckpt), image_size=[split.cameras.width, split.cameras.height],
+        pseudo={**_pseudo_quality(split, masks, refs, pseudo, valid), "cache_hit": pinfo["cache_hit"],
+                "time_s": pinfo["time_s"]}, guidance_time_s=t_guid,
+        vgg={"arch": cc.vgg, "weights": vgg.weights_detail} if vgg is not None else None,
+        final_loss=res.history[-1]["loss"] if res.history else None)
+    return {"stage2": result, "features": features}

@@ -255,3 +255,19 @@ def test_load_scene_synthetic_dispatch(monkeypatch, tmp_path):
     monkeypatch.setattr(synth, "ensure_scene", fake_ensure_scene, raising=False)
     s = load_scene({"kind": "synthetic", "shape": "pollen", "n_views": 2, "downscale": 1, "split": "none"})
     assert calls == [{"shape": "pollen", "n_views": 2}] and len(s.train) == 2
+
+
+def test_load_scene_config_errors(tiny_transforms):
+    from omegaconf import OmegaConf
+
+    from arcsem.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="dataset.path is not set"):
+        load_scene(OmegaConf.create({"kind": "transforms", "path": "???"}))
+    with pytest.raises(ConfigError, match="unknown kind 'nerf'; available: transforms, colmap, synthetic"):
+        load_scene({"kind": "nerf"})
+    with pytest.raises(ConfigError, match="dataset.split: 'random'"):
+        load_scene({"kind": "transforms", "path": "x", "split": "random"})
+    path = tiny_transforms(n=2, aabb=[[0, 0], [1, 1]])
+    with pytest.raises(DataError, match="'aabb' must be"):
+        load_scene({"kind": "transforms", "path": str(path)})

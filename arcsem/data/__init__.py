@@ -63,6 +63,10 @@ def load_scene(cfg: Any) -> Scene:
     opts = reader_options(cfg)
     if kind == "synthetic":
         return read_transforms(_synthetic_path(cfg), opts)
+    from omegaconf import DictConfig, OmegaConf
+
+    if isinstance(cfg, DictConfig) and OmegaConf.is_missing(cfg, "path"):
+        raise ConfigError(f"dataset.path is not set: add dataset.path=/path/to/scene (dataset kind '{kind}')")
     path = _get(cfg, "path")
     if not path:
         raise ConfigError(f"dataset.path is not set (dataset kind '{kind}')")

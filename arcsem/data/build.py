@@ -214,7 +214,12 @@ def assemble_scene(root: Path, views: list[ViewSpec], opts: ReaderOptions, *, bo
             raise DataError(f"{root}: reference set '{set_name}' names unknown view(s) {', '.join(bad)}")
     sets = {k: [n for n in v if n in known] for k, v in (reference_sets or {}).items()}
     if bounds is not None:
-        box = torch.as_tensor(np.asarray(bounds, dtype=np.float32)).reshape(2, 3)
+        try:
+            box = torch.as_tensor(np.asarray(bounds, dtype=np.float32)).reshape(2, 3)
+        except (ValueError, TypeError, RuntimeError):
+            raise DataError(f"{root}: 'aabb' must be [[xmin, ymin, zmin], [xmax, ymax, zmax]], got {bounds}") from None
+        if not (box[1] > box[0]).all():
+            raise DataError(f"{root}: 'aabb' max {box[1].tolist()} must exceed min {box[0].tolist()}")
     elif points is not None and len(points) > 0:
         box = bounds_from_points(points)
     else:

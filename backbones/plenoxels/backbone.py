@@ -17,6 +17,7 @@ from torch import Tensor, nn
 
 from ...errors import ConfigError
 from ...plugins import BACKBONES, Backbone
+from .fused import resolve_impl
 from .grid import build_index, cell_occupancy, occupied_coords
 from .render import GridData, render_grid
 from .tv import random_rows, tv_sparse
@@ -94,6 +95,8 @@ class Plenoxels(Backbone):
         """Training views are rendered at this scale to find the max weights (CPU budget)."""
         chunk: int = 8192
         """Rays per chunk when rendering whole images."""
+        renderer: str = "auto"
+        """"cpp" (fused C++ CPU kernel), "torch" (PyTorch reference, any device), "auto" (cpp on CPU if it builds)."""
 
     def __init__(self, cfg: Any, scene: Any = None, act: Any = None, **runtime: Any):
         super().__init__(cfg, scene)
@@ -151,6 +154,8 @@ class Plenoxels(Backbone):
 
     def _render(self, rays_o: Tensor, rays_d: Tensor, image_ids: Tensor | None, **kw: Any) -> dict:
         c = self.cfg
+        if "impl" not in kw:
+            kw["impl"] = resolve_impl(c.renderer, self.bounds.device)
         return render_grid(
             self.grid(), rays_o.to(self.bounds.dtype), rays_d.to(self.bounds.dtype), sh_degree=c.sh_degree,
             step_size=c.step_size, stop_thresh=c.stop_thresh, background=torch.tensor(c.background),
@@ -253,14 +258,15 @@ class Plenoxels(Backbone):
         cams = self._train_cams.to(self.bounds.device)
         if self.cfg.prune_image_scale != 1.0:
             cams = cams.scaled(self.cfg.prune_image_scale)
-        samples = []
+        best = torch.zeros(self.num_primitives())
         for i in range(len(cams)):
             o, d = cams[i].rays()
             o, d = o.reshape(-1, 3), d.reshape(-1, 3)
             for j in range(0, o.shape[0], self.cfg.chunk):
-                out = self._render(o[j : j + self.cfg.chunk], d[j : j + self.cfg.chunk], None, return_samples=True)
-                samples.append(out["samples"])
-        return max_weights(self.num_primitives(), samples)
+                out = self._render(o[j : j + self.cfg.chunk], d[j : j + self.cfg.chunk], None, return_samples=True,
+                                   impl="torch")
+                best = torch.maximum(best, max_weights(best.numel(), [out["samples"]]))
+        return best
 
     def _set_grid(self, index: Tensor, density: Tensor, sh: Tensor, optimizers: dict | None) -> None:
         old = {"density": self.density, "sh": self.sh}

@@ -111,6 +111,7 @@ def render_grid(
     act=None,
     image_ids: Tensor | None = None,
     return_samples: bool = False,
+    impl: str = "torch",
 ) -> dict[str, Tensor]:
     """Render rays through a sparse SH voxel grid.
 
@@ -124,16 +125,19 @@ def render_grid(
         act: optional object with ``apply(colors [A, 3], image_ids [A]) -> [A, 3]`` applied per sample.
         image_ids: ``[R]`` long training-image index per ray (for ACT; -1 = novel view).
         return_samples: also return ``samples`` = (rows ``[A, 8]``, trilinear weights ``[A, 8]``,
-            rendering weights ``[A]``) of the composited samples (for pruning).
+            rendering weights ``[A]``) of the composited samples (for pruning; PyTorch path).
+        impl: ``"torch"`` (reference) or ``"cpp"`` (fused kernel of :mod:`.fused`, CPU).
     Returns:
         ``rgb [R, 3]``, ``alpha [R, 1]`` (= sum of weights), ``depth [R, 1]`` (expected z-depth
         ``sum(w t) / alpha``, 0 where alpha = 0).
     """
     R, dev, dt_ = rays_o.shape[0], rays_o.device, grid.density.dtype
     bg = torch.zeros(3, dtype=dt_, device=dev) if background is None else torch.as_tensor(background, dtype=dt_, device=dev)
+    step = step_size * float(voxel_size(grid.bounds, grid.reso).min())
+    if impl == "cpp" and not return_samples:
+        return _render_fused(grid, rays_o, rays_d, step, sh_degree, stop_thresh, bg, act, image_ids)
     t_near, t_far = ray_aabb(rays_o, rays_d, grid.bounds)
     dnorm = rays_d.norm(dim=-1)
-    step = step_size * float(voxel_size(grid.bounds, grid.reso).min())
     t_mid, delta = sample_segments(t_near, t_far, step / dnorm)
     S = t_mid.shape[1]
     sel, g = _occupied_samples(grid, rays_o, rays_d, t_mid, delta)
@@ -163,3 +167,19 @@ def render_grid(
     if return_samples:
         out["samples"] = (rows[active], wtri[active], w.detach())
     return out
+
+
+def _render_fused(grid: GridData, rays_o, rays_d, step, sh_degree, stop_thresh, bg, act, image_ids) -> dict:
+    """:func:`render_grid` through the fused C++ kernel (same outputs, CPU)."""
+    from .fused import march
+
+    R = rays_o.shape[0]
+    act_w = act_b = None
+    if act is not None:
+        ids = image_ids if image_ids is not None else torch.full((R,), -1, dtype=torch.long)
+        act_w, act_b = (t.to(grid.density.dtype).expand(R, 3) for t in act.transforms(ids))
+    rgb, alpha, wt = march(grid.density, grid.sh, grid.index, grid.cell_occ, grid.bounds, rays_o, rays_d,
+                           step=step, scale=box_scale(grid.bounds), stop=stop_thresh, degree=sh_degree,
+                           act_w=act_w, act_b=act_b)
+    depth = torch.where(alpha > 0, wt / alpha.clamp_min(1e-10), torch.zeros_like(wt))
+    return {"rgb": rgb + (1 - alpha)[:, None] * bg, "alpha": alpha[:, None], "depth": depth[:, None]}

@@ -13,9 +13,9 @@ __all__ = ["tv_sparse", "random_rows"]
 
 
 def random_rows(num_rows: int, frac: float, generator: torch.Generator | None = None, device=None) -> Tensor:
-    """``[max(1, frac*M)]`` distinct random rows out of ``M``."""
+    """``[max(1, frac*M)]`` random rows out of ``M`` (drawn with replacement: no O(M) permutation per step)."""
     k = min(num_rows, max(1, int(round(frac * num_rows))))
-    return torch.randperm(num_rows, generator=generator, device=device)[:k]
+    return torch.randint(num_rows, (k,), generator=generator, device=device)
 
 
 def tv_sparse(index: Tensor, coords: Tensor, table: Tensor, rows: Tensor, eps: float = 1e-5) -> Tensor:

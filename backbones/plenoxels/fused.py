@@ -1,0 +1,91 @@
+"""Fused C++ CPU ray marching (forward + backward), built as a PyTorch JIT extension.
+
+``cpp/render.cpp`` marches one ray per loop iteration (OpenMP over rays) with early termination and
+no per-sample buffers; the backward marches again and scatters gradients into density, SH and the
+per-ray ACT transform. :func:`arcsem.backbones.plenoxels.render.render_grid` with ``impl="torch"``
+is the reference: tests/test_plenoxels.py compares values and gradients of both paths.
+``load_extension()`` compiles once (cached under ``$TORCH_EXTENSIONS_DIR``) and returns None with one
+warning when no toolchain is available, so ``impl="auto"`` falls back to PyTorch.
+"""
+from __future__ import annotations
+
+import os
+import warnings
+from functools import lru_cache
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+__all__ = ["load_extension", "resolve_impl", "march"]
+
+SOURCE = Path(__file__).parent / "cpp" / "render.cpp"
+
+
+@lru_cache(maxsize=1)
+def load_extension(verbose: bool = False):
+    """The compiled module, or None (with one warning) when it cannot be built or loaded."""
+    if os.environ.get("ARCSEM_NO_CPP"):
+        return None
+    try:
+        from torch.utils.cpp_extension import load
+
+        return load(name="arcsem_plenoxels_fused", sources=[str(SOURCE)], extra_cflags=["-O3", "-fopenmp"],
+                    extra_ldflags=["-fopenmp"], verbose=verbose)
+    except Exception as exc:  # no compiler or headers: fall back, say it once
+        warnings.warn(f"arcsem: fused C++ Plenoxels renderer unavailable ({type(exc).__name__}: {str(exc)[:200]}); "
+                      "using the PyTorch path (renderer=torch)", RuntimeWarning, stacklevel=2)
+        return None
+
+
+def resolve_impl(impl: str, device: torch.device) -> str:
+    """``auto`` -> ``cpp`` on CPU tensors when the extension loads, else ``torch``; ``cpp`` must load."""
+    from arcsem.errors import ConfigError
+
+    if impl not in ("auto", "torch", "cpp"):
+        raise ConfigError(f"backbone 'plenoxels': renderer '{impl}' is not one of auto, torch, cpp")
+    if impl == "torch" or (impl == "auto" and device.type != "cpu"):
+        return "torch"
+    ok = device.type == "cpu" and load_extension() is not None
+    if impl == "cpp" and not ok:
+        raise ConfigError("backbone 'plenoxels': renderer 'cpp' needs CPU tensors and a C++ toolchain (see warning)")
+    return "cpp" if ok else "torch"
+
+
+class _March(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, density, sh, act_w, act_b, rays_o, rays_d, index, cell_occ, bounds, consts):
+        step, scale, stop, degree, has_act = consts
+        args = (rays_o, rays_d, index, cell_occ, density, sh, act_w, act_b, bounds, step, scale, stop, degree, has_act)
+        rgb, alpha, wt = load_extension().forward(*args)
+        ctx.save_for_backward(density, sh, act_w, act_b, rays_o, rays_d, index, cell_occ, bounds, rgb, alpha, wt)
+        ctx.consts = consts
+        return rgb, alpha, wt
+
+    @staticmethod
+    def backward(ctx, g_rgb, g_alpha, g_wt):
+        density, sh, act_w, act_b, rays_o, rays_d, index, cell_occ, bounds, rgb, alpha, wt = ctx.saved_tensors
+        step, scale, stop, degree, has_act = ctx.consts
+        gd, gsh, gw, gb = load_extension().backward(
+            rays_o, rays_d, index, cell_occ, density, sh, act_w, act_b, bounds, step, scale, stop, degree, has_act,
+            rgb, alpha, wt, g_rgb.contiguous(), g_alpha.contiguous(), g_wt.contiguous(),
+        )
+        return gd, gsh, (gw if has_act else None), (gb if has_act else None), None, None, None, None, None, None
+
+
+def march(density: Tensor, sh: Tensor, index: Tensor, cell_occ: Tensor, bounds: Tensor, rays_o: Tensor, rays_d: Tensor,
+          *, step: float, scale: float, stop: float, degree: int, act_w: Tensor | None = None,
+          act_b: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
+    """Fused march -> ``rgb [R, 3]`` (no background), ``alpha [R]``, ``wt [R]`` (= sum w t).
+
+    ``density [M]``, ``sh [M, K, 3]``, ``index [X, Y, Z]`` int32, ``cell_occ [X, Y, Z]`` bool, rays ``[R, 3]``;
+    ``act_w``/``act_b`` ``[R, 3]``: per-ray affine colour transform applied (and clamped) per sample.
+    """
+    has_act = act_w is not None
+    dt = density.dtype
+    empty = torch.zeros(0, dtype=dt)
+    return _March.apply(
+        density.contiguous(), sh.contiguous(), act_w.contiguous() if has_act else empty,
+        act_b.contiguous() if has_act else empty, rays_o.to(dt).contiguous(), rays_d.to(dt).contiguous(),
+        index.contiguous(), cell_occ.contiguous().view(torch.uint8), bounds, (step, scale, stop, degree, has_act),
+    )

@@ -56,17 +56,19 @@ def test_grayscale_rows_compose(conf_dir, variant, preset):
     assert cfg.hydra.runtime.choices["train"] == preset and cfg.hydra.runtime.choices["colorize"] == preset
 
 
-# ablation -> (ACT enabled, TCM weight, CCM weight); None = the preset's default (term on)
-ABLATIONS = {"full": (True, None, None), "no_tcm": (True, 0.0, None), "no_ccm": (True, None, 0.0),
-             "no_act": (False, None, None), "no_all": (False, 0.0, 0.0)}
+# ablation -> (ACT enabled, TCM on, CCM on); a term is on unless its weight is 0 (absent: the preset's)
+ABLATIONS = {"full": (True, True, True), "no_tcm": (True, False, True), "no_ccm": (True, True, False),
+             "no_act": (False, True, True), "no_all": (False, False, False)}
 
 
+@pytest.mark.parametrize("preset", ["quick", "paper"])
 @pytest.mark.parametrize("ablation", list(ABLATIONS))
-def test_ablation_rows_compose(conf_dir, ablation):
-    cfg = _compose(conf_dir, ["experiment=colorization_ablation", f"ablation={ablation}"])
+def test_ablation_rows_compose(conf_dir, ablation, preset):
+    cfg = _compose(conf_dir, ["experiment=colorization_ablation", f"ablation={ablation}", f"preset={preset}"])
     losses = cfg.colorize.get("losses") or {}
-    got = (cfg.act.enabled, (losses.get("tcm") or {}).get("weight"), (losses.get("ccm") or {}).get("weight"))
-    assert got == ABLATIONS[ablation]
+    on = [(losses.get(t) or {}).get("weight", 1.0) != 0 for t in ("tcm", "ccm")]
+    assert (cfg.act.enabled, *on) == ABLATIONS[ablation]
+    assert (losses.get("pseudo_color") or {}).get("weight", 1.0) != 0  # pseudo-colours stay in every row
     assert cfg.stage == "all" and cfg.colorize.references == "five" and cfg.backbone.name == "gs2d"
     assert cfg.hydra.sweeper.params["ablation"].split(",") == list(STUDIES["colorization_ablation"].rows)
 
@@ -117,16 +119,23 @@ if __name__ == "__main__":
 def _app(tmp: Path, train_s: float = 0.0, fail_on: str = "none") -> Path:
     (tmp / "conf").mkdir(parents=True)
     (tmp / "app.py").write_text(textwrap.dedent(APP))
-    cfg = {"seed": 0, "dataset": {"name": "tiny"}, "backbone": {"name": "gs2d"}, "act": {"enabled": True},
-           "train": {"steps": 1}, "colorize": {"references": "five"}, "train_s": train_s, "fail_on": fail_on,
-           "cache_dir": str(tmp / "cache"), "hydra": {"sweep": {"dir": str(tmp / "multirun")}}}
+    cfg = {"defaults": ["_self_", {"experiment": None}], "seed": 0, "dataset": {"name": "tiny"},
+           "backbone": {"name": "gs2d"}, "act": {"enabled": True}, "train": {"steps": 1},
+           "colorize": {"references": "five"}, "train_s": train_s, "fail_on": fail_on, "cache_dir": str(tmp / "cache")}
     (tmp / "conf" / "config.yaml").write_text(yaml.safe_dump(cfg))
+    # the real study file without its defaults list (the tiny app has no groups): its `hydra.mode:
+    # MULTIRUN` and sweeper params must start the sweep without `-m`
+    study = yaml.safe_load((CONF / "experiment" / "reference_count.yaml").read_text())
+    study.pop("defaults")
+    (tmp / "conf" / "experiment").mkdir()
+    (tmp / "conf" / "experiment" / "reference_count.yaml").write_text("# @package _global_\n" + yaml.safe_dump(study))
     return tmp
 
 
 def _sweep(app: Path, *args: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "COUNT_FILE": str(app / "count.txt"), "HYDRA_FULL_ERROR": "1"}
-    return subprocess.run([sys.executable, str(app / "app.py"), "-m", "+experiment=reference_count", *args],
+    return subprocess.run([sys.executable, str(app / "app.py"), "experiment=reference_count",
+                           f"hydra.sweep.dir={app / 'multirun'}", *args],
                           cwd=app, env=env, capture_output=True, text=True, timeout=110, check=False)
 
 

@@ -71,11 +71,12 @@ def test_lpips_missing_weights_is_nan_with_reason(pair, tmp_path, monkeypatch):
 
 def test_lpips_loads_hub_checkpoint(pair, tmp_path, monkeypatch):
     """With a checkpoint in the hub cache the AlexNet features are exactly its weights."""
-    from arcsem.tvfix import import_torchvision
-
-    tv = import_torchvision()
-    torch.manual_seed(0)
-    sd = tv.models.alexnet(weights=None).state_dict()
+    g = torch.Generator().manual_seed(0)
+    shapes = {0: (64, 3, 11, 11), 3: (192, 64, 5, 5), 6: (384, 192, 3, 3), 8: (256, 384, 3, 3), 10: (256, 256, 3, 3)}
+    sd = {}  # the conv layers of torchvision's AlexNet `features` (the classifier is not used by LPIPS)
+    for i, shape in shapes.items():
+        sd[f"features.{i}.weight"] = torch.randn(shape, generator=g) * 0.05
+        sd[f"features.{i}.bias"] = torch.randn(shape[0], generator=g) * 0.05
     (tmp_path / "hub" / "checkpoints").mkdir(parents=True)
     torch.save(sd, tmp_path / "hub" / "checkpoints" / metrics.ALEXNET_FILE)
     monkeypatch.setenv("TORCH_HOME", str(tmp_path))
@@ -91,3 +92,35 @@ def test_lpips_loads_hub_checkpoint(pair, tmp_path, monkeypatch):
     mask = np.zeros(a.shape[:2], bool)
     mask[10:30, 10:40] = True
     assert metrics.lpips(a, b, mask)[0] == pytest.approx(metrics.lpips(a * mask[..., None], b * mask[..., None])[0])
+
+
+def test_torchvision_workaround_defines_only_missing_schemas():
+    import torch
+
+    from arcsem.tvfix import MISSING_OP_SCHEMAS, ensure_torchvision_ops, import_torchvision
+
+    tv = import_torchvision()
+    assert tv.models.alexnet is not None
+    for name in MISSING_OP_SCHEMAS:  # defined by torchvision's own _C or by the workaround
+        torch._C._dispatch_find_schema_or_throw(f"torchvision::{name}", "")
+    assert ensure_torchvision_ops() == []  # nothing defined twice
+
+
+def test_hub_weight_lookup(tmp_path, monkeypatch):
+    from arcsem import weights
+
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path))
+    monkeypatch.setenv("ARCSEM_OFFLINE", "1")
+    ckpt = tmp_path / "hub" / "checkpoints"
+    ckpt.mkdir(parents=True)
+    assert weights.hub_checkpoint_dir() == ckpt
+    (ckpt / "empty.pth").write_bytes(b"")
+    assert weights.find_hub_weights("empty.pth") is None  # an interrupted download is not a checkpoint
+    torch.save({"w": torch.ones(2)}, ckpt / "mine.pth")
+    assert weights.find_hub_weights("mine.pth") == ckpt / "mine.pth"
+    sd, src = weights.load_state_dict_from_hub("https://example.org/models/mine.pth")  # cache first
+    assert src == str(ckpt / "mine.pth") and torch.equal(sd["w"], torch.ones(2))
+    sd, why = weights.load_state_dict_from_hub("unknown.pth")
+    assert sd is None and why == f"unknown.pth not in {ckpt} and no known URL to download it"
+    sd, why = weights.load_state_dict_from_hub("vgg16-397923af.pth")
+    assert sd is None and "no network to fetch https://download.pytorch.org/models/vgg16-397923af.pth" in why

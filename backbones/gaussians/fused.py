@@ -64,26 +64,30 @@ def resolve_impl(impl: str) -> str:
 
 class _Composite3D(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, feats, offsets, ids, C, H, W, tile):
+    def forward(ctx, means2d, conics, opacities, feats, offsets, ids, box, C, H, W, tile):
         ext = load_extension()
-        out, t_final, last = ext.forward3d(means2d, conics, opacities, feats, offsets, ids, C, H, W, tile)
-        ctx.save_for_backward(means2d, conics, opacities, feats, offsets, ids, t_final, last)
+        out, t_final, last = ext.forward3d(means2d, conics, opacities, feats, offsets, ids, box, C, H, W, tile)
+        ctx.save_for_backward(means2d, conics, opacities, feats, offsets, ids, box, t_final, last)
         ctx.dims = (C, H, W, tile)
         ctx.mark_non_differentiable(last)
         return out, 1.0 - t_final, last
 
     @staticmethod
     def backward(ctx, g_out, g_alpha, _g_last):
-        means2d, conics, opacities, feats, offsets, ids, t_final, last = ctx.saved_tensors
+        means2d, conics, opacities, feats, offsets, ids, box, t_final, last = ctx.saved_tensors
         grads = load_extension().backward3d(
-            means2d, conics, opacities, feats, offsets, ids, t_final, last,
+            means2d, conics, opacities, feats, offsets, ids, box, t_final, last,
             g_out.contiguous(), g_alpha.contiguous(), *ctx.dims,
         )
-        return (*grads, None, None, None, None, None, None)
+        return (*grads, None, None, None, None, None, None, None)
+
+
+def _full_box(M: int, W: int, H: int, like: Tensor) -> Tensor:
+    return torch.tensor([0, W - 1, 0, H - 1], dtype=torch.long, device=like.device).expand(M, 4).contiguous()
 
 
 def composite3d(means2d: Tensor, conics: Tensor, opacities: Tensor, feats: Tensor, offsets: Tensor, ids: Tensor,
-                C: int, H: int, W: int, tile: int = 16) -> tuple[Tensor, Tensor]:
+                C: int, H: int, W: int, tile: int = 16, box: Tensor | None = None) -> tuple[Tensor, Tensor]:
     """Composite sorted 3-D Gaussians front to back.
 
     Args:
@@ -92,60 +96,66 @@ def composite3d(means2d: Tensor, conics: Tensor, opacities: Tensor, feats: Tenso
         opacities: ``[M]``; feats: ``[M, K]`` features composited with the weights (colour, depth, ...).
         offsets: ``[C*TY*TX + 1]`` int64 start of each (camera, tile) in ``ids``; ids: ``[P]`` int64 into M,
             sorted by depth within each tile.
+        box: ``[M, 4]`` int64 inclusive pixel box ``(x0, x1, y0, y1)`` outside which the splat's alpha is
+            below 1/255 (pixels outside are skipped without evaluation); None = whole image.
     Returns:
         features ``[C, H, W, K]`` (no background) and alpha ``[C, H, W]``.
     """
+    box = _full_box(feats.shape[0], W, H, feats) if box is None else box
     out, alpha, _ = _Composite3D.apply(
         means2d.contiguous(), conics.contiguous(), opacities.contiguous(), feats.contiguous(),
-        offsets.contiguous(), ids.contiguous(), C, H, W, tile,
+        offsets.contiguous(), ids.contiguous(), box.contiguous(), C, H, W, tile,
     )
     return out, alpha
 
 
 class _Composite2D(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, near, C, H, W, tile):
+    def forward(ctx, Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, box, near, C, H, W, tile):
         ext = load_extension()
         out, tf, dsum, med, dist, m1, m2, last, medi = ext.forward2d(
-            Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, near, C, H, W, tile)
-        ctx.save_for_backward(Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, tf, m1, m2, last, medi)
+            Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, box, near, C, H, W, tile)
+        ctx.save_for_backward(Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, box, tf, m1, m2, last, medi)
         ctx.dims = (near, C, H, W, tile)
         return out, 1.0 - tf, dsum, med, dist
 
     @staticmethod
     def backward(ctx, g_out, g_alpha, g_dsum, g_med, g_dist):
-        Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, tf, m1, m2, last, medi = ctx.saved_tensors
+        Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, box, tf, m1, m2, last, medi = ctx.saved_tensors
         grads = load_extension().backward2d(
-            Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, *ctx.dims, tf, m1, m2, last, medi,
+            Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, box, *ctx.dims, tf, m1, m2, last, medi,
             *(g.contiguous() for g in (g_out, g_alpha, g_dsum, g_med, g_dist)))
-        return (*grads, None, None, None, None, None, None, None, None)
+        return (*grads, None, None, None, None, None, None, None, None, None)
 
 
 def composite2d(Hm: Tensor, Dz: Tensor, centers: Tensor, opacities: Tensor, feats: Tensor, mcoef: Tensor,
-                offsets: Tensor, ids: Tensor, near: float, C: int, H: int, W: int, tile: int = 16):
+                offsets: Tensor, ids: Tensor, near: float, C: int, H: int, W: int, tile: int = 16,
+                box: Tensor | None = None):
     """Composite sorted 2-D Gaussian surfels front to back (official 2DGS rules, see cpp/composite2d.cpp).
 
     Args:
         Hm: ``[M, 9]`` homography rows Tu, Tv, Tw per (camera, splat) entry; Dz: ``[M, 3]`` camera-z row;
         centers: ``[M, 2]`` projected centres (low-pass filter); opacities ``[M]``; feats ``[M, K]``;
         mcoef: ``[C, 3]`` normalised depth m = m0 + m1 z + m2 / z of the distortion term;
-        offsets, ids: tile ranges as in :func:`composite3d`; near: minimum depth.
+        offsets, ids, box: tile ranges and pixel boxes as in :func:`composite3d`; near: minimum depth.
     Returns:
         features ``[C,H,W,K]``, alpha ``[C,H,W]``, depth sum ``sum w z`` ``[C,H,W]``, median depth ``[C,H,W]``,
         distortion ``[C,H,W]``.
     """
     c = lambda t: t.contiguous()  # noqa: E731
+    box = _full_box(feats.shape[0], W, H, feats) if box is None else box
     return _Composite2D.apply(c(Hm), c(Dz), c(centers), c(opacities), c(feats), c(mcoef), c(offsets), c(ids),
-                              float(near), C, H, W, tile)
+                              c(box), float(near), C, H, W, tile)
 
 
 
-def composite_2dgs_packed(Hm: Tensor, centre2d: Tensor, opacities: Tensor, feats: Tensor, binning,
+def composite_2dgs_packed(Hm: Tensor, centre2d: Tensor, opacities: Tensor, feats: Tensor, binning, box: Tensor,
                           dist_near: float, dist_far: float) -> Tensor:
     """The 2DGS torch shader's packed per-pixel output, from the fused kernel.
 
     Args: Hm ``[C*N, 4, 3]`` rows Tu, Tv, Tw, Tz; centre2d ``[C*N, 2]``; opacities ``[C*N]``;
-        feats ``[C*N, 6]`` (colour, normal); binning: :class:`~arcsem.backbones.gaussians.raster.Binning`.
+        feats ``[C*N, 6]`` (colour, normal); binning: :class:`~arcsem.backbones.gaussians.raster.Binning`;
+        box: ``[C*N, 4]`` effective pixel boxes of the torch path.
     Returns: ``[C, H, W, 10]`` = rgb(3), alpha, sum w z, normal(3), distortion, median depth.
     """
     b = binning
@@ -153,15 +163,16 @@ def composite_2dgs_packed(Hm: Tensor, centre2d: Tensor, opacities: Tensor, feats
     mcoef = Hm.new_tensor([a, 0.0, -a * dist_near]).expand(b.C, 3)
     f, alpha, dsum, med, dist = composite2d(
         Hm[:, :3, :].reshape(-1, 9), Hm[:, 3, :], centre2d, opacities, feats, mcoef, b.offsets, b.splat,
-        float("-inf"), b.C, b.H, b.W, b.tile)
+        float("-inf"), b.C, b.H, b.W, b.tile, box)
     return torch.cat([f[..., :3], alpha[..., None], dsum[..., None], f[..., 3:6], dist[..., None],
                       med[..., None]], -1)
 
 
-def composite_3dgs_packed(means2d: Tensor, conics: Tensor, opacities: Tensor, feats: Tensor, binning) -> Tensor:
+def composite_3dgs_packed(means2d: Tensor, conics: Tensor, opacities: Tensor, feats: Tensor, binning,
+                          box: Tensor) -> Tensor:
     """The 3DGS torch shader's packed output ``[C, H, W, K + 1]`` = features (colour, depth), alpha."""
     b = binning
-    f, alpha = composite3d(means2d, conics, opacities, feats, b.offsets, b.splat, b.C, b.H, b.W, b.tile)
+    f, alpha = composite3d(means2d, conics, opacities, feats, b.offsets, b.splat, b.C, b.H, b.W, b.tile, box)
     return torch.cat([f, alpha[..., None]], -1)
 
 

@@ -62,7 +62,7 @@ struct Grid {
 template <typename T>
 struct Ptrs {  // inputs
   const T *H, *Dz, *c, *op, *f, *mc;
-  const int64_t *off, *ids;
+  const int64_t *off, *ids, *box;
   int64_t K;
   T near;
 };
@@ -86,6 +86,8 @@ void forward_impl(const Grid& gr, const Ptrs<T>& in, T* out, T* tf, T* dsum, T* 
           int32_t lastc = int32_t(start) - 1, mi = -1;
           for (int64_t i = start; i < end; ++i) {
             const int64_t s = in.ids[i];
+            const int64_t* bx = in.box + 4 * s;  // outside the box alpha < 1/255 (PyTorch side guarantees)
+            if (x < bx[0] || x > bx[1] || y < bx[2] || y > bx[3]) continue;
             if (!eval_surfel(in.H + 9 * s, in.Dz + 3 * s, in.c + 2 * s, in.op[s], px, py, in.near, h)) continue;
             const T next = Tr * (T(1) - h.alpha);
             if (next < T(kMinT)) break;
@@ -152,6 +154,8 @@ void backward_impl(const Grid& gr, const Ptrs<T>& in, const T* tf, const T* m1o,
           T Tr = Tf, S = 0;
           for (int64_t i = last[pix]; i >= start; --i) {
             const int64_t s = in.ids[i];
+            const int64_t* bx = in.box + 4 * s;  // outside the box alpha < 1/255 (PyTorch side guarantees)
+            if (x < bx[0] || x > bx[1] || y < bx[2] || y > bx[3]) continue;
             if (!eval_surfel(in.H + 9 * s, in.Dz + 3 * s, in.c + 2 * s, in.op[s], px, py, in.near, h)) continue;
             const T inv = T(1) / (T(1) - h.alpha), Ti = Tr * inv, w = h.alpha * Ti;
             const T m = mc[0] + mc[1] * h.z + mc[2] / h.z, dm_dz = mc[1] - mc[2] / (h.z * h.z);
@@ -204,18 +208,19 @@ void backward_impl(const Grid& gr, const Ptrs<T>& in, const T* tf, const T* m1o,
 template <typename T>
 Ptrs<T> ptrs(const torch::Tensor& H, const torch::Tensor& Dz, const torch::Tensor& c, const torch::Tensor& op,
              const torch::Tensor& f, const torch::Tensor& mc, const torch::Tensor& off, const torch::Tensor& ids,
-             double near) {
-  for (auto* t : {&H, &Dz, &c, &op, &f, &mc, &off, &ids})
+             const torch::Tensor& box, double near) {
+  for (auto* t : {&H, &Dz, &c, &op, &f, &mc, &off, &ids, &box})
     TORCH_CHECK(t->is_contiguous() && t->device().is_cpu(), "composite2d: inputs must be contiguous CPU tensors");
   return Ptrs<T>{H.data_ptr<T>(), Dz.data_ptr<T>(), c.data_ptr<T>(), op.data_ptr<T>(), f.data_ptr<T>(),
-                 mc.data_ptr<T>(), off.data_ptr<int64_t>(), ids.data_ptr<int64_t>(), f.size(1), T(near)};
+                 mc.data_ptr<T>(), off.data_ptr<int64_t>(), ids.data_ptr<int64_t>(), box.data_ptr<int64_t>(), f.size(1),
+                 T(near)};
 }
 
 }  // namespace
 
 std::vector<torch::Tensor> forward2d(torch::Tensor H, torch::Tensor Dz, torch::Tensor c, torch::Tensor op,
                                      torch::Tensor f, torch::Tensor mc, torch::Tensor off, torch::Tensor ids,
-                                     double near, int64_t C, int64_t Hh, int64_t W, int64_t tile) {
+                                     torch::Tensor box, double near, int64_t C, int64_t Hh, int64_t W, int64_t tile) {
   const Grid gr{C, Hh, W, tile, (W + tile - 1) / tile, (Hh + tile - 1) / tile};
   TORCH_CHECK(off.numel() == C * gr.tiles() + 1, "composite2d: tile offsets must have C*tiles+1 entries");
   auto o = f.options();
@@ -224,7 +229,7 @@ std::vector<torch::Tensor> forward2d(torch::Tensor H, torch::Tensor Dz, torch::T
        dist = torch::empty_like(tf), m1 = torch::empty_like(tf), m2 = torch::empty_like(tf);
   auto last = torch::empty({C, Hh, W}, o.dtype(torch::kInt32)), medi = torch::empty_like(last);
   AT_DISPATCH_FLOATING_TYPES(f.scalar_type(), "forward2d", [&] {
-    forward_impl<scalar_t>(gr, ptrs<scalar_t>(H, Dz, c, op, f, mc, off, ids, near), out.data_ptr<scalar_t>(),
+    forward_impl<scalar_t>(gr, ptrs<scalar_t>(H, Dz, c, op, f, mc, off, ids, box, near), out.data_ptr<scalar_t>(),
                            tf.data_ptr<scalar_t>(), dsum.data_ptr<scalar_t>(), med.data_ptr<scalar_t>(),
                            dist.data_ptr<scalar_t>(), m1.data_ptr<scalar_t>(), m2.data_ptr<scalar_t>(),
                            last.data_ptr<int32_t>(), medi.data_ptr<int32_t>());
@@ -234,7 +239,7 @@ std::vector<torch::Tensor> forward2d(torch::Tensor H, torch::Tensor Dz, torch::T
 
 std::vector<torch::Tensor> backward2d(torch::Tensor H, torch::Tensor Dz, torch::Tensor c, torch::Tensor op,
                                       torch::Tensor f, torch::Tensor mc, torch::Tensor off, torch::Tensor ids,
-                                      double near, int64_t C, int64_t Hh, int64_t W, int64_t tile,
+                                      torch::Tensor box, double near, int64_t C, int64_t Hh, int64_t W, int64_t tile,
                                       torch::Tensor tf, torch::Tensor m1, torch::Tensor m2, torch::Tensor last,
                                       torch::Tensor medi, torch::Tensor g_out, torch::Tensor g_alpha,
                                       torch::Tensor g_dsum, torch::Tensor g_med, torch::Tensor g_dist) {
@@ -242,7 +247,7 @@ std::vector<torch::Tensor> backward2d(torch::Tensor H, torch::Tensor Dz, torch::
   auto gH = torch::zeros_like(H), gDz = torch::zeros_like(Dz), gc = torch::zeros_like(c),
        gop = torch::zeros_like(op), gf = torch::zeros_like(f);
   AT_DISPATCH_FLOATING_TYPES(f.scalar_type(), "backward2d", [&] {
-    backward_impl<scalar_t>(gr, ptrs<scalar_t>(H, Dz, c, op, f, mc, off, ids, near), tf.data_ptr<scalar_t>(),
+    backward_impl<scalar_t>(gr, ptrs<scalar_t>(H, Dz, c, op, f, mc, off, ids, box, near), tf.data_ptr<scalar_t>(),
                             m1.data_ptr<scalar_t>(), m2.data_ptr<scalar_t>(), last.data_ptr<int32_t>(),
                             medi.data_ptr<int32_t>(), g_out.data_ptr<scalar_t>(), g_alpha.data_ptr<scalar_t>(),
                             g_dsum.data_ptr<scalar_t>(), g_med.data_ptr<scalar_t>(), g_dist.data_ptr<scalar_t>(),

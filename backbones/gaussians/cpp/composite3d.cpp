@@ -23,6 +23,9 @@ struct Grid {
   int64_t tiles() const { return tx * ty; }
 };
 
+// box: inclusive pixel box (x0, x1, y0, y1) outside which alpha < 1/255 (computed by the PyTorch side)
+inline bool outside(const int64_t* b, int64_t x, int64_t y) { return x < b[0] || x > b[1] || y < b[2] || y > b[3]; }
+
 template <typename T>
 inline bool eval_splat(const T* m2, const T* con, T op, T px, T py, T& dx, T& dy, T& g, T& alpha) {
   dx = px - m2[0];
@@ -36,7 +39,7 @@ inline bool eval_splat(const T* m2, const T* con, T op, T px, T py, T& dx, T& dy
 
 template <typename T>
 void forward_impl(const Grid& gr, const T* means2d, const T* conics, const T* opac, const T* feats, int64_t K,
-                  const int64_t* offsets, const int64_t* ids, T* out, T* t_final, int32_t* last) {
+                  const int64_t* offsets, const int64_t* ids, const int64_t* box, T* out, T* t_final, int32_t* last) {
   at::parallel_for(0, gr.C * gr.tiles(), 1, [&](int64_t b, int64_t e) {
     std::vector<T> acc(K);
     for (int64_t ct = b; ct < e; ++ct) {
@@ -51,6 +54,7 @@ void forward_impl(const Grid& gr, const T* means2d, const T* conics, const T* op
           int32_t lastc = int32_t(start) - 1;
           for (int64_t i = start; i < end; ++i) {
             const int64_t s = ids[i];
+            if (outside(box + 4 * s, x, y)) continue;
             T dx, dy, g, alpha;
             if (!eval_splat(means2d + 2 * s, conics + 3 * s, opac[s], px, py, dx, dy, g, alpha)) continue;
             const T next = Tr * (T(1) - alpha);
@@ -72,7 +76,7 @@ void forward_impl(const Grid& gr, const T* means2d, const T* conics, const T* op
 
 template <typename T>
 void backward_impl(const Grid& gr, const T* means2d, const T* conics, const T* opac, const T* feats, int64_t K,
-                   const int64_t* offsets, const int64_t* ids, const T* t_final, const int32_t* last,
+                   const int64_t* offsets, const int64_t* ids, const int64_t* box, const T* t_final, const int32_t* last,
                    const T* g_out, const T* g_alpha, T* g_means2d, T* g_conics, T* g_opac, T* g_feats,
                    int64_t M) {
   const int nthreads = at::get_num_threads();
@@ -99,6 +103,7 @@ void backward_impl(const Grid& gr, const T* means2d, const T* conics, const T* o
           T Tr = Tf;
           for (int64_t i = last[pix]; i >= start; --i) {
             const int64_t s = ids[i];
+            if (outside(box + 4 * s, x, y)) continue;
             T dx, dy, g, alpha;
             if (!eval_splat(means2d + 2 * s, conics + 3 * s, opac[s], px, py, dx, dy, g, alpha)) continue;
             const T inv = T(1) / (T(1) - alpha);
@@ -152,10 +157,10 @@ void check(const torch::Tensor& t, const char* name, int64_t dim) {
 }  // namespace
 
 std::vector<torch::Tensor> forward3d(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opac,
-                                     torch::Tensor feats, torch::Tensor offsets, torch::Tensor ids, int64_t C,
-                                     int64_t H, int64_t W, int64_t tile) {
+                                     torch::Tensor feats, torch::Tensor offsets, torch::Tensor ids, torch::Tensor box,
+                                     int64_t C, int64_t H, int64_t W, int64_t tile) {
   check(means2d, "means2d", 2); check(conics, "conics", 2); check(opac, "opacities", 1);
-  check(feats, "features", 2); check(offsets, "tile offsets", 1); check(ids, "ids", 1);
+  check(feats, "features", 2); check(offsets, "tile offsets", 1); check(ids, "ids", 1); check(box, "pixel boxes", 2);
   const Grid gr = make_grid(C, H, W, tile);
   TORCH_CHECK(offsets.numel() == C * gr.tiles() + 1, "tile offsets must have C*tiles+1 entries");
   const int64_t K = feats.size(1);
@@ -165,7 +170,7 @@ std::vector<torch::Tensor> forward3d(torch::Tensor means2d, torch::Tensor conics
   AT_DISPATCH_FLOATING_TYPES(feats.scalar_type(), "forward3d", [&] {
     forward_impl<scalar_t>(gr, means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
                            opac.data_ptr<scalar_t>(), feats.data_ptr<scalar_t>(), K,
-                           offsets.data_ptr<int64_t>(), ids.data_ptr<int64_t>(), out.data_ptr<scalar_t>(),
+                           offsets.data_ptr<int64_t>(), ids.data_ptr<int64_t>(), box.data_ptr<int64_t>(), out.data_ptr<scalar_t>(),
                            tf.data_ptr<scalar_t>(), last.data_ptr<int32_t>());
   });
   return {out, tf, last};
@@ -173,7 +178,7 @@ std::vector<torch::Tensor> forward3d(torch::Tensor means2d, torch::Tensor conics
 
 std::vector<torch::Tensor> backward3d(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opac,
                                       torch::Tensor feats, torch::Tensor offsets, torch::Tensor ids,
-                                      torch::Tensor t_final, torch::Tensor last, torch::Tensor g_out,
+                                      torch::Tensor box, torch::Tensor t_final, torch::Tensor last, torch::Tensor g_out,
                                       torch::Tensor g_alpha, int64_t C, int64_t H, int64_t W, int64_t tile) {
   const Grid gr = make_grid(C, H, W, tile);
   const int64_t K = feats.size(1), M = feats.size(0);
@@ -184,7 +189,7 @@ std::vector<torch::Tensor> backward3d(torch::Tensor means2d, torch::Tensor conic
   AT_DISPATCH_FLOATING_TYPES(feats.scalar_type(), "backward3d", [&] {
     backward_impl<scalar_t>(gr, means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
                             opac.data_ptr<scalar_t>(), feats.data_ptr<scalar_t>(), K,
-                            offsets.data_ptr<int64_t>(), ids.data_ptr<int64_t>(), t_final.data_ptr<scalar_t>(),
+                            offsets.data_ptr<int64_t>(), ids.data_ptr<int64_t>(), box.data_ptr<int64_t>(), t_final.data_ptr<scalar_t>(),
                             last.data_ptr<int32_t>(), g_out.data_ptr<scalar_t>(), g_alpha.data_ptr<scalar_t>(),
                             gm.data_ptr<scalar_t>(), gc.data_ptr<scalar_t>(), go.data_ptr<scalar_t>(),
                             gf.data_ptr<scalar_t>(), M);

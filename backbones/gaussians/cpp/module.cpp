@@ -3,17 +3,17 @@
 #include <vector>
 
 std::vector<torch::Tensor> forward3d(torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor,
-                                     torch::Tensor, int64_t, int64_t, int64_t, int64_t);
+                                     torch::Tensor, torch::Tensor, int64_t, int64_t, int64_t, int64_t);
 std::vector<torch::Tensor> backward3d(torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor,
-                                      torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor,
+                                      torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor,
                                       int64_t, int64_t, int64_t, int64_t);
 
 std::vector<torch::Tensor> forward2d(torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor,
-                                     torch::Tensor, torch::Tensor, torch::Tensor, double, int64_t, int64_t, int64_t,
-                                     int64_t);
+                                     torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor, double, int64_t,
+                                     int64_t, int64_t, int64_t);
 std::vector<torch::Tensor> backward2d(torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor,
-                                      torch::Tensor, torch::Tensor, torch::Tensor, double, int64_t, int64_t, int64_t,
-                                      int64_t, torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor,
+                                      torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor, double, int64_t,
+                                      int64_t, int64_t, int64_t, torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor,
                                       torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor,
                                       torch::Tensor);
 

@@ -56,7 +56,8 @@ def _sweep(root: Path, experiment: str, key: str, values: list[str]) -> Path:
 def _stage1(psnr, ssim, lpips, tpsnr, pct, lpips_note="alexnet v0.1"):
     return {"stage1": {"train": {"psnr": psnr, "ssim": ssim, "lpips": lpips},
                        "test": {"psnr": tpsnr, "ssim": ssim - 0.01, "lpips": lpips + 0.01},
-                       "depth": {"median_abs": pct / 100, "median_abs_pct": pct},
+                       # the trainer's keys; median_abs_pct (the older name) is a decoy the table must not use
+                       "depth": {"test_mae": pct / 100, "test_mae_pct": pct, "median_abs_pct": 99.0},
                        "steps": 100, "time_s": 1.0, "num_primitives": 1000, "lpips_weights": lpips_note}}
 
 
@@ -113,7 +114,7 @@ def test_collect_flattens_and_lists_missing(gray_sweep):
     assert sorted(df["row"]) == ["gs2d", "gs3d", "plenoxels"]
     assert set(df["study"]) == {"grayscale_comparison"}
     row = df[df["row"] == "gs3d"].iloc[0]
-    assert row["stage1.train.psnr"] == 33.5 and row["stage1.depth.median_abs_pct"] == 1.5
+    assert row["stage1.train.psnr"] == 33.5 and row["stage1.depth.test_mae_pct"] == 1.5
     assert row["git"] == "abc123" and row["variant"] == "gs3d"
     assert len(coll.missing) == 1
     miss = coll.missing[0]
@@ -128,6 +129,7 @@ def test_grayscale_table_bold_paper_and_missing(gray_sweep, tmp_path):
     # best train PSNR 33.50 (3DGS) and SSIM 0.900 bold; best LPIPS 0.400 (min) bold; depth best 0.80 (2DGS)
     assert "**33.50**" in lines["3DGS"] and "**0.900**" in lines["3DGS"] and "**0.400**" in lines["3DGS"]
     assert "**0.80**" in lines["2DGS"] and "30.00" in lines["Plenoxels"] and "**30.00**" not in md
+    assert "99.00" not in md and "**0.0080**" in lines["2DGS"]
     # the paper's Table 1 beside ours, its best (3DGS 37.50) in bold; the missing row says so
     assert "**37.50**" in lines["3DGS"] and "36.32" in lines["2DGS + ACT"]
     assert lines["2DGS + ACT"].count("missing") == 8  # 3 train + 3 held-out + 2 depth; paper cells kept
@@ -273,3 +275,21 @@ def test_runs_of_no_study_get_a_table_and_grids(tmp_path):
     grids = sorted(p.name for p in (tmp_path / "rep" / "grids").iterdir())
     assert grids == ["runs_color.png", "runs_gray.png"]  # no depth files -> no depth grid
     assert 'src="grids/runs_color.png"' in page.read_text()
+
+
+def test_ground_truth_rendered_from_the_runs_dataset(tmp_path, tiny_transforms):
+    """No GT file in the run: the grid's GT tile is the dataset's image, read back via load_scene."""
+    import cv2
+
+    scene_json = tiny_transforms(n=4)
+    run = tmp_path / "runs" / "r"
+    run.mkdir(parents=True)
+    (run / "config.yaml").write_text(yaml.safe_dump({"seed": 0, "dataset": {"kind": "transforms",
+                                                                             "path": str(scene_json)}}))
+    (run / "metrics.json").write_text(json.dumps({"seed": 0, "overrides": [], "stage1": {"train": {"psnr": 20.0}}}))
+    _png(run / "renders/test/view_01.png", 10)
+    build_report([tmp_path / "runs"], tmp_path / "rep")
+    tile = cv2.imread(str(tmp_path / "rep" / "grids" / "gt" / "gray_view_01.png"))
+    src = cv2.imread(str(scene_json.parent / "view_01.png"), cv2.IMREAD_GRAYSCALE)
+    assert tile is not None and np.abs(tile[..., 0].astype(int) - src).max() <= 1
+    assert not (tmp_path / "rep" / "grids" / "gt" / "depth_view_01.png").exists()  # no GT depth in this dataset

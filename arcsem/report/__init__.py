@@ -31,6 +31,7 @@ def build_report(paths: list[str | Path], out: str | Path | None = None) -> Path
     from ..errors import DataError
     from .collect import collect
     from .grids import study_grids
+    from .groundtruth import GroundTruth
     from .html import copy_videos, write_page
     from .tables import write_tables
 
@@ -43,8 +44,9 @@ def build_report(paths: list[str | Path], out: str | Path | None = None) -> Path
     coll = collect(paths, exclude=out)
     tables = write_tables(coll, out)
     grids, videos = {}, {}
+    gt = GroundTruth(out / "grids" / "gt")
     for study in tables:
         runs = representative_runs(coll, study)
-        grids[study] = study_grids(study, runs, out / "grids")
+        grids[study] = study_grids(study, runs, out / "grids", gt)
         videos[study] = copy_videos(study, runs, out)
     return write_page(out, tables, grids, videos, [str(p) for p in paths], len(coll.runs))

@@ -9,6 +9,8 @@ Files read from a run folder (names as the trainer and the colouriser write them
 - ``colored/<view>.png``             stage-2 coloured training view
 - ``colored/<view>_gt.png``          ground-truth colour (optional; else the dataset folder)
 
+Ground truth found in neither is rendered from the run's dataset (``config.yaml`` ``dataset``).
+
 Where a file is missing, the tile says "missing" instead of failing.
 """
 from __future__ import annotations
@@ -18,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+
+from .groundtruth import GroundTruth
 
 __all__ = ["TILE_H", "gt_path", "make_grid", "placeholder", "read_image", "study_grids", "view_names"]
 
@@ -118,8 +122,9 @@ def _dataset_root(run: Path) -> Path | None:
     return None if root is None else Path(root).expanduser()
 
 
-def gt_path(run: Path, name: str, kind: str) -> Path | None:
-    """Ground truth of view ``name`` (``kind``: gray | depth | color) written in the run or the dataset."""
+def gt_path(run: Path, name: str, kind: str, gt: GroundTruth | None = None) -> Path | None:
+    """Ground truth of view ``name`` (``kind``: gray | depth | color): a file in the run or the dataset
+    folder, else a tile ``gt`` renders from the run's dataset (None: not found)."""
     local = {"gray": [f"renders/test/{name}_gt.png"], "depth": [f"renders/test/{name}_depth_gt.png"],
              "color": [f"colored/{name}_gt.png", f"colored_gt/{name}.png"]}[kind]
     cands = [run / p for p in local]
@@ -127,7 +132,8 @@ def gt_path(run: Path, name: str, kind: str) -> Path | None:
     if root is not None:
         sub = {"gray": ["test", "images", "."], "depth": ["depth", "depths"], "color": ["colors", "color"]}[kind]
         cands += [root / s / f"{name}.png" for s in sub]
-    return next((c for c in cands if c.is_file()), None)
+    found = next((c for c in cands if c.is_file()), None)
+    return found if found is not None or gt is None else gt.tile(run, name, kind)
 
 
 def _write(img: np.ndarray, path: Path) -> Path:
@@ -148,16 +154,22 @@ GRID = {  # kind -> (folder of the run, file suffix, ground-truth kind, first co
 }
 
 
-def study_grids(study: str, runs: Mapping[str, Path], out: Path) -> list[tuple[str, Path]]:
-    """Grids of one study: ``runs`` maps row label -> one run folder. Returns ``[(title, png)]``."""
+def study_grids(study: str, runs: Mapping[str, Path], out: Path,
+                gt: GroundTruth | None = None) -> list[tuple[str, Path]]:
+    """Grids of one study: ``runs`` maps row label -> one run folder. Returns ``[(title, png)]``.
+
+    Ground truth missing from the runs is rendered from the dataset by ``gt`` (default: tiles in
+    ``out/gt``); pass ``GroundTruth`` of another folder to share tiles between studies.
+    """
     labels, dirs = list(runs), [Path(d) for d in runs.values()]
+    gt = gt if gt is not None else GroundTruth(out / "gt")
     grids = []
     for kind in KINDS.get(study, ("gray", "depth", "color")):
         folder, suffix, gt_kind, gt_label, title = GRID[kind]
         names = next((n for d in dirs if (n := view_names(d / folder))), [])
         if not names or not any((d / folder / f"{n}{suffix}.png").is_file() for d in dirs for n in names):
             continue
-        paths = [[gt_path(dirs[0], n, gt_kind)] + [d / folder / f"{n}{suffix}.png" for d in dirs] for n in names]
+        paths = [[gt_path(dirs[0], n, gt_kind, gt)] + [d / folder / f"{n}{suffix}.png" for d in dirs] for n in names]
         img = make_grid(paths, [gt_label, *labels], names)
         grids.append((f"{study}: {title}", _write(img, out / f"{study}_{kind}.png")))
     return grids

@@ -13,7 +13,8 @@ Parallel jobs (joblib, submitit) block on the lock instead of training twice::
             mark_done(path)
     model = load(path)
 
-or, in one call, ``ensure_stage1(cfg, train_fn)``.
+or, in one call, ``path, trained = ensure_stage1(cfg, lambda p: run_stage1(cfg, scene, p))``; a job
+that reused the model gets the trainer's returned metrics from ``stage1_result(path)``.
 
 Cache root: ``cfg.cache_dir`` if set, else ``$ARCSEM_CACHE``, else ``~/.cache/arcsem``. Delete
 ``<root>/stage1`` to force retraining (the key does not contain the source code, only the version).
@@ -38,10 +39,15 @@ __all__ = [
     "stage1_dir",
     "stage1_key",
     "stage1_lock",
+    "stage1_result",
 ]
 
 STAGE1_KEYS = ("dataset", "backbone", "act", "train", "seed")
 """Top-level config keys that determine the stage-1 model (absent keys hash as ``None``)."""
+
+TRAIN_IGNORED = ("resume", "eval_every", "log_every", "checkpoint_every", "progress")
+"""``train`` keys that change neither the model nor its final metrics (left out of the key)."""
+RESULT_FILE = "result.json"
 
 DONE_FILE = "DONE"
 LOCK_FILE = ".lock"
@@ -77,6 +83,8 @@ def stage1_key(cfg: Mapping) -> str:
 
     plain = _plain(cfg)
     part = {k: plain.get(k) for k in STAGE1_KEYS}
+    if isinstance(part["train"], dict):
+        part["train"] = {k: v for k, v in part["train"].items() if k not in TRAIN_IGNORED}
     part["arcsem_version"] = __version__
     text = json.dumps(part, sort_keys=True, default=str, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
@@ -125,17 +133,30 @@ def mark_done(path: str | os.PathLike, info: Mapping | None = None) -> None:
     os.replace(tmp, path / DONE_FILE)
 
 
+def stage1_result(path: str | os.PathLike) -> dict | None:
+    """What ``train_fn`` returned when the model in ``path`` was trained (e.g. its stage-1 metrics)."""
+    try:
+        return json.loads((Path(path) / RESULT_FILE).read_text())
+    except FileNotFoundError:
+        return None
+
+
 def ensure_stage1(cfg: Mapping, train_fn: Callable[[Path], Any]) -> tuple[Path, bool]:
     """Train stage 1 into its shared folder unless done; returns ``(path, trained_here)``.
 
     ``train_fn(path)`` must write the model into ``path``; it runs at most once per key across all
-    processes sharing the cache (others wait on the lock, then reuse). A failed ``train_fn``
-    leaves the folder unmarked so the next job retries.
+    processes sharing the cache (others wait on the lock, then reuse). If it returns a dict (the
+    stage-1 metrics), that is kept as ``result.json``: :func:`stage1_result` gives it to every job
+    that reuses the model. A failed ``train_fn`` leaves the folder unmarked so the next job retries.
     """
     path = stage1_dir(cfg)
     with stage1_lock(path):
         if is_done(path):
             return path, False
-        train_fn(path)
+        result = train_fn(path)
+        if isinstance(result, dict):
+            tmp = path / f"{RESULT_FILE}.tmp{os.getpid()}"
+            tmp.write_text(json.dumps(result, default=str))
+            os.replace(tmp, path / RESULT_FILE)
         mark_done(path, {"pid": os.getpid()})
         return path, True

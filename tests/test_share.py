@@ -9,7 +9,15 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
-from arcsem.share import cache_root, ensure_stage1, is_done, stage1_dir, stage1_key, stage1_lock
+from arcsem.share import (
+    cache_root,
+    ensure_stage1,
+    is_done,
+    stage1_dir,
+    stage1_key,
+    stage1_lock,
+    stage1_result,
+)
 
 BASE = {"dataset": {"name": "synthetic", "resolution": 64}, "backbone": {"name": "gs2d"},
         "act": {"enabled": True, "mode": "rgb"}, "train": {"steps": 100}, "seed": 0,
@@ -29,6 +37,7 @@ def test_key_depends_on_stage1_config_only():
     # stage-2 settings, device and stage do not change the stage-1 model
     assert stage1_key(_cfg(**{"colorize.references": "one", "stage": "gray", "device": "cuda"})) == k
     assert stage1_key(dict(reversed(list(BASE.items())))) == k  # order of keys irrelevant; plain dicts too
+    assert stage1_key(_cfg(**{"train.progress": False, "train.log_every": 7})) == k  # bookkeeping only
     for change in ({"seed": 1}, {"act.enabled": False}, {"backbone.name": "gs3d"}, {"train.steps": 101},
                    {"dataset.resolution": 32}):
         assert stage1_key(_cfg(**change)) != k, change
@@ -56,12 +65,13 @@ def _worker(root: str, log: str, barrier) -> None:
         (path / "model.pt").write_text(str(os.getpid()))
         with open(log, "a") as fh:
             fh.write(f"done {os.getpid()} {time.monotonic()}\n")
+        return {"stage1": {"trained_by": os.getpid()}}
 
     barrier.wait()
     path, trained = ensure_stage1(cfg, train)
     with open(log, "a") as fh:
         fh.write(f"{'trained' if trained else 'reused'} {os.getpid()} {time.monotonic()} "
-                 f"{(path / 'model.pt').read_text()}\n")
+                 f"{(path / 'model.pt').read_text()} {stage1_result(path)['stage1']['trained_by']}\n")
 
 
 def test_two_processes_train_once(tmp_path):
@@ -82,6 +92,7 @@ def test_two_processes_train_once(tmp_path):
     reused = next(ln for ln in lines if ln[0] == "reused")
     # the waiting process got the model the other one trained, after training had finished
     assert reused[1] != trainer and reused[3] == trainer and float(reused[2]) >= done_t
+    assert reused[4] == trainer  # the trainer's returned metrics reach the job that reused the model
     assert is_done(stage1_dir(_cfg(cache_dir=str(tmp_path))))
 
 
@@ -97,6 +108,7 @@ def test_failed_training_is_retried(tmp_path):
     calls = []
     path, trained = ensure_stage1(cfg, calls.append)
     assert trained and calls == [path] and is_done(path)
+    assert stage1_result(path) is None  # train_fn returned no dict
     assert ensure_stage1(cfg, calls.append) == (path, False) and len(calls) == 1
 
 

@@ -53,7 +53,7 @@ def _sweep(root: Path, experiment: str, key: str, values: list[str]) -> Path:
     return root
 
 
-def _stage1(psnr, ssim, lpips, tpsnr, pct, lpips_note="alexnet v0.1"):
+def _stage1(psnr, ssim, lpips, tpsnr, pct, lpips_note="/root/.cache/torch/hub/checkpoints/alexnet-owt-7be5be79.pth"):
     return {"stage1": {"train": {"psnr": psnr, "ssim": ssim, "lpips": lpips},
                        "test": {"psnr": tpsnr, "ssim": ssim - 0.01, "lpips": lpips + 0.01},
                        # the trainer's keys; median_abs_pct (the older name) is a decoy the table must not use
@@ -134,7 +134,8 @@ def test_grayscale_table_bold_paper_and_missing(gray_sweep, tmp_path):
     assert "**37.50**" in lines["3DGS"] and "36.32" in lines["2DGS + ACT"]
     assert lines["2DGS + ACT"].count("missing") == 8  # 3 train + 3 held-out + 2 depth; paper cells kept
     assert any("missing job: experiment=grayscale_comparison variant=gs2d_act" in n for n in t.notes)
-    assert any("LPIPS weights: alexnet v0.1" in n for n in t.notes)
+    assert "LPIPS: AlexNet v0.1, ImageNet weights alexnet-owt-7be5be79.pth." in t.notes
+    assert not any("n/a" in n for n in t.notes)
     tex = to_latex(t)
     assert r"\toprule" in tex and r"\midrule" in tex and r"\bottomrule" in tex
     assert r"\textbf{33.50}" in tex and r"\textbf{0.400}" in tex and r"\textbf{30.00}" not in tex
@@ -293,3 +294,17 @@ def test_ground_truth_rendered_from_the_runs_dataset(tmp_path, tiny_transforms):
     src = cv2.imread(str(scene_json.parent / "view_01.png"), cv2.IMREAD_GRAYSCALE)
     assert tile is not None and np.abs(tile[..., 0].astype(int) - src).max() <= 1
     assert not (tmp_path / "rep" / "grids" / "gt" / "depth_view_01.png").exists()  # no GT depth in this dataset
+
+
+@pytest.mark.parametrize("values, nan, expected", [
+    (["/hub/checkpoints/alexnet-owt-7be5be79.pth"], False, ["LPIPS: AlexNet v0.1, ImageNet weights alexnet-owt-7be5be79.pth."]),
+    (["missing: no file; skipped"], True, ["LPIPS: n/a: weights missing (missing: no file; skipped)."]),
+    ([], True, ["LPIPS: n/a: weights missing (not recorded)."]),
+    ([], False, ["LPIPS weights: not recorded."]),
+    (["a/alexnet.pth", "missing: offline"], True,
+     ["LPIPS: n/a: weights missing (missing: offline).", "LPIPS: AlexNet v0.1, ImageNet weights alexnet.pth."]),
+])
+def test_lpips_notes(values, nan, expected):
+    from arcsem.report.tables import _lpips_notes
+
+    assert _lpips_notes(values, nan) == expected

@@ -113,6 +113,24 @@ def _distinct(df: pd.DataFrame, suffix: str) -> list[str]:
     return sorted({str(v) for c in cols for v in df[c].dropna()})
 
 
+def _lpips_notes(values: list[str], any_nan: bool) -> list[str]:
+    """Notes on the LPIPS weights from the recorded ``lpips_weights`` values ("; "-joined lists allowed).
+
+    A value is a checkpoint path or name (weights found) or ``missing: <reason>`` / ``skipped``.
+    """
+    parts = sorted({p.strip() for v in values for p in v.split(";") if p.strip()})
+    bad = [p for p in parts if p.lower().startswith(("missing", "skipped", "random"))]
+    good = sorted({Path(p).name for p in parts if p not in bad})
+    notes = []
+    if bad or (any_nan and not parts):
+        notes.append("LPIPS: n/a: weights missing (" + "; ".join(bad or ["not recorded"]) + ").")
+    if good:
+        notes.append("LPIPS: AlexNet v0.1, ImageNet weights " + ", ".join(good) + ".")
+    elif not (bad or any_nan):
+        notes.append("LPIPS weights: not recorded.")
+    return notes
+
+
 def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Column],
            missing: list[MissingJob]) -> list[str]:
     notes = []
@@ -128,16 +146,10 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
     else:
         notes.append("non-ref. train views: training views that are not colour references; held-out: test "
                      "views; metrics against ground-truth colour.")
-    lp = _distinct(df, "lpips_weights")
     ran = nums[nums["status"] != "missing"] if len(nums) else nums
     lp_nan = any(math.isnan(v) for c in columns if c.label == "LPIPS" and not c.key.startswith("paper.")
                  for v in ran.get(c.key, []))
-    bad = [w for w in lp if not w.lower().startswith(("alex", "vgg", "squeeze"))]
-    if bad or (lp_nan and not lp):
-        notes.append("LPIPS: n/a: weights missing (" + "; ".join(bad or ["not recorded"]) + ").")
-    good = [w for w in lp if w not in bad]
-    if good or not (bad or lp_nan):
-        notes.append("LPIPS weights: " + (", ".join(good) or "not recorded") + ".")
+    notes += _lpips_notes(_distinct(df, "lpips_weights"), lp_nan)
     feats = _distinct(df, "features")
     if study != "grayscale_comparison" and (feats or study != "runs"):
         if "random" in feats:

@@ -15,6 +15,8 @@ import numpy as np
 import pytest
 from conftest import arcsem_command, missing_defaults, write_transforms_scene
 
+pytestmark = pytest.mark.slow  # each case starts the console script (a few seconds of imports)
+
 
 def run_cli(tmp_path: Path, *overrides: str, env: dict | None = None) -> subprocess.CompletedProcess:
     args = [*arcsem_command(), "stage=check", f"hydra.run.dir={tmp_path / 'run'}", *missing_defaults(overrides),

@@ -52,6 +52,7 @@ def test_template_declares_a_backbone_entry_point():
     assert cfg == {"name": "constant"}
 
 
+@pytest.mark.slow
 def test_external_backbone_selected_from_command_line(tmp_path, plugin_env):
     scene = write_transforms_scene(tmp_path / "scene", n=2).parent
     overrides = ["backbone=constant", "+backbone.value=0.25", "dataset=transforms", f"dataset.path={scene}"]
@@ -71,6 +72,7 @@ def test_external_backbone_selected_from_command_line(tmp_path, plugin_env):
             "provider": "arcsem-plugin-template"} in sources
 
 
+@pytest.mark.slow
 def test_arcsem_plugins_lists_external_backbone(plugin_env, tmp_path):
     exe = Path(sys.executable).with_name("arcsem-plugins")
     cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "arcsem.cli.plugins"]

@@ -6,13 +6,13 @@ import math
 import numpy as np
 import pytest
 import torch
-
 from arcsem.backbones.gaussians.sh import C0
 from arcsem.backbones.plenoxels import Plenoxels
 from arcsem.backbones.plenoxels.grid import build_index, dense_values, occupied_coords
 from arcsem.backbones.plenoxels.render import GridData, render_grid
 from arcsem.backbones.plenoxels.tv import tv_sparse
 from arcsem.backbones.plenoxels.upsample import dilate, prune, resample
+
 from arcsem.cameras import Cameras, look_at
 from arcsem.plugins import LOSSES
 from arcsem.registry import validate_config
@@ -135,7 +135,7 @@ def test_upsample_preserves_linear_field_exactly():
     reso, new = [5, 4, 6], [9, 7, 11]
     ii = torch.stack(torch.meshgrid(*[torch.arange(r, dtype=torch.float64) for r in reso], indexing="ij"), -1)
     x = ii / (torch.tensor(reso) - 1)  # normalised position in [0, 1]^3 (vertex grid)
-    lin = lambda p: 0.3 + 1.5 * p[..., 0] - 2.0 * p[..., 1] + 0.7 * p[..., 2]  # noqa: E731
+    lin = lambda p: 0.3 + 1.5 * p[..., 0] - 2.0 * p[..., 1] + 0.7 * p[..., 2]
     idx = build_index(torch.ones(reso, dtype=torch.bool))
     dens = lin(x).reshape(-1).float()
     sh = torch.stack([lin(x), -lin(x), 2 * lin(x)], -1).reshape(-1, 1, 3).float()

@@ -234,7 +234,7 @@ class Plenoxels(Backbone):
         new_reso = list(c.reso[int(self.level) + 1])
         with torch.no_grad():
             index, (dens, sh) = resample(self.index.cpu(), [self.density.cpu(), self.sh.cpu()], new_reso)
-        self._set_grid(index.to(self.bounds.device), dens.to(self.bounds.device), sh.to(self.bounds.device), optimizers)
+        self.set_grid(index.to(self.bounds.device), dens.to(self.bounds.device), sh.to(self.bounds.device), optimizers)
         self.level.fill_(int(self.level) + 1)
         self.prune_grid(optimizers)
 
@@ -251,7 +251,7 @@ class Plenoxels(Backbone):
             if not bool(keep.any()):
                 return  # nothing would survive: keep the grid as it is rather than empty it
             index, rows = prune(self.index, keep.to(self.index.device), c.prune_dilate)
-            self._set_grid(index, self.density[rows], self.sh[rows], optimizers)
+            self.set_grid(index, self.density[rows], self.sh[rows], optimizers)
 
     def training_ray_weights(self) -> Tensor:
         """``[M]`` largest rendering weight of each stored voxel over the training views (scaled)."""
@@ -268,7 +268,8 @@ class Plenoxels(Backbone):
                 best = torch.maximum(best, max_weights(best.numel(), [out["samples"]]))
         return best
 
-    def _set_grid(self, index: Tensor, density: Tensor, sh: Tensor, optimizers: dict | None) -> None:
+    def set_grid(self, index: Tensor, density: Tensor, sh: Tensor, optimizers: dict | None = None) -> None:
+        """Replace the grid (index ``[X,Y,Z]``, density ``[M]``, SH ``[M,K,3]``); optimisers follow, state reset."""
         old = {"density": self.density, "sh": self.sh}
         self.index = index.to(torch.int32)
         self.density = nn.Parameter(density.detach().clone().contiguous(), requires_grad=old["density"].requires_grad)

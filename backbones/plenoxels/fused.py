@@ -17,7 +17,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-__all__ = ["load_extension", "resolve_impl", "march"]
+__all__ = ["load_extension", "march", "resolve_impl"]
 
 SOURCE = Path(__file__).parent / "cpp" / "render.cpp"
 
@@ -32,7 +32,7 @@ def load_extension(verbose: bool = False):
 
         return load(name="arcsem_plenoxels_fused", sources=[str(SOURCE)], extra_cflags=["-O3", "-fopenmp"],
                     extra_ldflags=["-fopenmp"], verbose=verbose)
-    except Exception as exc:  # no compiler or headers: fall back, say it once
+    except Exception as exc:  # noqa: BLE001  (no compiler or headers: fall back, say it once)
         warnings.warn(f"arcsem: fused C++ Plenoxels renderer unavailable ({type(exc).__name__}: {str(exc)[:200]}); "
                       "using the PyTorch path (renderer=torch)", RuntimeWarning, stacklevel=2)
         return None

@@ -14,8 +14,15 @@ import torch.nn.functional as F
 from torch import Tensor
 
 __all__ = [
-    "build_index", "occupied_coords", "voxel_size", "world_to_grid", "cell_occupancy", "corners",
-    "Trilinear", "trilinear", "dense_values",
+    "Trilinear",
+    "build_index",
+    "cell_occupancy",
+    "corners",
+    "dense_values",
+    "occupied_coords",
+    "trilinear",
+    "voxel_size",
+    "world_to_grid",
 ]
 
 def build_index(occ: Tensor) -> Tensor:
@@ -36,7 +43,7 @@ def occupied_coords(index: Tensor) -> Tensor:
     pos = torch.nonzero(flat >= 0).squeeze(1)
     order = torch.argsort(flat[pos].long())
     pos = pos[order]
-    X, Y, Z = index.shape
+    _, Y, Z = index.shape
     return torch.stack([pos // (Y * Z), (pos // Z) % Y, pos % Z], -1)
 
 

@@ -22,7 +22,7 @@ from torch import Tensor
 from ..gaussians.sh import sh_basis
 from .grid import cell_occupancy, corners, trilinear, voxel_size
 
-__all__ = ["GridData", "ray_aabb", "sample_segments", "render_grid", "box_scale"]
+__all__ = ["GridData", "box_scale", "ray_aabb", "render_grid", "sample_segments"]
 
 
 @dataclass
@@ -84,7 +84,7 @@ def sample_segments(t_near: Tensor, t_far: Tensor, dt: Tensor) -> tuple[Tensor, 
 
 def _occupied_samples(grid: GridData, rays_o, rays_d, t_mid, delta) -> tuple[Tensor, Tensor]:
     """Flat sample ids ``[P]`` (into ``[R*S]``) that fall into cells with an occupied corner, and their grid coords."""
-    R, S = t_mid.shape
+    S = t_mid.shape[1]
     vs = voxel_size(grid.bounds, grid.reso)
     go, gd = (rays_o - grid.bounds[0]) / vs, rays_d / vs
     cand = torch.nonzero(delta.reshape(-1) > 0).squeeze(1)
@@ -92,7 +92,7 @@ def _occupied_samples(grid: GridData, rays_o, rays_d, t_mid, delta) -> tuple[Ten
     g = go[ray] + t_mid.reshape(-1)[cand, None] * gd[ray]
     hi = torch.tensor(grid.reso, device=g.device, dtype=g.dtype) - 1
     g = torch.minimum(g.clamp_min(0), hi)
-    X, Y, Z = grid.reso
+    _, Y, Z = grid.reso
     b = g.floor().long()
     lin = (b[:, 0] * Y + b[:, 1]) * Z + b[:, 2]
     keep = grid.cell_occ.reshape(-1)[lin]

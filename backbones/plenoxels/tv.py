@@ -9,12 +9,12 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-__all__ = ["tv_sparse", "random_rows"]
+__all__ = ["random_rows", "tv_sparse"]
 
 
 def random_rows(num_rows: int, frac: float, generator: torch.Generator | None = None, device=None) -> Tensor:
     """``[max(1, frac*M)]`` random rows out of ``M`` (drawn with replacement: no O(M) permutation per step)."""
-    k = min(num_rows, max(1, int(round(frac * num_rows))))
+    k = min(num_rows, max(1, round(frac * num_rows)))
     return torch.randint(num_rows, (k,), generator=generator, device=device)
 
 
@@ -30,16 +30,18 @@ def tv_sparse(index: Tensor, coords: Tensor, table: Tensor, rows: Tensor, eps: f
         scalar: sum over the ``K`` points and ``C`` channels of ``sqrt(eps + |grad|^2)``.
     """
     c = coords[rows]  # [K, 3]
-    v = table[rows]  # [K, C]
     reso = torch.tensor(index.shape, device=c.device)
-    sq = torch.zeros_like(v)
+    nbr, inside = [], []
     for a in range(3):
         n = c.clone()
         n[:, a] += 1
-        inside = n[:, a] < reso[a]
-        nrow = torch.full_like(rows, -1)
-        nrow[inside] = index[n[inside, 0], n[inside, 1], n[inside, 2]].long()
-        nv = torch.where((nrow >= 0)[:, None], table[nrow.clamp_min(0)], torch.zeros_like(v))
-        d = torch.where(inside[:, None], nv - v, torch.zeros_like(v))
-        sq = sq + d * d
-    return torch.sqrt(eps + sq).sum()
+        ok = n[:, a] < reso[a]
+        n[:, a] = torch.minimum(n[:, a], reso[a] - 1)
+        nbr.append(index[n[:, 0], n[:, 1], n[:, 2]].long().masked_fill(~ok, -1))
+        inside.append(ok)
+    nrow = torch.stack(nbr)  # [3, K]: neighbour rows, -1 empty or outside
+    vals = table[torch.cat([rows, nrow.clamp_min(0).reshape(-1)])]  # one gather: one dense backward
+    v, nv = vals[: rows.shape[0]], vals[rows.shape[0] :].reshape(3, rows.shape[0], -1)
+    nv = torch.where((nrow >= 0)[..., None], nv, torch.zeros_like(nv))  # empty neighbour reads 0
+    d = torch.where(torch.stack(inside)[..., None], nv - v[None], torch.zeros_like(nv))  # outside: no difference
+    return torch.sqrt(eps + (d * d).sum(0)).sum()

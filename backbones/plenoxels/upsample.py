@@ -12,7 +12,7 @@ from torch import Tensor
 
 from .grid import build_index, cell_occupancy, corners, trilinear
 
-__all__ = ["resample", "dilate", "prune", "max_weights"]
+__all__ = ["dilate", "max_weights", "prune", "resample"]
 
 
 def resample(index: Tensor, tables: list[Tensor], new_reso: list[int], chunk: int = 1 << 20) -> tuple[Tensor, list[Tensor]]:

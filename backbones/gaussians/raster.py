@@ -24,6 +24,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
+import math
+
 import torch
 from torch import Tensor
 
@@ -138,8 +140,9 @@ class Segments:
 
     def excl_cumsum(self, x: Tensor) -> Tensor:
         """``[Q, ...]`` exclusive cumulative sum within each segment (accumulated in float64)."""
-        cs = torch.cumsum(x.double(), 0) - x.double()
-        return (cs - cs[self.start]).to(x.dtype)
+        xd = x.double()
+        cs = torch.cumsum(xd, 0) - xd
+        return (cs - torch.index_select(cs, 0, self.start)).to(x.dtype)
 
     def sum(self, x: Tensor) -> Tensor:
         """``[Q, K]`` -> ``[n, K]`` sum per segment."""
@@ -150,6 +153,12 @@ class Segments:
         pos = torch.where(mask, torch.arange(mask.numel(), device=mask.device), -1)
         out = torch.full((self.n,), -1, dtype=torch.long, device=mask.device)
         return out.scatter_reduce(0, self.seg, pos, reduce="amax", include_self=True)
+
+    def select(self, mask: Tensor, idx: Tensor) -> "Segments":
+        """The entries where ``mask [Q]`` holds (at ``idx``), still grouped by the same ``n`` pixels."""
+        seg = torch.index_select(self.seg, 0, idx)
+        counts = torch.bincount(seg, minlength=self.n)
+        return Segments(seg, torch.index_select(torch.cumsum(counts, 0) - counts, 0, seg), self.n, self.pixel)
 
 
 def composite(alpha: Tensor, segs: Segments) -> tuple[Tensor, Tensor, Tensor]:
@@ -166,6 +175,16 @@ def composite(alpha: Tensor, segs: Segments) -> tuple[Tensor, Tensor, Tensor]:
     keep = (a > 0) & (T.detach() * (1 - a.detach()) >= MIN_T)
     w = torch.where(keep, a * T, torch.zeros_like(a))
     return w, T, keep
+
+
+@torch.no_grad()
+def composited_mask(alpha: Tensor, segs: Segments) -> Tensor:
+    """``[Q]`` bool: the entries :func:`composite` composites (not skipped, before the early stop)."""
+    a = torch.where(alpha < MIN_ALPHA, torch.zeros_like(alpha), alpha.clamp(max=MAX_ALPHA))
+    la = torch.log1p(-a).double()
+    cs = torch.cumsum(la, 0)
+    incl = cs - torch.index_select(cs - la, 0, segs.start)  # log of the transmittance after each entry
+    return (a > 0) & (incl >= math.log(MIN_T))
 
 
 def _chunks(b: Binning, q_tile: Tensor, chunk_tiles: int | None) -> list[tuple[int, int]]:
@@ -195,38 +214,48 @@ def _pair_boxes(b: Binning, eff: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     return torch.stack([x0, y0], -1), nx, ny
 
 
+def _take(x: Tensor, idx: Tensor) -> Tensor:
+    """``x[idx]`` along dim 0 (``index_select`` is much faster than advanced indexing on CPU)."""
+    return torch.index_select(x, 0, idx)
+
+
 def _expand(b: Binning, p0: int, p1: int, xy0: Tensor, nx: Tensor, ny: Tensor):
     """Pair-pixels of pairs ``[p0, p1)`` grouped by pixel: (splat ``[Q]``, xy ``[Q, 2]`` long, Segments)."""
     dev = xy0.device
     nx, ny, xy0 = nx[p0:p1], ny[p0:p1], xy0[p0:p1]
     count = nx * ny
     pair = torch.repeat_interleave(torch.arange(p1 - p0, device=dev), count)
-    k = torch.arange(pair.numel(), device=dev) - (torch.cumsum(count, 0) - count)[pair]
-    nxp = nx[pair]
-    x = xy0[pair, 0] + k % nxp
-    y = xy0[pair, 1] + torch.div(k, nxp, rounding_mode="floor")
-    cam = torch.div(b.ctile[p0 + pair], b.TX * b.TY, rounding_mode="floor")
+    k = torch.arange(pair.numel(), device=dev) - _take(torch.cumsum(count, 0) - count, pair)
+    nxp = _take(nx, pair)
+    x = _take(xy0[:, 0], pair) + k % nxp
+    y = _take(xy0[:, 1], pair) + torch.div(k, nxp, rounding_mode="floor")
+    cam = torch.div(_take(b.ctile[p0:p1], pair), b.TX * b.TY, rounding_mode="floor")
     pix = (cam * b.H + y) * b.W + x
     key, perm = torch.sort(pix * (p1 - p0) + pair)
     pix = torch.div(key, p1 - p0, rounding_mode="floor")
-    pair, x, y = pair[perm], x[perm], y[perm]
+    pair = key - pix * (p1 - p0)
     upix, counts = torch.unique_consecutive(pix, return_counts=True)
     seg = torch.repeat_interleave(torch.arange(upix.numel(), device=dev), counts)
-    start = (torch.cumsum(counts, 0) - counts)[seg]
-    return b.splat[p0 + pair], torch.stack([x, y], -1), Segments(seg, start, upix.numel(), upix)
+    start = _take(torch.cumsum(counts, 0) - counts, seg)
+    pxy = pix % (b.H * b.W)
+    xy = torch.stack([pxy % b.W, torch.div(pxy, b.W, rounding_mode="floor")], -1)
+    return _take(b.splat[p0:p1], pair), xy, Segments(seg, start, upix.numel(), upix)
 
 
 Shade = Callable[[Tensor, Tensor, Segments], Tensor]
+AlphaFn = Callable[[Tensor, Tensor], Tensor]
 
 
-def rasterize(b: Binning, eff: Tensor, shade: Shade, K: int, dtype: torch.dtype,
+def rasterize(b: Binning, eff: Tensor, alpha_fn: AlphaFn, shade: Shade, K: int, dtype: torch.dtype,
               chunk_tiles: int | None = None) -> Tensor:
     """Run ``shade`` on every chunk of tiles and assemble the per-pixel results.
 
     Args:
         b: the sorted pairs; eff: ``[C*N, 4]`` long inclusive pixel box ``(x0, x1, y0, y1)`` that contains
             every pixel where the splat's alpha can reach 1/255 (empty when ``x1 < x0``).
-        shade: ``(splat [Q], xy [Q, 2] pixel centres, segs) -> [segs.n, K]`` per-pixel values of a chunk.
+        alpha_fn: ``(splat [Q], xy [Q, 2] pixel centres) -> [Q]`` raw alpha (called without gradient to
+            find the entries that are composited: the rest is dropped before ``shade``, which is exact).
+        shade: ``(splat [Q], xy [Q, 2], segs) -> [segs.n, K]`` per-pixel values of a chunk.
         chunk_tiles: camera-tiles per chunk; None = automatic (bounded pair-pixels per chunk).
     Returns:
         ``[C*H*W, K]`` per-pixel values (0 where no splat reaches).
@@ -237,9 +266,13 @@ def rasterize(b: Binning, eff: Tensor, shade: Shade, K: int, dtype: torch.dtype,
     pixels, values = [], []
     for p0, p1 in _chunks(b, q_tile, chunk_tiles):
         splat, xy, segs = _expand(b, p0, p1, xy0, nx, ny)
-        if splat.numel() == 0:
+        xy = xy.to(dtype) + 0.5
+        with torch.no_grad():
+            keep = composited_mask(alpha_fn(splat, xy), segs)
+        if not bool(keep.any()):
             continue
-        values.append(shade(splat, xy.to(dtype) + 0.5, segs))
+        idx = torch.nonzero(keep).flatten()
+        values.append(shade(_take(splat, idx), _take(xy, idx), segs.select(keep, idx)))
         pixels.append(segs.pixel)
     out = torch.zeros(b.C * b.H * b.W, K, dtype=dtype, device=xy0.device)
     if not pixels:

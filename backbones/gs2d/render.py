@@ -92,32 +92,38 @@ def _pixel_box(lo: Tensor, hi: Tensor, W: int, H: int, ok: Tensor) -> Tensor:
 
 
 def _shade_2dgs(Hf: Tensor, centre2d: Tensor, opac: Tensor, feats: Tensor):
-    """Shader for :func:`rasterize`: per-pixel ``[rgb(3), alpha, sum w z, normal(3), distortion, median]``."""
+    """Shader for :func:`rasterize`: per-pixel ``[rgb(3), normal(3), alpha, sum w z, distortion, median]``."""
 
-    def shade(splat: Tensor, xy: Tensor, segs: Segments) -> Tensor:
-        Tm = Hf[splat]
+    def evaluate(splat: Tensor, xy: Tensor):
+        Tm = torch.index_select(Hf, 0, splat)
         Tu, Tv, Tw, Tz = Tm.unbind(1)
         x, y = xy[:, :1], xy[:, 1:]
         q = torch.cross(x * Tw - Tu, y * Tw - Tv, dim=-1)
         qz = torch.where(q[:, 2].abs() < 1e-12, torch.full_like(q[:, 2], 1e-12), q[:, 2])
         u, v = q[:, 0] / qz, q[:, 1] / qz
         rho3d = u * u + v * v
-        rho2d = 2.0 * ((xy - centre2d[splat]) ** 2).sum(-1)
+        rho2d = 2.0 * ((xy - torch.index_select(centre2d, 0, splat)) ** 2).sum(-1)
         use3d = rho3d <= rho2d
-        alpha = opac[splat] * torch.exp(-0.5 * torch.where(use3d, rho3d, rho2d))
+        alpha = torch.index_select(opac, 0, splat) * torch.exp(-0.5 * torch.where(use3d, rho3d, rho2d))
+        return alpha, (use3d, u, v, Tz)
+
+    def alpha_fn(splat: Tensor, xy: Tensor) -> Tensor:
+        return evaluate(splat, xy)[0]
+
+    def shade(splat: Tensor, xy: Tensor, segs: Segments) -> Tensor:
+        alpha, (use3d, u, v, Tz) = evaluate(splat, xy)
         z = torch.where(use3d, u * Tz[:, 0] + v * Tz[:, 1] + Tz[:, 2], Tz[:, 2])
         w, T, keep = composite(alpha, segs)
         m = DIST_FAR / (DIST_FAR - DIST_NEAR) * (1 - DIST_NEAR / z)
         wm = w * m
         dist = w * (m * m * (1 - T) + segs.excl_cumsum(wm * m) - 2 * m * segs.excl_cumsum(wm))
-        f = feats[splat]
-        sums = segs.sum(torch.cat([w[:, None] * f[:, :3], w[:, None], (w * z)[:, None],
-                                   w[:, None] * f[:, 3:6], dist[:, None]], -1))
+        f = torch.cat([torch.index_select(feats, 0, splat), torch.ones_like(z)[:, None], z[:, None]], -1)
+        sums = segs.sum(torch.cat([w[:, None] * f, dist[:, None]], -1))  # rgb, normal, alpha, w z, dist
         last = segs.last(keep & (T.detach() > 0.5))
-        median = torch.where(last >= 0, z[last.clamp_min(0)], torch.zeros_like(sums[:, 0]))
+        median = torch.where(last >= 0, torch.index_select(z, 0, last.clamp_min(0)), torch.zeros_like(sums[:, 0]))
         return torch.cat([sums, median[:, None]], -1)
 
-    return shade
+    return alpha_fn, shade
 
 
 def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
@@ -145,19 +151,19 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     colors = colors.expand(C, N, 3) if colors.ndim == 2 else colors
     feats = torch.cat([colors, normals], -1).reshape(C * N, 6)
     centre2d = (Hm[..., :2, 2] / Hm[..., 2, 2:3]).reshape(C * N, 2)
-    shade = _shade_2dgs(Hm.reshape(C * N, 4, 3), centre2d, opacities.repeat(C), feats)
-    out = rasterize(b, eff.reshape(C * N, 4), shade, 10, means.dtype, chunk_tiles).reshape(C, Hh, W, 10)
+    alpha_fn, shade = _shade_2dgs(Hm.reshape(C * N, 4, 3), centre2d, opacities.repeat(C), feats)
+    out = rasterize(b, eff.reshape(C * N, 4), alpha_fn, shade, 10, means.dtype, chunk_tiles).reshape(C, Hh, W, 10)
     return _outputs(out, background, radius, rects)
 
 
 def _outputs(out: Tensor, background: Tensor | None, radius: Tensor, rects: Tensor) -> dict[str, Tensor]:
-    rgb, alpha, wz = out[..., :3], out[..., 3:4], out[..., 4:5]
+    rgb, alpha, wz = out[..., :3], out[..., 6:7], out[..., 7:8]
     depth = torch.where(alpha > 0, wz / alpha.clamp_min(1e-30), torch.zeros_like(wz))
     if background is not None:
         rgb = rgb + (1 - alpha) * background.to(rgb)
     visible = (radius > 0) & (rects[..., 1] > rects[..., 0]) & (rects[..., 3] > rects[..., 2])
     return {
         "rgb": rgb, "alpha": alpha, "depth": depth, "median_depth": out[..., 9:10],
-        "normal": out[..., 5:8], "distortion": out[..., 8:9],
+        "normal": out[..., 3:6], "distortion": out[..., 8:9],
         "radii": torch.where(visible, radius, torch.zeros_like(radius)), "visible": visible,
     }

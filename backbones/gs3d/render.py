@@ -64,15 +64,17 @@ def footprint_3dgs(means2d: Tensor, depth: Tensor, cov2d: Tensor, opacities: Ten
 def _shade_3dgs(means2d: Tensor, conics: Tensor, opac: Tensor, feats: Tensor):
     """Shader: per-pixel ``[rgb(3), alpha, sum w z]``."""
 
-    def shade(splat: Tensor, xy: Tensor, segs: Segments) -> Tensor:
-        d = xy - means2d[splat]
-        cn = conics[splat]
+    def alpha_fn(splat: Tensor, xy: Tensor) -> Tensor:
+        d = xy - torch.index_select(means2d, 0, splat)
+        cn = torch.index_select(conics, 0, splat)
         power = -0.5 * (cn[:, 0] * d[:, 0] ** 2 + cn[:, 2] * d[:, 1] ** 2) - cn[:, 1] * d[:, 0] * d[:, 1]
-        alpha = torch.where(power > 0, torch.zeros_like(power), opac[splat] * torch.exp(power))
-        w, _, _ = composite(alpha, segs)
-        return segs.sum(w[:, None] * torch.cat([feats[splat], torch.ones_like(w[:, None])], -1))
+        return torch.where(power > 0, torch.zeros_like(power), torch.index_select(opac, 0, splat) * torch.exp(power))
 
-    return shade
+    def shade(splat: Tensor, xy: Tensor, segs: Segments) -> Tensor:
+        w, _, _ = composite(alpha_fn(splat, xy), segs)
+        return segs.sum(w[:, None] * torch.cat([torch.index_select(feats, 0, splat), torch.ones_like(w[:, None])], -1))
+
+    return alpha_fn, shade
 
 
 def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
@@ -100,8 +102,8 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     conics = torch.stack([cov2d[..., 1, 1], -cov2d[..., 0, 1], cov2d[..., 0, 0]], -1) / det[..., None]
     colors = colors.expand(C, N, 3) if colors.ndim == 2 else colors
     feats = torch.cat([colors, depth[..., None]], -1).reshape(C * N, 4)
-    shade = _shade_3dgs(means2d.reshape(C * N, 2), conics.reshape(C * N, 3), opacities.repeat(C), feats)
-    out = rasterize(b, eff.reshape(C * N, 4), shade, 5, means.dtype, chunk_tiles).reshape(C, H, W, 5)
+    alpha_fn, shade = _shade_3dgs(means2d.reshape(C * N, 2), conics.reshape(C * N, 3), opacities.repeat(C), feats)
+    out = rasterize(b, eff.reshape(C * N, 4), alpha_fn, shade, 5, means.dtype, chunk_tiles).reshape(C, H, W, 5)
     rgb, wz, alpha = out[..., :3], out[..., 3:4], out[..., 4:5]
     if background is not None:
         rgb = rgb + (1 - alpha) * background.to(rgb)

@@ -308,3 +308,13 @@ def test_lpips_notes(values, nan, expected):
     from arcsem.report.tables import _lpips_notes
 
     assert _lpips_notes(values, nan) == expected
+
+
+def test_sweep_with_no_finished_job(tmp_path):
+    """Every job failed: the table still has the study's columns, each cell 'missing'."""
+    sweep = _sweep(tmp_path / "s", "colorization_ablation", "ablation", ["full", "no_tcm"])
+    _job(sweep, 0, ["experiment=colorization_ablation", "ablation=full"], None)
+    t = build_table(collect([sweep]), "colorization_ablation")
+    assert t.labels == ["full", "w/o TCM"] and len(t.columns) == 6
+    assert all(cell == ("missing", False) for row in t.cells for cell in row)
+    assert sum(n.startswith("missing job:") for n in t.notes) == 2 and not any("LPIPS" in n for n in t.notes)

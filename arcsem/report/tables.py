@@ -149,7 +149,8 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
     ran = nums[nums["status"] != "missing"] if len(nums) else nums
     lp_nan = any(math.isnan(v) for c in columns if c.label == "LPIPS" and not c.key.startswith("paper.")
                  for v in ran.get(c.key, []))
-    notes += _lpips_notes(_distinct(df, "lpips_weights"), lp_nan)
+    if len(df):
+        notes += _lpips_notes(_distinct(df, "lpips_weights"), lp_nan)
     feats = _distinct(df, "features")
     if study != "grayscale_comparison" and (feats or study != "runs"):
         if "random" in feats:
@@ -170,8 +171,9 @@ def build_table(coll: Collection, study: str) -> Table:
     df = coll.runs[coll.runs["study"] == study] if len(coll.runs) else coll.runs
     missing = [m for m in coll.missing if m.study == study]
     columns = []
-    for c in LAYOUTS[study]:
-        key = next((k for k in c.key.split("|") if k.startswith("paper.") or k in df.columns), None)
+    for c in LAYOUTS[study]:  # columns no finished run has are left out (all kept when none finished)
+        alts = c.key.split("|")
+        key = next((k for k in alts if k.startswith("paper.") or k in df.columns), None if len(df) else alts[0])
         if key is not None:
             columns.append(replace(c, key=key))
     nums = _summary(df, study, columns, missing)

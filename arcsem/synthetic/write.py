@@ -1,0 +1,186 @@
+"""Write a synthetic scene to disk in the ``transforms.json`` layout (plus PLY, COLMAP, contact sheet).
+
+Layout of ``out_dir`` (see ``README.txt`` written next to it):
+``transforms.json``, ``images/`` (8-bit grey; noisy + drifting exposure for train views, clean for
+test views), ``clean/`` (noise-free, no drift), ``color/`` (RGB ground truth), ``masks/`` (255 =
+specimen), ``depth/`` (float32 camera z, 0 = not specimen), ``normals/`` (float32 world normals),
+``references/`` (the five artist views = their ground-truth colour), ``points3d.ply``,
+``colmap/sparse/0/`` (pinhole only) and ``contact_sheet.png``.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from PIL import Image
+
+from .cameras import ViewSpec, arc_cameras, arc_views
+from .render import RenderConfig, ViewImages, render_views
+from .sdf import make_grain
+from .shading import drift_and_noise
+from .sheet import contact_sheet
+
+__all__ = ["SceneParams", "generate_scene", "reference_sets", "GENERATOR_VERSION"]
+
+GENERATOR_VERSION = 1  # bump when the output of the same parameters changes (invalidates caches)
+FLIP = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV <-> OpenGL camera axes
+
+
+@dataclass(frozen=True)
+class SceneParams:
+    """Everything the scene depends on (hashed for the cache folder)."""
+
+    seed: int = 0
+    width: int = 192
+    height: int = 128
+    camera: str = "pinhole"       # "pinhole" (near-orthographic, the paper's) | "orthographic"
+    n_horizontal: int = 20
+    n_vertical: int = 12
+    substrate: bool = True
+    supersample: int = 2          # s x s samples on silhouette pixels
+    noise: float = 0.03           # per-pixel Gaussian scan noise (train images)
+    row_jitter: float = 0.015     # per-scan-line brightness noise (train images)
+    drift: float = 0.05           # per-image log-contrast / brightness drift, x(1 + 2 el/85) on the vertical arc
+    n_spines: int = 30
+    test_every: int = 4           # one test view in every 4th gap of each arc
+
+
+def reference_sets(views: list[ViewSpec]) -> dict[str, list[str]]:
+    """The paper's reference sets by name: five = leftmost, centre, rightmost, angled, top."""
+    h = [v.name for v in views if v.split == "train" and v.arc == "h"]
+    v = [v.name for v in views if v.split == "train" and v.arc == "v"]
+    left, centre, right, angled, top = h[0], h[len(h) // 2], h[-1], v[len(v) // 2], v[-1]
+    return {"five": [left, centre, right, angled, top], "four": [left, centre, right, angled],
+            "three": [left, centre, right], "two": [centre, right], "one": [centre]}
+
+
+@contextlib.contextmanager
+def _one_thread():
+    """Rendering runs many small tensor ops: one intra-op thread is faster on a busy 2-core box."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(n)
+
+
+def generate_scene(out_dir, *, progress: bool | None = None, **params) -> Path:
+    """Render the synthetic scene of ``SceneParams(**params)`` into ``out_dir``; returns transforms.json."""
+    p = SceneParams(**params)
+    if p.width < 8 or p.height < 8:
+        from ..errors import ConfigError
+
+        raise ConfigError(f"synthetic scene: width/height must be >= 8, got {p.width}x{p.height}")
+    out = Path(out_dir)
+    with _one_thread():
+        grain = make_grain(p.seed, p.n_spines)
+        views = arc_views(p.n_horizontal, p.n_vertical, p.test_every)
+        cams, distance = arc_cameras(views, p.width, p.height, p.camera)
+        cfg = RenderConfig(supersample=p.supersample, substrate=p.substrate)
+        show = progress if progress is not None else p.width * p.height >= 1_000_000
+        renders = render_views(grain, cams, cfg, progress=show)
+    for sub in ("images", "clean", "color", "masks", "depth", "normals", "references"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    refs = reference_sets(views)
+    frames = [_write_view(out, p, i, v, r, v.name in refs["five"]) for i, (v, r) in enumerate(zip(views, renders))]
+    K = cams.K[0].numpy()
+    c2w = cams.cam_to_world.numpy()
+    for f, m in zip(frames, c2w):
+        f["transform_matrix"] = (m @ FLIP).tolist()
+    pts, cols = _point_cloud(views, renders, p.seed)
+    _write_ply(out / "points3d.ply", pts, cols)
+    meta = {
+        "camera_model": "PINHOLE" if p.camera == "pinhole" else "ORTHOGRAPHIC",
+        "fl_x": float(K[0, 0]), "fl_y": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
+        "w": p.width, "h": p.height, "aabb": grain.aabb.tolist(), "ply_file_path": "points3d.ply",
+        "reference_sets": refs, "frames": frames,
+        "synthetic": {**asdict(p), "generator_version": GENERATOR_VERSION, "camera_distance": distance,
+                      "grain_size": grain.size, "world_up": [0, 0, 1], "substrate_z": grain.substrate_z},
+    }
+    (out / "transforms.json").write_text(json.dumps(meta, indent=1))
+    if p.camera == "pinhole":
+        from .colmap import write_colmap
+
+        write_colmap(out / "colmap" / "sparse" / "0", cams, [v.name for v in views], pts, cols)
+    greys = [(v.name, np.asarray(Image.open(out / f"images/{v.name}.png"))) for v in views if v.split == "train"]
+    cref = [(n, np.asarray(Image.open(out / f"references/{n}.png"))) for n in refs["five"]]
+    contact_sheet(greys, cref, out / "contact_sheet.png")
+    (out / "README.txt").write_text(_readme(p))
+    return out / "transforms.json"
+
+
+def _u8(x) -> np.ndarray:
+    return np.clip(np.round(np.asarray(x, dtype=np.float64) * 255.0), 0, 255).astype(np.uint8)
+
+
+def _write_view(out: Path, p: SceneParams, i: int, v: ViewSpec, r: ViewImages, is_ref: bool) -> dict:
+    clean = r.grey.numpy()
+    if v.split == "train":
+        strength = p.drift * (1 + 2 * v.elevation / 85.0 if v.arc == "v" else 1.0)
+        observed = drift_and_noise(clean, np.random.default_rng([p.seed, i]), strength, p.noise, p.row_jitter)
+    else:
+        observed = clean
+    n = v.name
+    Image.fromarray(_u8(observed), "L").save(out / f"images/{n}.png")
+    Image.fromarray(_u8(clean), "L").save(out / f"clean/{n}.png")
+    Image.fromarray(_u8(r.color.numpy()), "RGB").save(out / f"color/{n}.png")
+    Image.fromarray(r.mask.numpy().astype(np.uint8) * 255, "L").save(out / f"masks/{n}.png")
+    np.save(out / f"depth/{n}.npy", r.depth.numpy().astype(np.float32))
+    np.save(out / f"normals/{n}.npy", r.normal.numpy().astype(np.float32))
+    frame = {"file_path": f"images/{n}.png", "split": v.split, "mask_path": f"masks/{n}.png",
+             "depth_path": f"depth/{n}.npy", "normal_path": f"normals/{n}.npy", "color_path": f"color/{n}.png",
+             "clean_path": f"clean/{n}.png", "arc": v.arc, "azimuth": v.azimuth, "elevation": v.elevation}
+    if is_ref:
+        Image.fromarray(_u8(r.color.numpy()), "RGB").save(out / f"references/{n}.png")
+        frame["reference_path"] = f"references/{n}.png"
+    return frame
+
+
+def _point_cloud(views: list[ViewSpec], renders: list[ViewImages], seed: int, n: int = 20_000):
+    """Up to ``n`` specimen surface points ``[P, 3]`` (hit points of train views) with grey uint8 ``[P, 3]``."""
+    pts = torch.cat([r.points for v, r in zip(views, renders) if v.split == "train"]).numpy()
+    grey = torch.cat([r.point_grey for v, r in zip(views, renders) if v.split == "train"]).numpy()
+    pick = np.sort(np.random.default_rng(seed).choice(len(pts), size=min(n, len(pts)), replace=False))
+    return pts[pick].astype(np.float32), np.repeat(_u8(grey[pick])[:, None], 3, 1)
+
+
+def _write_ply(path: Path, pts: np.ndarray, cols: np.ndarray) -> None:
+    """Binary little-endian PLY with ``x, y, z`` float and ``red, green, blue`` uchar."""
+    rec = np.empty(len(pts), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
+                                    ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    for k, a in zip("xyz", pts.T):
+        rec[k] = a
+    for k, a in zip(("red", "green", "blue"), cols.T):
+        rec[k] = a
+    header = ("ply\nformat binary_little_endian 1.0\n"
+              f"element vertex {len(pts)}\n"
+              "property float x\nproperty float y\nproperty float z\n"
+              "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
+    with open(path, "wb") as f:
+        f.write(header.encode("ascii"))
+        f.write(rec.tobytes())
+
+
+def _readme(p: SceneParams) -> str:
+    colmap = ("colmap/sparse/0: COLMAP model (PINHOLE) of the same cameras and the point cloud.\n"
+              if p.camera == "pinhole" else
+              "No COLMAP model: COLMAP has no orthographic camera model; use transforms.json.\n")
+    return (
+        "Synthetic SEM scene written by arcsem.synthetic (arcsem-make-scene).\n"
+        f"Parameters: {json.dumps(asdict(p))}\n\n"
+        "World: z up (the grain's polar axis), grain centred at the origin, grain size 2 units;\n"
+        "substrate plane z = -1 (shaded, but not specimen: masks, depth and normals are 0 there).\n"
+        "Cameras: 20 views on a horizontal arc (h_00 left .. h_19 right, elevation 10 deg), 12 on a\n"
+        "vertical arc (v_00 front .. v_11 top, elevation 0..85 deg), test views test_* half-way between.\n"
+        "transforms.json: camera-to-world in OpenGL axes; for ORTHOGRAPHIC fl_x = pixels per unit.\n"
+        "images/: what a microscope would give (train: exposure drift + scan noise; test: clean).\n"
+        "clean/: noise-free, drift-free grey; color/: ground-truth colour; references/: the five\n"
+        "artist views (leftmost, centre, rightmost, angled, top) = their ground-truth colour.\n"
+        "depth/*.npy: float32 camera z-depth (0 = not specimen); normals/*.npy: float32 world normals.\n"
+        + colmap
+    )

@@ -182,26 +182,30 @@ def _real_app_ready() -> str | None:
 
     try:
         with initialize_config_module("arcsem.conf", version_base=None):
-            compose("config", overrides=["experiment=grayscale_comparison"])
+            compose("config", overrides=["experiment=grayscale_comparison", "dataset=transforms"])
     except HydraException as err:
         return str(err).splitlines()[0]
     return None
 
 
 @pytest.mark.slow
-def test_real_app_study_check_sweep(tmp_path):
+def test_real_app_study_check_sweep(tmp_path, tiny_transforms):
     """``arcsem experiment=grayscale_comparison stage=check`` (2 rows, joblib) then ``arcsem-report``."""
     why = _real_app_ready()
     if why:
         pytest.skip(f"the study does not compose with the real conf yet: {why}")
+    scene = tiny_transforms(n=6, w=32, h=24)
     exe = Path(sys.executable).parent / "arcsem"
-    res = subprocess.run([str(exe), "experiment=grayscale_comparison", "stage=check", "variant=gs2d,gs2d_act",
-                          "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={tmp_path / 'mr'}"],
+    res = subprocess.run([str(exe), "experiment=grayscale_comparison", "stage=check", "dataset=transforms",
+                          f"dataset.path={scene}", "variant=gs2d,gs2d_act", "hydra/launcher=joblib",
+                          "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={tmp_path / 'mr'}"],
                          cwd=tmp_path, capture_output=True, text=True, timeout=110, check=False)
     assert res.returncode == 0, res.stderr[-3000:]
     coll = collect([tmp_path / "mr"])
     assert sorted(coll.runs["row"]) == ["gs2d", "gs2d_act"] and coll.missing == []
+    assert set(coll.runs["study"]) == {"grayscale_comparison"} and set(coll.runs["backbone"]) == {"gs2d"}
     rep = subprocess.run([str(exe.parent / "arcsem-report"), str(tmp_path / "mr")], capture_output=True,
                          text=True, timeout=60, check=False)
     assert rep.returncode == 0, rep.stderr
-    assert (tmp_path / "mr" / "report" / "grayscale_comparison.md").is_file()
+    md = (tmp_path / "mr" / "report" / "grayscale_comparison.md").read_text()
+    assert "| 2DGS + ACT |" in md and "36.32" in md

@@ -63,3 +63,39 @@ def ellipsoid_depth(cams: Cameras, radii=(1.0, 0.8, 0.9), chunk_rows: int = 256)
 def point_color(points: Tensor) -> Tensor:
     """A smooth colour ``[..., 3]`` in [0.1, 0.9] of world points ``[..., 3]``."""
     return 0.5 + 0.4 * torch.sin(2.0 * points + torch.tensor([0.0, 1.0, 2.0], dtype=points.dtype))
+
+
+def analytic_scene(n_train: int = 8, n_test: int = 2, width: int = 48, height: int = 32, model: str = "pinhole"):
+    """A small :class:`arcsem.scene.Scene` of the coloured ellipsoid (grey = channel mean, black background).
+
+    Has ground-truth colours, masks, depths, a point cloud, references for every training view and the
+    presets ``five`` ... ``one`` (indices chosen along the arcs as in the paper).
+    """
+    from ..scene import Scene, Split
+
+    cams = arc_cameras(n_train + n_test, width, height, model=model)
+    depth = ellipsoid_depth(cams)
+    mask = depth > 0
+    col = point_color(cams.to(dtype=torch.float64).unproject(depth.double())).float() * mask[..., None]
+    grey = col.mean(-1, keepdim=True).expand(-1, -1, -1, 3).contiguous()
+    names = [f"v{i:03d}" for i in range(n_train + n_test)]
+    test_idx = list(range(1, n_train + n_test, max(1, (n_train + n_test) // max(n_test, 1))))[:n_test]
+    train_idx = [i for i in range(n_train + n_test) if i not in test_idx]
+
+    def split(idx, train):
+        c = cams[torch.tensor(idx)]
+        c.image_ids = torch.arange(len(idx)) if train else torch.full((len(idx),), -1)
+        return Split(names=[names[i] for i in idx], cameras=c, images=grey[idx], masks=mask[idx],
+                     depths=depth[idx], colors=col[idx])
+
+    train = split(train_idx, True)
+    t = train.names
+    pts = torch.randn(2000, 3)
+    pts = pts / pts.norm(dim=-1, keepdim=True) * torch.tensor([1.0, 0.8, 0.9])
+    sets = {"five": [t[0], t[len(t) // 3], t[-1 - len(t) // 3], t[-2], t[-1]]}
+    sets["four"], sets["three"] = sets["five"][:4], sets["five"][:3]
+    sets["two"], sets["one"] = [sets["five"][1], sets["five"][2]], [sets["five"][1]]
+    return Scene(root="analytic", train=train, test=split(test_idx, False),
+                 bounds=torch.tensor([[-1.0, -0.8, -0.9], [1.0, 0.8, 0.9]]), points=pts,
+                 point_colors=torch.full((2000, 3), 0.5),
+                 references={n: train.colors[i] for i, n in enumerate(t)}, reference_sets=sets)

@@ -1,0 +1,71 @@
+"""Stage-2 loss plugins on hand-computed values; the batch hook; reference views vs other views."""
+import torch
+
+from arcsem.colorize.analytic import arc_cameras
+from arcsem.colorize.references import References
+from arcsem.colorize.stage2 import ColorTargets
+from arcsem.losses.colorize import CCM, TCM, PseudoColor, ReferenceL1, ccm_distance, masked_l1, tcm_distance
+from arcsem.plugins import Batch
+
+
+def _batch(idx, extras=None, h=4, w=4):
+    cams = arc_cameras(len(idx), w, h)
+    return Batch(cameras=cams, images=torch.zeros(len(idx), h, w, 3), indices=torch.tensor(idx), extras=extras)
+
+
+def test_masked_l1_hand_values():
+    pred = torch.tensor([[[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]])
+    tgt = torch.tensor([[[0.3, 0.6, 0.9], [0.0, 0.0, 0.0]]])
+    # only the first pixel: (0.3 + 0.6 + 0.9) / 3 = 0.6
+    torch.testing.assert_close(masked_l1(pred, tgt, torch.tensor([[True, False]])), torch.tensor(0.6))
+    assert masked_l1(pred, tgt, torch.zeros(1, 2, dtype=torch.bool)) == 0
+
+
+def test_tcm_and_ccm_distances_hand_values():
+    f = torch.tensor([[1.0, 0.0], [0.0, 1.0]]).T.reshape(1, 2, 1, 2)  # two locations: e_x, e_y
+    g = torch.tensor([[1.0, 0.0], [1.0, 1.0]]).T.reshape(1, 2, 1, 2)
+    # 1 - cos: 0 and 1 - 1/sqrt(2); mean over locations; summed over two identical blocks
+    expect = 2 * (1 - 2**-0.5) / 2
+    torch.testing.assert_close(tcm_distance([f, f], [g, g]), torch.tensor(expect))
+    means = torch.tensor([[[[0.5, 0.5, 0.5], [0.0, 0.0, 0.0]]]])
+    target = torch.tensor([[[[0.2, 0.5, 0.9], [1.0, 1.0, 1.0]]]])
+    # valid only the first cell: 0.09 + 0 + 0.16 = 0.25
+    torch.testing.assert_close(ccm_distance(means, target, torch.tensor([[[True, False]]])), torch.tensor(0.25))
+
+
+def _targets():
+    refs = References(names=["a"], indices=torch.tensor([0]), images=torch.full((1, 16, 16, 3), 0.25))
+    pseudo = torch.full((3, 16, 16, 3), 0.75)
+    valid = torch.zeros(3, 16, 16, dtype=torch.bool)
+    valid[:, :8] = True
+    return ColorTargets(refs, pseudo, valid, guidance=None, tcm_downscale=1, ccm_downscale=8)
+
+
+def test_hook_and_reference_vs_other_views():
+    hook = _targets()
+    b = hook(_batch([0, 2], h=16, w=16))
+    assert b.extras["is_reference"].tolist() == [True, False]
+    rgb = torch.full((2, 16, 16, 3), 0.5, requires_grad=True)
+    out = {"rgb": rgb}
+    ref = ReferenceL1(ReferenceL1.Config())(out, b, 0)
+    pc = PseudoColor(PseudoColor.Config())(out, b, 0)
+    torch.testing.assert_close(ref, torch.tensor(0.25))  # |0.5 - 0.25| on the reference view only
+    torch.testing.assert_close(pc, torch.tensor(0.25))  # |0.5 - 0.75| on valid pixels of view 2 only
+    (ref + pc).backward()
+    assert rgb.grad[0, 12].abs().sum() > 0 and rgb.grad[1, 12].abs().sum() == 0  # view 2: invalid rows
+    assert ReferenceL1.Config().weight == 20.0
+    b_ref = hook(_batch([0], h=16, w=16))
+    assert PseudoColor(PseudoColor.Config())({"rgb": rgb[:1]}, b_ref, 0) == 0
+
+
+def test_tcm_ccm_read_extras():
+    b = _batch([1], h=8, w=8)
+    feats = lambda x: [x.permute(0, 3, 1, 2)]  # noqa: E731 identity "VGG"
+    target = torch.rand(1, 8, 8, 3)
+    b.extras = {"is_reference": torch.tensor([False]), "vgg": feats, "tcm_downscale": 1,
+                "tcm_guidance": [target.permute(0, 3, 1, 2)], "ccm_downscale": 4,
+                "ccm_target": torch.full((1, 2, 2, 3), 0.5), "ccm_valid": torch.ones(1, 2, 2, dtype=torch.bool)}
+    assert float(TCM(TCM.Config())({"rgb": target * 3}, b, 0)) < 1e-6  # same direction: cos = 1
+    assert float(TCM(TCM.Config())({"rgb": 1 - target}, b, 0)) > 0.01
+    torch.testing.assert_close(CCM(CCM.Config())({"rgb": torch.full((1, 8, 8, 3), 0.7)}, b, 0),
+                               torch.tensor(3 * 0.2**2))

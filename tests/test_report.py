@@ -318,3 +318,19 @@ def test_sweep_with_no_finished_job(tmp_path):
     assert t.labels == ["full", "w/o TCM"] and len(t.columns) == 6
     assert all(cell == ("missing", False) for row in t.cells for cell in row)
     assert sum(n.startswith("missing job:") for n in t.notes) == 2 and not any("LPIPS" in n for n in t.notes)
+
+
+def test_grid_falls_back_to_training_view_renders(tmp_path):
+    """A dataset without held-out views: the grids show renders/train/ (and say so)."""
+    from arcsem.report.grids import study_grids
+
+    run = tmp_path / "r"
+    _png(run / "renders/train/a.png", 70)
+    _png(run / "renders/train/a_depth.png", 80)
+    grids = study_grids("grayscale_comparison", {"3DGS": run}, tmp_path / "g")
+    assert [t for t, _ in grids] == ["grayscale_comparison: renders (training views)",
+                                     "grayscale_comparison: depth maps (training views)"]
+    import cv2
+
+    img = cv2.imread(str(grids[1][1]))
+    assert img[22 + 80, img.shape[1] - 5, 0] == 80 and img[22 + 80, 95, 0] == 200  # render; GT 'missing'

@@ -2,7 +2,7 @@
 
 Files read from a run folder (names as the trainer and the colouriser write them):
 
-- ``renders/test/<view>.png``        stage-1 render of a held-out view
+- ``renders/test/<view>.png``        stage-1 render of a held-out view (``renders/train/`` if none)
 - ``renders/test/<view>_depth.png``  its depth visualisation
 - ``renders/test/<view>_gt.png``     ground-truth grey image (optional; else the dataset folder)
 - ``renders/test/<view>_depth_gt.png`` ground-truth depth visualisation (optional)
@@ -122,10 +122,11 @@ def _dataset_root(run: Path) -> Path | None:
     return None if root is None else Path(root).expanduser()
 
 
-def gt_path(run: Path, name: str, kind: str, gt: GroundTruth | None = None) -> Path | None:
-    """Ground truth of view ``name`` (``kind``: gray | depth | color): a file in the run or the dataset
-    folder, else a tile ``gt`` renders from the run's dataset (None: not found)."""
-    local = {"gray": [f"renders/test/{name}_gt.png"], "depth": [f"renders/test/{name}_depth_gt.png"],
+def gt_path(run: Path, name: str, kind: str, gt: GroundTruth | None = None,
+            folder: str = "renders/test") -> Path | None:
+    """Ground truth of view ``name`` (``kind``: gray | depth | color): a file in the run (next to the
+    renders in ``folder``) or in the dataset folder, else a tile ``gt`` renders from the run's dataset."""
+    local = {"gray": [f"{folder}/{name}_gt.png"], "depth": [f"{folder}/{name}_depth_gt.png"],
              "color": [f"colored/{name}_gt.png", f"colored_gt/{name}.png"]}[kind]
     cands = [run / p for p in local]
     root = _dataset_root(run)
@@ -147,29 +148,40 @@ def _write(img: np.ndarray, path: Path) -> Path:
 KINDS = {"grayscale_comparison": ("gray", "depth"), "colorization_ablation": ("color",),
          "reference_count": ("color",)}
 """Grid kinds per study; any other study (``runs``) gets every kind that has files."""
-GRID = {  # kind -> (folder of the run, file suffix, ground-truth kind, first column, title)
-    "gray": ("renders/test", "", "gray", "ground truth", "renders"),
-    "depth": ("renders/test", "_depth", "depth", "GT depth", "depth maps"),
-    "color": ("colored", "", "color", "GT colour", "coloured views"),
+GRID = {  # kind -> (run folders, first with files wins; file suffix; ground-truth kind; first column; title)
+    "gray": (("renders/test", "renders/train"), "", "gray", "ground truth", "renders"),
+    "depth": (("renders/test", "renders/train"), "_depth", "depth", "GT depth", "depth maps"),
+    "color": (("colored",), "", "color", "GT colour", "coloured views"),
 }
+
+
+def _pick(dirs: list[Path], folders: tuple[str, ...], suffix: str) -> tuple[str, list[str]]:
+    """The first folder (and its view names) in which some run has ``<name><suffix>.png`` files."""
+    for folder in folders:
+        names = next((n for d in dirs if (n := view_names(d / folder))), [])
+        if any((d / folder / f"{n}{suffix}.png").is_file() for d in dirs for n in names):
+            return folder, names
+    return folders[0], []
 
 
 def study_grids(study: str, runs: Mapping[str, Path], out: Path,
                 gt: GroundTruth | None = None) -> list[tuple[str, Path]]:
     """Grids of one study: ``runs`` maps row label -> one run folder. Returns ``[(title, png)]``.
 
-    Ground truth missing from the runs is rendered from the dataset by ``gt`` (default: tiles in
-    ``out/gt``); pass ``GroundTruth`` of another folder to share tiles between studies.
+    Held-out renders are shown where the runs have them, else training-view renders. Ground truth
+    missing from the runs is rendered from the dataset by ``gt`` (default: tiles in ``out/gt``).
     """
     labels, dirs = list(runs), [Path(d) for d in runs.values()]
     gt = gt if gt is not None else GroundTruth(out / "gt")
     grids = []
     for kind in KINDS.get(study, ("gray", "depth", "color")):
-        folder, suffix, gt_kind, gt_label, title = GRID[kind]
-        names = next((n for d in dirs if (n := view_names(d / folder))), [])
-        if not names or not any((d / folder / f"{n}{suffix}.png").is_file() for d in dirs for n in names):
+        folders, suffix, gt_kind, gt_label, title = GRID[kind]
+        folder, names = _pick(dirs, folders, suffix)
+        if not names:
             continue
-        paths = [[gt_path(dirs[0], n, gt_kind, gt)] + [d / folder / f"{n}{suffix}.png" for d in dirs] for n in names]
+        paths = [[gt_path(dirs[0], n, gt_kind, gt, folder)] + [d / folder / f"{n}{suffix}.png" for d in dirs]
+                 for n in names]
         img = make_grid(paths, [gt_label, *labels], names)
-        grids.append((f"{study}: {title}", _write(img, out / f"{study}_{kind}.png")))
+        where = {"renders/test": " (held-out views)", "renders/train": " (training views)"}.get(folder, "")
+        grids.append((f"{study}: {title}{where}", _write(img, out / f"{study}_{kind}.png")))
     return grids

@@ -19,7 +19,7 @@ from torch import Tensor
 
 from arcsem.plugins import LOSSES, Batch, Loss, RenderOutput
 
-__all__ = ["L1", "L2", "DSSIM", "gaussian_window", "ssim_map", "masked_mean"]
+__all__ = ["DSSIM", "L1", "L2", "gaussian_window", "masked_mean", "ssim_map"]
 
 C1, C2 = 0.01**2, 0.03**2
 

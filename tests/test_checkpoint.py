@@ -6,8 +6,15 @@ import torch
 from torch import nn
 
 from arcsem.errors import TrainingError
-from arcsem.train.checkpoint import (check_config, config_diff, config_hash, flatten, load_checkpoint,
-                                     load_module_state, save_checkpoint)
+from arcsem.train.checkpoint import (
+    check_config,
+    config_diff,
+    config_hash,
+    flatten,
+    load_checkpoint,
+    load_module_state,
+    save_checkpoint,
+)
 
 
 def test_flatten_and_diff_list_dotted_keys():

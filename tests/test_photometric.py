@@ -4,13 +4,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from arcsem.losses.photometric import gaussian_window, ssim_map
 from skimage.metrics import structural_similarity
+from test_trainer import _one_thread  # noqa: F401  (autouse fixture: one torch thread)
 
 from arcsem.cameras import Cameras
 from arcsem.plugins import LOSSES, Batch
 from arcsem.train.losses import build_losses
-from test_trainer import _one_thread  # noqa: F401  (autouse fixture: one torch thread)
-from arcsem.losses.photometric import gaussian_window, ssim_map
 
 
 def _batch(images, masks=None):

@@ -17,8 +17,8 @@ from arcsem.cameras import Cameras, look_at
 from arcsem.errors import ConfigError, TrainingError
 from arcsem.plugins import BACKBONES, LOSSES, Backbone, Loss
 from arcsem.scene import Scene, Split
-from arcsem.train.losses import build_losses, merge_loss_cfgs
 from arcsem.train.loop import LoopConfig, train
+from arcsem.train.losses import build_losses, merge_loss_cfgs
 from arcsem.train.optim import GroupSchedule, lr_at
 from arcsem.train.sampling import RaySampler, ViewSampler, resize_split
 
@@ -49,7 +49,7 @@ def tiny_scene(n: int = 4, w: int = 24, h: int = 16, test: int = 2, seed: int = 
     masks = torch.zeros(n + test, h, w, dtype=torch.bool)
     masks[:, 3:-3, 4:-4] = True
     depths = torch.where(masks, torch.tensor(2.0), torch.tensor(0.0))
-    tr = [i for i in range(0, n + test) if i < n]
+    tr = [i for i in range(n + test) if i < n]
     te = list(range(n, n + test))
     full = Split([f"v{i}" for i in range(n + test)], cams, imgs, masks, depths, clean=clean)
     return Scene("tiny", full.subset(tr), full.subset(te), torch.tensor([[-1.0] * 3, [1.0] * 3]))
@@ -215,6 +215,7 @@ def test_act_group_is_optimised_and_resume_is_exact(tmp_path):
     assert res_b.resumed_from == 100 and res_b.steps == 200 and res_a.resumed_from is None
     for (n, pa), (_, pb) in zip(bb_a.state_dict().items(), bb_b.state_dict().items()):
         assert torch.equal(pa, pb), n
+    assert torch.equal(act_a.weight, act_b.weight) and torch.equal(act_a.bias, act_b.bias)
     assert not torch.allclose(act_a.weight, torch.ones_like(act_a.weight), atol=2e-3)  # ACT was trained
     assert [h["loss"] for h in res_a.history] == [h["loss"] for h in res_b.history]
 
@@ -290,11 +291,13 @@ def test_ray_backbone_trains_on_random_ray_batches():
     assert res.history[-1]["loss"] < 0.5 * res.history[0]["loss"]
     s = RaySampler(scene.train, 64, seed=1).next()
     o, d = scene.train.cameras.rays()
-    n, h, w = scene.train.images.shape[:3]
-    k = s.indices * h * w  # check one ray against the camera model: its view's ray at some pixel
-    assert s.images.shape == (64, 3) and s.masks.shape == (64, 1)
-    assert ((s.rays_d[:, None] - d.reshape(n, -1, 3)[s.indices]).norm(dim=-1).min(dim=1).values < 1e-6).all()
-    assert torch.equal(s.ray_image_ids, scene.train.cameras.image_ids[s.indices]) and k.shape == (64,)
+    n = len(scene.train)
+    dists = (s.rays_d[:, None] - d.reshape(n, -1, 3)[s.indices]).norm(dim=-1)  # [64, H*W] within its view
+    pix = dists.argmin(1)
+    assert float(dists.min(1).values.max()) < 1e-6
+    torch.testing.assert_close(s.rays_o, o.reshape(n, -1, 3)[s.indices, pix])
+    torch.testing.assert_close(s.images, scene.train.images.reshape(n, -1, 3)[s.indices, pix])
+    assert s.masks.shape == (64, 1) and torch.equal(s.ray_image_ids, scene.train.cameras.image_ids[s.indices])
 
 
 def test_view_sampler_visits_every_view_once_per_epoch():

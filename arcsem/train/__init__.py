@@ -12,7 +12,23 @@ from .optim import GroupSchedule, OptimConfig
 from .stage1 import EvalConfig, TrainConfig, build_model, evaluate, load_stage1, prepare_scene, run_stage1
 
 __all__ = [
-    "run_stage1", "load_stage1", "train", "evaluate", "evaluate_split", "build_model", "prepare_scene",
-    "LoopConfig", "TrainResult", "TrainConfig", "EvalConfig", "OptimConfig", "GroupSchedule",
-    "LossSet", "build_losses", "merge_loss_cfgs", "render_batch", "save_checkpoint", "load_checkpoint",
+    "EvalConfig",
+    "GroupSchedule",
+    "LoopConfig",
+    "LossSet",
+    "OptimConfig",
+    "TrainConfig",
+    "TrainResult",
+    "build_losses",
+    "build_model",
+    "evaluate",
+    "evaluate_split",
+    "load_checkpoint",
+    "load_stage1",
+    "merge_loss_cfgs",
+    "prepare_scene",
+    "render_batch",
+    "run_stage1",
+    "save_checkpoint",
+    "train",
 ]

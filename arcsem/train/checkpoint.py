@@ -25,8 +25,17 @@ from torch import nn
 
 from ..errors import TrainingError
 
-__all__ = ["flatten", "config_diff", "config_hash", "save_checkpoint", "load_checkpoint", "load_module_state",
-           "rng_state", "set_rng_state", "check_config"]
+__all__ = [
+    "check_config",
+    "config_diff",
+    "config_hash",
+    "flatten",
+    "load_checkpoint",
+    "load_module_state",
+    "rng_state",
+    "save_checkpoint",
+    "set_rng_state",
+]
 
 
 def flatten(cfg: Any, prefix: str = "") -> dict[str, Any]:

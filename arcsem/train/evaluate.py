@@ -25,7 +25,7 @@ from torch import nn
 
 from ..scene import Split
 
-__all__ = ["evaluate_split", "depth_error", "depth_image", "write_views_csv", "to_uint8", "mean_metrics"]
+__all__ = ["depth_error", "depth_image", "evaluate_split", "mean_metrics", "to_uint8", "write_views_csv"]
 
 METRICS = ("psnr", "ssim", "lpips")
 
@@ -112,7 +112,7 @@ def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test
         pooled = torch.cat(errors)
         summary["depth_mae"] = float(pooled.median()) if pooled.numel() else math.nan
         summary["depth_mae_pct"] = 100.0 * summary["depth_mae"] / scene_size
-    summary["lpips_weights"] = sorted(weights)[0] if len(weights) == 1 else "; ".join(sorted(weights))
+    summary["lpips_weights"] = min(weights) if len(weights) == 1 else "; ".join(sorted(weights))
     return rows, summary, errors
 
 

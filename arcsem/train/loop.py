@@ -35,7 +35,7 @@ from .losses import LossSet
 from .optim import OptimConfig, apply_schedules, group_schedules, make_optimizers
 from .sampling import make_sampler
 
-__all__ = ["LoopConfig", "TrainResult", "train", "render_batch", "batch_psnr"]
+__all__ = ["LoopConfig", "TrainResult", "batch_psnr", "render_batch", "train"]
 
 
 @dataclass

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import torch
@@ -30,8 +30,15 @@ from torch import nn
 from ..errors import ConfigError
 from ..registry import validate_config
 
-__all__ = ["GroupSchedule", "OptimConfig", "lr_at", "group_schedules", "build_optimizers", "make_optimizers",
-           "apply_schedules"]
+__all__ = [
+    "GroupSchedule",
+    "OptimConfig",
+    "apply_schedules",
+    "build_optimizers",
+    "group_schedules",
+    "lr_at",
+    "make_optimizers",
+]
 
 
 @dataclass
@@ -57,7 +64,7 @@ class OptimConfig:
     groups: dict[str, Any] = dataclasses.field(default_factory=dict)  # group -> GroupSchedule overrides
 
 
-def lr_at(s: "Schedule", step: int, total_steps: int) -> float:
+def lr_at(s: Schedule, step: int, total_steps: int) -> float:
     """Learning rate at ``step``: ``exp(lerp(log lr, log lr_final, t))`` times the delay ramp.
 
     ``s`` may also be a callable ``step -> lr`` (a backbone's own schedule).

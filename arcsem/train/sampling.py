@@ -12,7 +12,7 @@ from torch import Tensor
 from ..plugins import Batch
 from ..scene import Split
 
-__all__ = ["ViewSampler", "RaySampler", "make_sampler", "resize_split"]
+__all__ = ["RaySampler", "ViewSampler", "make_sampler", "resize_split"]
 
 
 def _masks4(split: Split, idx: Tensor) -> Tensor | None:
@@ -112,8 +112,8 @@ def resize_split(split: Split, downscale: float = 1.0, width: int | None = None)
         return split
     cams = split.cameras.scaled(factor)
     h, w = cams.height, cams.width
-    area = lambda t: _resize(t, h, w, "area")  # noqa: E731
-    near = lambda t: _resize(t, h, w, "nearest")  # noqa: E731
+    area = lambda t: _resize(t, h, w, "area")
+    near = lambda t: _resize(t, h, w, "nearest")
     from dataclasses import replace
 
     return replace(split, cameras=cams, images=area(split.images), masks=near(split.masks), depths=near(split.depths),

@@ -36,8 +36,17 @@ from .optim import OptimConfig
 from .sampling import resize_split
 from .video import arc_path, write_video
 
-__all__ = ["TrainConfig", "EvalConfig", "run_stage1", "load_stage1", "evaluate", "prepare_scene", "build_model",
-           "stage1_config", "NON_SEMANTIC_KEYS"]
+__all__ = [
+    "NON_SEMANTIC_KEYS",
+    "EvalConfig",
+    "TrainConfig",
+    "build_model",
+    "evaluate",
+    "load_stage1",
+    "prepare_scene",
+    "run_stage1",
+    "stage1_config",
+]
 
 NON_SEMANTIC_KEYS = ("resume", "eval_every", "log_every", "checkpoint_every", "progress", "eval")
 """``train`` keys that do not change the trained model (ignored when deciding whether to resume)."""

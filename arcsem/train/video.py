@@ -17,7 +17,7 @@ from torch import Tensor
 
 from ..cameras import Cameras
 
-__all__ = ["rotmat_to_quat", "quat_to_rotmat", "slerp", "arc_path", "write_video"]
+__all__ = ["arc_path", "quat_to_rotmat", "rotmat_to_quat", "slerp", "write_video"]
 
 
 def rotmat_to_quat(R: Tensor) -> Tensor:
@@ -94,7 +94,7 @@ def write_video(path: str | Path, frames: list[np.ndarray], fps: int = 20) -> Pa
     try:
         imageio.mimwrite(path.with_suffix(".mp4"), even, fps=fps, codec="libx264", quality=8, macro_block_size=1)
         return path.with_suffix(".mp4")
-    except Exception:  # no ffmpeg binary / codec: a GIF always works
+    except Exception:  # noqa: BLE001  (no ffmpeg binary / codec: a GIF always works)
         path.with_suffix(".mp4").unlink(missing_ok=True)
         imageio.mimwrite(path.with_suffix(".gif"), frames, duration=1000 / fps, loop=0)
         return path.with_suffix(".gif")

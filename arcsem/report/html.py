@@ -17,7 +17,7 @@ __all__ = ["copy_videos", "render_table", "write_page"]
 STYLE = """body{font-family:sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;color:#222}
 table{border-collapse:collapse;margin:1em 0}th,td{padding:3px 8px;border-bottom:1px solid #ccc}
 td{text-align:right}td:first-child,th:first-child{text-align:left}th{background:#f3f3f3}
-img{max-width:100%;border:1px solid #ddd}video{max-width:45%;margin:4px}.notes{font-size:90%;color:#444}"""
+img{max-width:100%;border:1px solid #ddd}figure{display:inline-block;margin:4px}video{max-width:380px}.notes{font-size:90%;color:#444}"""
 
 
 def render_table(t: Table) -> str:
@@ -63,8 +63,9 @@ def _section(t: Table, grids: list[tuple[str, Path]], videos: list[tuple[str, Pa
     for title, png in grids:
         parts.append(f"<h3>{e(title)}</h3><p><img src=\"{rel(png)}\" alt=\"{e(title)}\"></p>")
     if videos:
-        parts.append("<h3>videos</h3><p>" + "".join(
-            f'<video controls muted loop src="{rel(v)}" title="{e(c)}"></video>' for c, v in videos) + "</p>")
+        parts.append("<h3>videos</h3><div>" + "".join(
+            f'<figure><video controls muted loop src="{rel(v)}"></video><figcaption>{e(c)}</figcaption></figure>'
+            for c, v in videos) + "</div>")
     return "\n".join(parts)
 
 

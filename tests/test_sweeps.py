@@ -209,3 +209,10 @@ def test_real_app_study_check_sweep(tmp_path, tiny_transforms):
     assert rep.returncode == 0, rep.stderr
     md = (tmp_path / "mr" / "report" / "grayscale_comparison.md").read_text()
     assert "| 2DGS + ACT |" in md and "36.32" in md
+
+
+@pytest.mark.parametrize("launcher, target", [("joblib", "JoblibLauncher"), ("submitit_local", "LocalLauncher"),
+                                              ("submitit_slurm", "SlurmLauncher"), ("basic", "BasicLauncher")])
+def test_studies_compose_with_every_launcher(conf_dir, launcher, target):
+    cfg = _compose(conf_dir, ["experiment=reference_count", f"hydra/launcher={launcher}"])
+    assert cfg.hydra.launcher._target_.endswith(target)

@@ -180,7 +180,7 @@ def build_table(coll: Collection, study: str) -> Table:
     best = {}
     for c in columns:
         vals = nums[c.key].dropna() if len(nums) else pd.Series(dtype=float)
-        if c.best and len(vals):
+        if c.best and len(vals) > 1:  # a lone value is not "best" of anything
             best[c.key] = round(vals.max() if c.best == "max" else vals.min(), c.digits)
     cells = []
     for _, r in nums.iterrows():

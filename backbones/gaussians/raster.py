@@ -31,7 +31,7 @@ from torch import Tensor
 
 __all__ = [
     "MIN_ALPHA", "MAX_ALPHA", "MIN_T", "Binning", "Segments", "tile_rects", "bin_tiles", "composite",
-    "rasterize", "effective_cutoff2",
+    "rasterize", "effective_cutoff2", "composite_kept", "composited_mask",
 ]
 
 MIN_ALPHA = 1.0 / 255.0  # skip splats fainter than this (official value)
@@ -177,6 +177,13 @@ def composite(alpha: Tensor, segs: Segments) -> tuple[Tensor, Tensor, Tensor]:
     return w, T, keep
 
 
+def composite_kept(alpha: Tensor, segs: Segments) -> tuple[Tensor, Tensor]:
+    """:func:`composite` for entries already known to be composited (``composited_mask``): w, T ``[Q]``."""
+    a = alpha.clamp(max=MAX_ALPHA)
+    T = torch.exp(segs.excl_cumsum(torch.log1p(-a)))
+    return a * T, T
+
+
 @torch.no_grad()
 def composited_mask(alpha: Tensor, segs: Segments) -> Tensor:
     """``[Q]`` bool: the entries :func:`composite` composites (not skipped, before the early stop)."""
@@ -255,7 +262,8 @@ def rasterize(b: Binning, eff: Tensor, alpha_fn: AlphaFn, shade: Shade, K: int, 
             every pixel where the splat's alpha can reach 1/255 (empty when ``x1 < x0``).
         alpha_fn: ``(splat [Q], xy [Q, 2] pixel centres) -> [Q]`` raw alpha (called without gradient to
             find the entries that are composited: the rest is dropped before ``shade``, which is exact).
-        shade: ``(splat [Q], xy [Q, 2], segs) -> [segs.n, K]`` per-pixel values of a chunk.
+        shade: ``(splat [Q], xy [Q, 2], segs) -> [segs.n, K]`` per-pixel values of a chunk; it receives only
+            the composited entries, so it may use :func:`composite_kept`.
         chunk_tiles: camera-tiles per chunk; None = automatic (bounded pair-pixels per chunk).
     Returns:
         ``[C*H*W, K]`` per-pixel values (0 where no splat reaches).

@@ -14,7 +14,7 @@ import torch
 from torch import Tensor
 
 from arcsem.backbones.gaussians.raster import (
-    Segments, bin_tiles, composite, effective_cutoff2, rasterize, tile_rects,
+    Segments, bin_tiles, composite_kept, effective_cutoff2, rasterize, tile_rects,
 )
 from arcsem.backbones.gaussians.raster_camera import camera_facing_normals, pixel_projection, quat_to_rotmat
 from arcsem.cameras import Cameras
@@ -91,35 +91,43 @@ def _pixel_box(lo: Tensor, hi: Tensor, W: int, H: int, ok: Tensor) -> Tensor:
     return box
 
 
-def _shade_2dgs(Hf: Tensor, centre2d: Tensor, opac: Tensor, feats: Tensor):
-    """Shader for :func:`rasterize`: per-pixel ``[rgb(3), normal(3), alpha, sum w z, distortion, median]``."""
+def _splat_table(Hm: Tensor, centre2d: Tensor, opac: Tensor, feats: Tensor) -> Tensor:
+    """``[M, 21]`` per (camera, splat): adjugate columns a, b, c of ``[Tu; Tv; Tw]`` (so that
+    ``(u, v, 1) ~ x a + y b + c``), centre ``(2)``, opacity, depth row ``Tz (3)``, colour and normal ``(6)``."""
+    Tu, Tv, Tw, Tz = Hm.unbind(1)
+    adj = [torch.cross(Tv, Tw, dim=-1), torch.cross(Tw, Tu, dim=-1), torch.cross(Tu, Tv, dim=-1)]
+    return torch.cat([*adj, centre2d, opac[:, None], Tz, feats], -1).contiguous()
 
-    def evaluate(splat: Tensor, xy: Tensor):
-        Tm = torch.index_select(Hf, 0, splat)
-        Tu, Tv, Tw, Tz = Tm.unbind(1)
+
+def _shade_2dgs(table: Tensor):
+    """Shader for :func:`rasterize`: per-pixel ``[rgb(3), normal(3), alpha, sum w z, distortion, median]``."""
+    geo = table[:, :12].contiguous()
+
+    def evaluate(G: Tensor, xy: Tensor):
         x, y = xy[:, :1], xy[:, 1:]
-        q = torch.cross(x * Tw - Tu, y * Tw - Tv, dim=-1)
+        q = torch.addcmul(torch.addcmul(G[:, 6:9], x, G[:, :3]), y, G[:, 3:6])
         qz = torch.where(q[:, 2].abs() < 1e-12, torch.full_like(q[:, 2], 1e-12), q[:, 2])
-        u, v = q[:, 0] / qz, q[:, 1] / qz
-        rho3d = u * u + v * v
-        rho2d = 2.0 * ((xy - torch.index_select(centre2d, 0, splat)) ** 2).sum(-1)
+        rho3d = (q[:, 0] ** 2 + q[:, 1] ** 2) / qz ** 2
+        rho2d = 2.0 * ((xy - G[:, 9:11]) ** 2).sum(-1)
         use3d = rho3d <= rho2d
-        alpha = torch.index_select(opac, 0, splat) * torch.exp(-0.5 * torch.where(use3d, rho3d, rho2d))
-        return alpha, (use3d, u, v, Tz)
+        alpha = G[:, 11] * torch.exp(-0.5 * torch.where(use3d, rho3d, rho2d))
+        return alpha, use3d, q, qz
 
     def alpha_fn(splat: Tensor, xy: Tensor) -> Tensor:
-        return evaluate(splat, xy)[0]
+        return evaluate(torch.index_select(geo, 0, splat), xy)[0]
 
     def shade(splat: Tensor, xy: Tensor, segs: Segments) -> Tensor:
-        alpha, (use3d, u, v, Tz) = evaluate(splat, xy)
-        z = torch.where(use3d, u * Tz[:, 0] + v * Tz[:, 1] + Tz[:, 2], Tz[:, 2])
-        w, T, keep = composite(alpha, segs)
+        G = torch.index_select(table, 0, splat)
+        alpha, use3d, q, qz = evaluate(G, xy)
+        z_hit = (q[:, 0] * G[:, 12] + q[:, 1] * G[:, 13]) / qz + G[:, 14]
+        z = torch.where(use3d, z_hit, G[:, 14])
+        w, T = composite_kept(alpha, segs)
         m = DIST_FAR / (DIST_FAR - DIST_NEAR) * (1 - DIST_NEAR / z)
         wm = w * m
         dist = w * (m * m * (1 - T) + segs.excl_cumsum(wm * m) - 2 * m * segs.excl_cumsum(wm))
-        f = torch.cat([torch.index_select(feats, 0, splat), torch.ones_like(z)[:, None], z[:, None]], -1)
+        f = torch.cat([G[:, 15:21], torch.ones_like(z)[:, None], z[:, None]], -1)
         sums = segs.sum(torch.cat([w[:, None] * f, dist[:, None]], -1))  # rgb, normal, alpha, w z, dist
-        last = segs.last(keep & (T.detach() > 0.5))
+        last = segs.last(T.detach() > 0.5)
         median = torch.where(last >= 0, torch.index_select(z, 0, last.clamp_min(0)), torch.zeros_like(sums[:, 0]))
         return torch.cat([sums, median[:, None]], -1)
 
@@ -151,7 +159,7 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     colors = colors.expand(C, N, 3) if colors.ndim == 2 else colors
     feats = torch.cat([colors, normals], -1).reshape(C * N, 6)
     centre2d = (Hm[..., :2, 2] / Hm[..., 2, 2:3]).reshape(C * N, 2)
-    alpha_fn, shade = _shade_2dgs(Hm.reshape(C * N, 4, 3), centre2d, opacities.repeat(C), feats)
+    alpha_fn, shade = _shade_2dgs(_splat_table(Hm.reshape(C * N, 4, 3), centre2d, opacities.repeat(C), feats))
     out = rasterize(b, eff.reshape(C * N, 4), alpha_fn, shade, 10, means.dtype, chunk_tiles).reshape(C, Hh, W, 10)
     return _outputs(out, background, radius, rects)
 

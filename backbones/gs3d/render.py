@@ -11,7 +11,7 @@ import torch
 from torch import Tensor
 
 from arcsem.backbones.gaussians.raster import (
-    Segments, bin_tiles, composite, effective_cutoff2, rasterize, tile_rects,
+    Segments, bin_tiles, composite_kept, effective_cutoff2, rasterize, tile_rects,
 )
 from arcsem.backbones.gaussians.raster_camera import pixel_projection, quat_to_rotmat
 from arcsem.cameras import Cameras
@@ -61,18 +61,24 @@ def footprint_3dgs(means2d: Tensor, depth: Tensor, cov2d: Tensor, opacities: Ten
     return radius, rects, eff, ok
 
 
-def _shade_3dgs(means2d: Tensor, conics: Tensor, opac: Tensor, feats: Tensor):
-    """Shader: per-pixel ``[rgb(3), alpha, sum w z]``."""
+def _shade_3dgs(table: Tensor):
+    """Shader over ``table [M, 10]`` = (means2d, conic (a, b, c), opacity, colour, depth): per-pixel
+    ``[rgb(3), sum w z, alpha]``."""
+    geo = table[:, :6].contiguous()
+
+    def evaluate(G: Tensor, xy: Tensor) -> Tensor:
+        d = xy - G[:, :2]
+        dx, dy = d[:, 0], d[:, 1]
+        power = -0.5 * (G[:, 2] * dx * dx + G[:, 4] * dy * dy) - G[:, 3] * dx * dy
+        return torch.where(power > 0, torch.zeros_like(power), G[:, 5] * torch.exp(power))
 
     def alpha_fn(splat: Tensor, xy: Tensor) -> Tensor:
-        d = xy - torch.index_select(means2d, 0, splat)
-        cn = torch.index_select(conics, 0, splat)
-        power = -0.5 * (cn[:, 0] * d[:, 0] ** 2 + cn[:, 2] * d[:, 1] ** 2) - cn[:, 1] * d[:, 0] * d[:, 1]
-        return torch.where(power > 0, torch.zeros_like(power), torch.index_select(opac, 0, splat) * torch.exp(power))
+        return evaluate(torch.index_select(geo, 0, splat), xy)
 
     def shade(splat: Tensor, xy: Tensor, segs: Segments) -> Tensor:
-        w, _, _ = composite(alpha_fn(splat, xy), segs)
-        return segs.sum(w[:, None] * torch.cat([torch.index_select(feats, 0, splat), torch.ones_like(w[:, None])], -1))
+        G = torch.index_select(table, 0, splat)
+        w, _ = composite_kept(evaluate(G, xy), segs)
+        return segs.sum(w[:, None] * torch.cat([G[:, 6:10], torch.ones_like(w[:, None])], -1))
 
     return alpha_fn, shade
 
@@ -102,7 +108,8 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     conics = torch.stack([cov2d[..., 1, 1], -cov2d[..., 0, 1], cov2d[..., 0, 0]], -1) / det[..., None]
     colors = colors.expand(C, N, 3) if colors.ndim == 2 else colors
     feats = torch.cat([colors, depth[..., None]], -1).reshape(C * N, 4)
-    alpha_fn, shade = _shade_3dgs(means2d.reshape(C * N, 2), conics.reshape(C * N, 3), opacities.repeat(C), feats)
+    table = torch.cat([means2d.reshape(C * N, 2), conics.reshape(C * N, 3), opacities.repeat(C)[:, None], feats], -1)
+    alpha_fn, shade = _shade_3dgs(table)
     out = rasterize(b, eff.reshape(C * N, 4), alpha_fn, shade, 5, means.dtype, chunk_tiles).reshape(C, H, W, 5)
     rgb, wz, alpha = out[..., :3], out[..., 3:4], out[..., 4:5]
     if background is not None:

@@ -334,3 +334,13 @@ def test_grid_falls_back_to_training_view_renders(tmp_path):
 
     img = cv2.imread(str(grids[1][1]))
     assert img[22 + 80, img.shape[1] - 5, 0] == 80 and img[22 + 80, 95, 0] == 200  # render; GT 'missing'
+
+
+def test_broken_metrics_json_is_missing_not_fatal(gray_sweep):
+    (gray_sweep / "1" / "metrics.json").write_text('{"seed": 0, "stage1": {"tr')  # truncated
+    coll = collect([gray_sweep])
+    assert sorted(coll.runs["row"]) == ["gs2d", "plenoxels"]
+    broken = next(m for m in coll.missing if m.row == "gs3d")
+    assert broken.job_dir.endswith("/1") and "metrics.json: not valid JSON" in broken.reason
+    md = to_markdown(build_table(coll, "grayscale_comparison"))
+    assert "| 3DGS | missing |" in md and "not valid JSON" in md

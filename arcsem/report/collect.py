@@ -71,6 +71,7 @@ class MissingJob:
     job_dir: str | None = None    # None when the job folder was never created
     study: str | None = None
     row: str | None = None
+    reason: str = ""              # why it counts as missing, when not simply "no metrics.json"
 
 
 @dataclass
@@ -231,11 +232,19 @@ def _missing_in_sweep(sweep: Path, done_dirs: set[str]) -> list[MissingJob]:
 def collect(paths: list[str | Path], exclude: Path | None = None) -> Collection:
     """Collect every run under ``paths`` and the missing jobs of every sweep folder there."""
     paths = [Path(p) for p in paths]
-    runs = find_runs(paths, exclude)
-    records = [read_run(r) for r in runs]
-    done = {str(r) for r in runs}
+    records, broken = [], {}
+    for run in find_runs(paths, exclude):
+        try:
+            records.append(read_run(run))
+        except DataError as err:  # e.g. a truncated metrics.json: reported as missing, not fatal
+            broken[str(run)] = str(err)
+    done = {r["run_dir"] for r in records}
     sweeps = sorted({m.parent for p in paths for m in p.rglob("multirun.yaml")})
     missing = [m for s in sweeps for m in _missing_in_sweep(s, done)]
+    for m in missing:
+        m.reason = broken.pop(m.job_dir, "") if m.job_dir else ""
+    missing += [MissingJob(str(Path(r).parent), [], r, OTHER, "/".join(Path(r).parts[-2:]), why)
+                for r, why in broken.items()]  # broken runs outside any sweep
     df = pd.DataFrame.from_records(records) if records else pd.DataFrame(
         columns=["run_dir", "study", "row", "seed", "git"])
     return Collection(df, missing)

@@ -162,7 +162,8 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
         notes.append(f"seeds: {', '.join(seeds)}; several runs per row are shown as mean ± std.")
     for m in missing:
         where = m.job_dir or f"{m.sweep_dir} (job never started)"
-        notes.append(f"missing job: {' '.join(m.overrides)} -- {where}")
+        why = f" ({m.reason})" if m.reason else ""
+        notes.append(f"missing job: {' '.join(m.overrides)} -- {where}{why}")
     return notes
 
 

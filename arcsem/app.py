@@ -121,6 +121,24 @@ def _stage_function(stage: str) -> Callable[..., dict]:
         raise PluginError(f"stage '{stage}' needs {module}.{func}, which is not available: {exc}") from None
 
 
+def _gray_stage(cfg: DictConfig, scene: Any, run_dir: Path) -> dict:
+    """Stage 1 in this run's folder, or (``share_stage1: true``) once per stage-1 config in the shared cache.
+
+    Sweeps whose jobs differ only in stage 2 (ablations, reference counts) set ``share_stage1`` so the
+    first job trains and the others wait on the cache lock and reuse the model (:mod:`arcsem.share`).
+    """
+    run_stage1 = _stage_function("gray")
+    if not cfg.get("share_stage1", False):
+        return run_stage1(cfg, scene, run_dir)
+    from .share import ensure_stage1, stage1_result
+
+    path, trained = ensure_stage1(cfg, lambda p: run_stage1(cfg, scene, p))
+    link = run_dir / "stage1"
+    if not link.exists():
+        link.symlink_to(path.resolve(), target_is_directory=True)
+    return {**(stage1_result(path) or {}), "stage1_dir": str(path), "stage1_reused": not trained}
+
+
 def _check_stage(cfg: DictConfig, scene: Any, run_dir: Path) -> dict:
     """Build the backbone for the scene (validates dataset, plugin and its config); trains nothing."""
     from .plugins import BACKBONES
@@ -159,7 +177,7 @@ def run(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
     stages = {"gray": ["gray"], "color": ["color"], "all": ["gray", "color"], "check": ["check"]}[stage]
     metrics["stages"] = {}
     for name in stages:
-        func = _check_stage if name == "check" else _stage_function(name)
+        func = {"check": _check_stage, "gray": _gray_stage}.get(name) or _stage_function(name)
         t0 = time.perf_counter()
         result = func(cfg, scene, run_dir) or {}
         metrics["timings"][f"{name}_s"] = time.perf_counter() - t0

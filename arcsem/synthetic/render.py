@@ -154,7 +154,12 @@ def _subsamples(uv: Tensor, s: int) -> Tensor:
 
 
 def render_views(g: Grain, cams: Cameras, cfg: RenderConfig, progress: bool = False) -> list[ViewImages]:
-    """Render every camera of ``cams`` (float64, ``C`` views of ``H x W``); ``g`` float64 or float32."""
+    """Render every camera of ``cams`` (float64, ``C`` views of ``H x W``); ``g`` float64 or float32.
+
+    All ``C * H * W`` rays are traced together (in chunks of ``cfg.chunk``): batching views keeps
+    the per-call overhead of the many small tensor ops low. Results are held for all ``C`` views,
+    so callers render large images a few views at a time.
+    """
     g32 = g.to(torch.float32)
     C, H, W = len(cams), cams.height, cams.width
     uv = cams.pixel_grid(torch.float64).reshape(-1, 2)

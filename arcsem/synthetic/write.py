@@ -77,22 +77,34 @@ def generate_scene(out_dir, *, progress: bool | None = None, **params) -> Path:
 
         raise ConfigError(f"synthetic scene: width/height must be >= 8, got {p.width}x{p.height}")
     out = Path(out_dir)
-    with _one_thread():
-        grain = make_grain(p.seed, p.n_spines)
-        views = arc_views(p.n_horizontal, p.n_vertical, p.test_every)
-        cams, distance = arc_cameras(views, p.width, p.height, p.camera)
-        cfg = RenderConfig(supersample=p.supersample, substrate=p.substrate)
-        show = progress if progress is not None else p.width * p.height >= 1_000_000
-        renders = render_views(grain, cams, cfg, progress=show)
     for sub in ("images", "clean", "color", "masks", "depth", "normals", "references"):
         (out / sub).mkdir(parents=True, exist_ok=True)
+    grain = make_grain(p.seed, p.n_spines)
+    views = arc_views(p.n_horizontal, p.n_vertical, p.test_every)
+    cams, distance = arc_cameras(views, p.width, p.height, p.camera)
+    cfg = RenderConfig(supersample=p.supersample, substrate=p.substrate)
     refs = reference_sets(views)
-    frames = [_write_view(out, p, i, v, r, v.name in refs["five"]) for i, (v, r) in enumerate(zip(views, renders))]
+    n_train = sum(v.split == "train" for v in views)
+    # views are rendered in groups of at most cfg.chunk pixels and written at once: memory stays
+    # bounded at any resolution (3072x2048: one view per group, rays in chunks)
+    per_group = max(1, cfg.chunk // (p.width * p.height))
+    groups = [list(range(i, min(i + per_group, len(views)))) for i in range(0, len(views), per_group)]
+    show = progress if progress is not None else p.width * p.height >= 1_000_000
+    frames, clouds = [], []
+    with _one_thread():
+        for grp in _progress(groups, show):
+            renders = render_views(grain, cams[torch.tensor(grp)], cfg)
+            for i, r in zip(grp, renders):
+                v = views[i]
+                frames.append(_write_view(out, p, i, v, r, v.name in refs["five"]))
+                if v.split == "train":
+                    clouds.append(_sample_points(r, np.random.default_rng([p.seed, i, 7]), 20_000 // n_train))
     K = cams.K[0].numpy()
     c2w = cams.cam_to_world.numpy()
     for f, m in zip(frames, c2w):
         f["transform_matrix"] = (m @ FLIP).tolist()
-    pts, cols = _point_cloud(views, renders, p.seed)
+    pts = np.concatenate([c[0] for c in clouds])
+    cols = np.repeat(np.concatenate([c[1] for c in clouds])[:, None], 3, 1)
     _write_ply(out / "points3d.ply", pts, cols)
     meta = {
         "camera_model": "PINHOLE" if p.camera == "pinhole" else "ORTHOGRAPHIC",
@@ -141,12 +153,19 @@ def _write_view(out: Path, p: SceneParams, i: int, v: ViewSpec, r: ViewImages, i
     return frame
 
 
-def _point_cloud(views: list[ViewSpec], renders: list[ViewImages], seed: int, n: int = 20_000):
-    """Up to ``n`` specimen surface points ``[P, 3]`` (hit points of train views) with grey uint8 ``[P, 3]``."""
-    pts = torch.cat([r.points for v, r in zip(views, renders) if v.split == "train"]).numpy()
-    grey = torch.cat([r.point_grey for v, r in zip(views, renders) if v.split == "train"]).numpy()
-    pick = np.sort(np.random.default_rng(seed).choice(len(pts), size=min(n, len(pts)), replace=False))
-    return pts[pick].astype(np.float32), np.repeat(_u8(grey[pick])[:, None], 3, 1)
+def _sample_points(r: ViewImages, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Up to ``n`` specimen surface points ``[P, 3]`` float32 of a view with their grey uint8 ``[P]``."""
+    pts, grey = r.points.numpy(), r.point_grey.numpy()
+    pick = np.sort(rng.choice(len(pts), size=min(n, len(pts)), replace=False))
+    return pts[pick].astype(np.float32), _u8(grey[pick])
+
+
+def _progress(items: list, show: bool):
+    if not show:
+        return items
+    from tqdm import tqdm
+
+    return tqdm(items, desc="synthetic scene", unit="group")
 
 
 def _write_ply(path: Path, pts: np.ndarray, cols: np.ndarray) -> None:

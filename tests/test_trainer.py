@@ -331,3 +331,47 @@ def test_resize_split_scales_images_masks_and_cameras():
     torch.testing.assert_close(half.images[0, 0, 0], scene.train.images[0, :2, :2].mean((0, 1)))
     assert half.cameras.K[0, 0, 0] == pytest.approx(15.0) and half.cameras.width == 12
     assert resize_split(scene.train, width=12).images.shape == (4, 8, 12, 3)
+
+
+TINY_OVERRIDES = {  # tiny settings per in-tree backbone: every schedule event happens within 20 steps
+    "gs2d": {"random_init_points": 300, "densify_from": 2, "densify_every": 4, "densify_until": 30,
+             "opacity_reset_every": 9},
+    "gs3d": {"random_init_points": 300, "densify_from": 2, "densify_every": 4, "densify_until": 30,
+             "opacity_reset_every": 9},
+    "plenoxels": {"reso": [[12, 12, 12], [16, 16, 16]], "upsample_every": 8},
+}
+GAUSS_XFAIL = pytest.mark.xfail(strict=False, reason="GaussianBackbone keeps DensifyStats outside state_dict "
+                                "and resets them in load_state_dict (needs get_extra_state/set_extra_state)")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [pytest.param("gs2d", marks=GAUSS_XFAIL), pytest.param("gs3d", marks=GAUSS_XFAIL),
+                                  "plenoxels"])
+def test_real_backbone_resumes_exactly_across_densification(name, tmp_path):
+    """20 steps straight vs 10 + crash at 13 + resume: identical models (densify/upsample at 12, 16)."""
+    scene = tiny_scene(n=6, w=48, h=32)
+    losses_cfg = {"l2": {}} if name == "plenoxels" else {"l1": {"weight": 0.8}, "dssim": {"weight": 0.2}}
+
+    def run(d, stop=None, seed=0):
+        torch.manual_seed(seed)
+        act = ACT(len(scene.train), "rgb", 1e-3)
+        bb = BACKBONES.build({"name": name, **TINY_OVERRIDES[name]}, scene=scene, act=act)
+        losses = build_losses(losses_cfg, bb.provides, bb.batch_mode)
+
+        def on_step(s, rec):
+            if s == stop:
+                raise KeyboardInterrupt
+        train(bb, scene.train, losses, loop(20, checkpoint_every=10, rays_per_batch=200), ckpt_dir=d, config={},
+              act=act, act_lr=1e-3, on_step=on_step)
+        return bb, act
+
+    a, act_a = run(tmp_path / "a")
+    with pytest.raises(KeyboardInterrupt):
+        run(tmp_path / "b", stop=13)
+    b, act_b = run(tmp_path / "b", seed=5)
+    assert a.num_primitives() == b.num_primitives()
+    sa, sb = a.state_dict(), b.state_dict()
+    for k, v in sa.items():
+        if torch.is_tensor(v):
+            assert torch.equal(v, sb[k]), k
+    assert torch.equal(act_a.weight, act_b.weight)

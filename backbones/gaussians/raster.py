@@ -227,24 +227,29 @@ def _take(x: Tensor, idx: Tensor) -> Tensor:
 
 
 def _expand(b: Binning, p0: int, p1: int, xy0: Tensor, nx: Tensor, ny: Tensor):
-    """Pair-pixels of pairs ``[p0, p1)`` grouped by pixel: (splat ``[Q]``, xy ``[Q, 2]`` long, Segments)."""
+    """Pair-pixels of pairs ``[p0, p1)`` grouped by pixel: (splat ``[Q]``, xy ``[Q, 2]`` long, Segments).
+
+    Entries are generated pair by pair (so in depth order within each tile); a stable sort by the
+    chunk-local pixel id then groups them by pixel and keeps the depth order.
+    """
     dev = xy0.device
     nx, ny, xy0 = nx[p0:p1], ny[p0:p1], xy0[p0:p1]
     count = nx * ny
-    pair = torch.repeat_interleave(torch.arange(p1 - p0, device=dev), count)
-    k = torch.arange(pair.numel(), device=dev) - _take(torch.cumsum(count, 0) - count, pair)
-    nxp = _take(nx, pair)
-    x = _take(xy0[:, 0], pair) + k % nxp
-    y = _take(xy0[:, 1], pair) + torch.div(k, nxp, rounding_mode="floor")
-    cam = torch.div(_take(b.ctile[p0:p1], pair), b.TX * b.TY, rounding_mode="floor")
-    pix = (cam * b.H + y) * b.W + x
-    key, perm = torch.sort(pix * (p1 - p0) + pair)
-    pix = torch.div(key, p1 - p0, rounding_mode="floor")
-    pair = key - pix * (p1 - p0)
-    upix, counts = torch.unique_consecutive(pix, return_counts=True)
+    pair = torch.repeat_interleave(torch.arange(p1 - p0, device=dev, dtype=torch.int32), count)
+    k = (torch.arange(pair.numel(), device=dev) - _take(torch.cumsum(count, 0) - count, pair)).int()
+    nxp = _take(nx.int(), pair)
+    row = torch.div(k, nxp, rounding_mode="floor")
+    cam = torch.div(b.ctile[p0:p1], b.TX * b.TY, rounding_mode="floor")
+    base = (cam * b.H + xy0[:, 1]) * b.W + xy0[:, 0]  # [P] flat pixel id of each pair box's corner
+    base0 = int(base.min())
+    local = _take((base - base0).int(), pair) + row * b.W + (k - row * nxp)
+    local, perm = torch.sort(local, stable=True)
+    pair = _take(pair, perm)
+    upix, counts = torch.unique_consecutive(local, return_counts=True)
     seg = torch.repeat_interleave(torch.arange(upix.numel(), device=dev), counts)
     start = _take(torch.cumsum(counts, 0) - counts, seg)
-    pxy = pix % (b.H * b.W)
+    upix = upix.long() + base0
+    pxy = _take(upix % (b.H * b.W), seg)
     xy = torch.stack([pxy % b.W, torch.div(pxy, b.W, rounding_mode="floor")], -1)
     return _take(b.splat[p0:p1], pair), xy, Segments(seg, start, upix.numel(), upix)
 

@@ -30,7 +30,7 @@ def main() -> None:
     ap.add_argument("--camera", default="pinhole")
     ap.add_argument("--no-compare", action="store_true", help="skip the supersample=1 comparison")
     args = ap.parse_args()
-    base = dict(width=args.width, height=args.height, camera=args.camera)
+    base = {"width": args.width, "height": args.height, "camera": args.camera}
     rows = [("default (supersample=2)", base)]
     if not args.no_compare:
         rows.append(("no anti-aliasing (supersample=1)", {**base, "supersample": 1}))

@@ -11,12 +11,12 @@ import torch
 from PIL import Image
 
 from arcsem.cameras import Cameras
-from arcsem.synthetic import ensure_scene, generate_scene
 from arcsem.synthetic import cache as cache_mod
+from arcsem.synthetic import ensure_scene, generate_scene
 from arcsem.synthetic.sdf import body_sdf, make_grain, round_cone, smooth_min
 from arcsem.synthetic.trace import sdf_gradient, sphere_trace
 
-SMALL = dict(width=48, height=32)
+SMALL = {"width": 48, "height": 32}
 FLIP = torch.diag(torch.tensor([1.0, -1.0, -1.0, 1.0], dtype=torch.float64))
 
 
@@ -68,7 +68,7 @@ def test_smooth_min_is_min_beyond_blend_and_below_inside():
 
 
 def test_sphere_trace_hits_a_sphere_at_the_analytic_distance():
-    sdf = lambda p: p.norm(dim=-1) - 1.0  # noqa: E731
+    sdf = lambda p: p.norm(dim=-1) - 1.0
     o = torch.tensor([[0.0, 0.0, -3.0], [0.5, 0.0, -3.0], [2.0, 0.0, -3.0]], dtype=torch.float64)
     u = torch.tensor([[0.0, 0.0, 1.0]] * 3, dtype=torch.float64)
     t, hit = sphere_trace(sdf, o, u, torch.full((3,), 10.0, dtype=torch.float64), eps=1e-9, tol=1e-8)
@@ -116,7 +116,7 @@ def test_depth_agrees_with_sdf(which, request):
 
 
 def test_masks_match_depth(scene):
-    meta, depth, mask = _load(scene)
+    _meta, depth, mask = _load(scene)
     assert set(np.unique(mask.numpy())) <= {0, 255}
     assert torch.equal(mask == 255, depth > 0)
     frac = (mask > 0).double().mean((1, 2))
@@ -177,7 +177,7 @@ def _pngs(folder: Path) -> dict[str, bytes]:
 
 
 def test_same_seed_gives_byte_identical_images(tmp_path):
-    kw = dict(width=32, height=24, n_horizontal=3, n_vertical=3)
+    kw = {"width": 32, "height": 24, "n_horizontal": 3, "n_vertical": 3}
     a = generate_scene(tmp_path / "a", seed=5, **kw).parent
     b = generate_scene(tmp_path / "b", seed=5, **kw).parent
     c = generate_scene(tmp_path / "c", seed=6, **kw).parent
@@ -188,7 +188,7 @@ def test_same_seed_gives_byte_identical_images(tmp_path):
 
 def test_ensure_scene_reuses_the_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("ARCSEM_CACHE", str(tmp_path / "cache"))
-    kw = dict(width=24, height=16, n_horizontal=3, n_vertical=3, supersample=1)
+    kw = {"width": 24, "height": 16, "n_horizontal": 3, "n_vertical": 3, "supersample": 1}
     first = ensure_scene(**kw)
     assert first.parent.parent == tmp_path / "cache" / "scenes" and (first.parent / ".complete").is_file()
     stamp = {p: p.stat().st_mtime_ns for p in first.parent.rglob("*")}
@@ -238,3 +238,42 @@ def test_point_cloud_and_contact_sheet(scene):
     assert len(pts) > 1000 and g.sdf(pts).abs().max() < 1e-3 * g.size
     sheet = Image.open(root / "contact_sheet.png")
     assert sheet.mode == "RGB" and sheet.width >= 8 * 48 and sheet.height >= 5 * 32
+
+
+def test_orthographic_cameras_have_the_pinhole_pixel_footprint():
+    from arcsem.synthetic.cameras import PAPER_FOCAL, PAPER_WIDTH, arc_cameras, arc_views
+
+    views = arc_views()
+    pin, dist = arc_cameras(views, 3072, 2048, "pinhole")
+    ortho, _ = arc_cameras(views, 3072, 2048, "orthographic")
+    assert pin.K[0, 0, 0].item() == PAPER_FOCAL and PAPER_WIDTH == 3072      # the paper's focal length
+    torch.testing.assert_close(ortho.K[0, 0, 0], pin.K[0, 0, 0] / dist)      # pixels per unit at the origin
+    assert dist > 20 * 2.0                                                    # far away: near-orthographic
+    edge = torch.tensor([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]], dtype=torch.float64)
+    uv_p, _ = pin[10].project(edge)
+    uv_o, _ = ortho[10].project(edge)
+    torch.testing.assert_close(uv_p, uv_o, atol=0.02 * 2048, rtol=0)          # same footprint (~1% perspective)
+
+
+def test_drift_is_affine_and_noise_is_added():
+    from arcsem.synthetic.shading import drift_and_noise
+
+    grey = np.linspace(0.2, 0.6, 48).reshape(6, 8)
+    out = drift_and_noise(grey, np.random.default_rng(0), 0.1, 0.0, 0.0)
+    A = np.stack([grey.ravel(), np.ones(grey.size)], 1)
+    coef, *_ = np.linalg.lstsq(A, out.ravel(), rcond=None)
+    assert np.allclose(A @ coef, out.ravel(), atol=1e-12) and not np.allclose(coef, [1, 0])
+    noisy = drift_and_noise(grey, np.random.default_rng(0), 0.1, 0.03, 0.0)
+    assert 0.01 < np.std(noisy - out) < 0.05
+
+
+def test_make_scene_cli_writes_a_scene(tmp_path, capsys):
+    from arcsem.cli.make_scene import main
+
+    out = tmp_path / "cli"
+    args = ["--out", str(out), "--width", "24", "--height", "16", "--n-horizontal", "3", "--n-vertical", "3",
+            "--camera", "orthographic", "--supersample", "1"]
+    assert main(args) == 0
+    assert (out / "transforms.json").is_file() and (out / ".complete").is_file()
+    assert str(out / "transforms.json") in capsys.readouterr().out
+    assert main(["--out", str(tmp_path / "bad"), "--n-horizontal", "1"]) == 2

@@ -9,7 +9,7 @@ import os
 import sys
 import time
 
-__all__ = ["main", "build_parser"]
+__all__ = ["build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -34,9 +34,9 @@ def main(argv: list[str] | None = None) -> int:
     from ..errors import ArcsemError, ConfigError
     from ..synthetic import ensure_scene, generate_scene
 
-    params = dict(seed=args.seed, width=args.width, height=args.height, camera=args.camera,
-                  n_horizontal=args.n_horizontal, n_vertical=args.n_vertical, substrate=not args.no_substrate,
-                  supersample=args.supersample, noise=args.noise)
+    params = {"seed": args.seed, "width": args.width, "height": args.height, "camera": args.camera,
+                  "n_horizontal": args.n_horizontal, "n_vertical": args.n_vertical, "substrate": not args.no_substrate,
+                  "supersample": args.supersample, "noise": args.noise}
     t0 = time.perf_counter()
     try:
         if args.n_horizontal < 3 or args.n_vertical < 3 or args.supersample < 1:

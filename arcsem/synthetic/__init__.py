@@ -9,4 +9,4 @@
 from .cache import ensure_scene
 from .write import SceneParams, generate_scene, reference_sets
 
-__all__ = ["ensure_scene", "generate_scene", "SceneParams", "reference_sets"]
+__all__ = ["SceneParams", "ensure_scene", "generate_scene", "reference_sets"]

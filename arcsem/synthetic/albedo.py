@@ -14,7 +14,7 @@ from torch import Tensor
 
 from .sdf import Grain, _smoothstep, body_sdf, furrow_profile
 
-__all__ = ["grain_albedo", "colorize", "SUBSTRATE_ALBEDO", "BACKGROUND_RGB"]
+__all__ = ["BACKGROUND_RGB", "SUBSTRATE_ALBEDO", "colorize", "grain_albedo"]
 
 RED = (0.80, 0.10, 0.07)
 YELLOW = (0.96, 0.78, 0.16)

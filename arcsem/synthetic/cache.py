@@ -10,7 +10,7 @@ from pathlib import Path
 
 from .write import GENERATOR_VERSION, SceneParams, generate_scene
 
-__all__ = ["ensure_scene", "scene_key", "cache_root"]
+__all__ = ["cache_root", "ensure_scene", "scene_key"]
 
 MARKER = ".complete"
 

@@ -23,7 +23,7 @@ import torch
 
 from ..cameras import Cameras, look_at
 
-__all__ = ["ViewSpec", "arc_views", "arc_cameras", "view_direction", "PAPER_FOCAL", "PAPER_WIDTH"]
+__all__ = ["PAPER_FOCAL", "PAPER_WIDTH", "ViewSpec", "arc_cameras", "arc_views", "view_direction"]
 
 PAPER_FOCAL = 50_000.0   # px, the paper's calibrated focal length ...
 PAPER_WIDTH = 3072       # ... at this image width

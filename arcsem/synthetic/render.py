@@ -19,7 +19,7 @@ from .sdf import Grain
 from .shading import DETECTOR_CAM, ShadingConfig, detector_shadow, ellipsoid_shadow, sem_grey
 from .trace import ray_sphere, sdf_gradient, sphere_trace
 
-__all__ = ["RenderConfig", "ViewImages", "render_views", "view_rays", "cast", "cast_and_shade"]
+__all__ = ["RenderConfig", "ViewImages", "cast", "cast_and_shade", "render_views", "view_rays"]
 
 BG, GRAIN, SUBSTRATE = 0, 1, 2
 
@@ -142,7 +142,7 @@ def _edges(kind: Tensor, depth: Tensor, jump: float) -> Tensor:
     """``[C, H, W]`` bool: the hit class or depth (beyond ``jump``) changes in the 3x3 neighbourhood."""
     k = torch.nn.functional.pad(kind[:, None].float(), (1, 1, 1, 1), mode="replicate")
     z = torch.nn.functional.pad(depth[:, None].float(), (1, 1, 1, 1), mode="replicate")
-    pool = lambda x: torch.nn.functional.max_pool2d(x, 3, 1)[:, 0]  # noqa: E731
+    pool = lambda x: torch.nn.functional.max_pool2d(x, 3, 1)[:, 0]
     return (pool(k) != -pool(-k)) | (pool(z) + pool(-z) > jump)
 
 
@@ -168,8 +168,8 @@ def render_views(g: Grain, cams: Cameras, cfg: RenderConfig, progress: bool = Fa
     kind, depth = res["kind"].reshape(C, H, W), res["depth"].reshape(C, H, W)
     grey, color = res["grey"].reshape(C, H * W), res["color"].reshape(C, H * W, 3)
     s = cfg.supersample
-    if s > 1:
-        edge = _edges(kind, depth, 0.05 * g.size).reshape(C, -1)
+    edge = _edges(kind, depth, 0.05 * g.size).reshape(C, -1)
+    if s > 1 and edge.any():
         eidx = [e.nonzero()[:, 0] for e in edge]
         sub = cast_and_shade(g32, view_rays(cams, [_subsamples(uv[e], s) for e in eidx]), cfg)
         start = 0

@@ -24,8 +24,18 @@ import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["Grain", "make_grain", "smooth_min", "round_cone", "ellipsoid", "body_sdf", "grain_sdf",
-           "furrow_profile", "nearest_spine", "spine_cos_reach"]
+__all__ = [
+    "Grain",
+    "body_sdf",
+    "ellipsoid",
+    "furrow_profile",
+    "grain_sdf",
+    "make_grain",
+    "nearest_spine",
+    "round_cone",
+    "smooth_min",
+    "spine_cos_reach",
+]
 
 
 @dataclass
@@ -72,7 +82,7 @@ class Grain:
         ext = torch.maximum(tips.abs().amax(0), self.radii) + 0.02
         return torch.stack([-ext, ext])
 
-    def to(self, dtype: torch.dtype) -> "Grain":
+    def to(self, dtype: torch.dtype) -> Grain:
         """A copy with every tensor in ``dtype`` (float32 for fast rendering)."""
         conv = {k: v.to(dtype) for k, v in vars(self).items() if isinstance(v, Tensor)}
         return replace(self, **conv)
@@ -106,7 +116,7 @@ def make_grain(seed: int = 0, n_spines: int = 30) -> Grain:
     side = np.cross(np.array([0.0, 0.0, 1.0]), furrows)  # [3, 3] normals of the meridian planes
     near = (np.abs(cand @ side.T) < 0.25) & (cand @ furrows.T > 0) & (np.abs(cand[:, 2]) < 0.8)[:, None]
     cand = cand[~near.any(1)]
-    t = lambda a: torch.as_tensor(a, dtype=torch.float64)  # noqa: E731
+    t = lambda a: torch.as_tensor(a, dtype=torch.float64)
     base = cand / np.linalg.norm(cand / radii, axis=-1, keepdims=True)
     axis = base / radii**2
     axis /= np.linalg.norm(axis, axis=-1, keepdims=True)

@@ -4,14 +4,14 @@ All functions are pure; shapes are in the docstrings. Grey values are in ``[0, 1
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["ShadingConfig", "sem_grey", "detector_shadow", "ellipsoid_shadow", "drift_and_noise", "DETECTOR_CAM"]
+__all__ = ["DETECTOR_CAM", "ShadingConfig", "detector_shadow", "drift_and_noise", "ellipsoid_shadow", "sem_grey"]
 
 # Everhart-Thornley style side detector, fixed in the microscope (= camera) frame (OpenCV axes):
 # to the right of the image, above it and towards the beam source.

@@ -5,12 +5,12 @@ Rays are ``origin + s * u`` with unit directions ``u``; the caller converts ``s`
 """
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import torch
 from torch import Tensor
 
-__all__ = ["ray_sphere", "sphere_trace", "sdf_gradient"]
+__all__ = ["ray_sphere", "sdf_gradient", "sphere_trace"]
 
 SDF = Callable[[Tensor], Tensor]
 

@@ -24,7 +24,7 @@ from .sdf import make_grain
 from .shading import drift_and_noise
 from .sheet import contact_sheet
 
-__all__ = ["SceneParams", "generate_scene", "reference_sets", "GENERATOR_VERSION"]
+__all__ = ["GENERATOR_VERSION", "SceneParams", "generate_scene", "reference_sets"]
 
 GENERATOR_VERSION = 1  # bump when the output of the same parameters changes (invalidates caches)
 FLIP = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV <-> OpenGL camera axes
@@ -99,21 +99,10 @@ def generate_scene(out_dir, *, progress: bool | None = None, **params) -> Path:
                 frames.append(_write_view(out, p, i, v, r, v.name in refs["five"]))
                 if v.split == "train":
                     clouds.append(_sample_points(r, np.random.default_rng([p.seed, i, 7]), 20_000 // n_train))
-    K = cams.K[0].numpy()
-    c2w = cams.cam_to_world.numpy()
-    for f, m in zip(frames, c2w):
-        f["transform_matrix"] = (m @ FLIP).tolist()
     pts = np.concatenate([c[0] for c in clouds])
     cols = np.repeat(np.concatenate([c[1] for c in clouds])[:, None], 3, 1)
     _write_ply(out / "points3d.ply", pts, cols)
-    meta = {
-        "camera_model": "PINHOLE" if p.camera == "pinhole" else "ORTHOGRAPHIC",
-        "fl_x": float(K[0, 0]), "fl_y": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
-        "w": p.width, "h": p.height, "aabb": grain.aabb.tolist(), "ply_file_path": "points3d.ply",
-        "reference_sets": refs, "frames": frames,
-        "synthetic": {**asdict(p), "generator_version": GENERATOR_VERSION, "camera_distance": distance,
-                      "grain_size": grain.size, "world_up": [0, 0, 1], "substrate_z": grain.substrate_z},
-    }
+    meta = _transforms(p, cams, frames, refs, grain, distance)
     (out / "transforms.json").write_text(json.dumps(meta, indent=1))
     if p.camera == "pinhole":
         from .colmap import write_colmap
@@ -124,6 +113,21 @@ def generate_scene(out_dir, *, progress: bool | None = None, **params) -> Path:
     contact_sheet(greys, cref, out / "contact_sheet.png")
     (out / "README.txt").write_text(_readme(p))
     return out / "transforms.json"
+
+
+def _transforms(p: SceneParams, cams, frames: list[dict], refs: dict, grain, distance: float) -> dict:
+    """The ``transforms.json`` content (frames get their OpenGL camera-to-world matrices)."""
+    K = cams.K[0].numpy()
+    for f, m in zip(frames, cams.cam_to_world.numpy()):
+        f["transform_matrix"] = (m @ FLIP).tolist()
+    return {
+        "camera_model": "PINHOLE" if p.camera == "pinhole" else "ORTHOGRAPHIC",
+        "fl_x": float(K[0, 0]), "fl_y": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
+        "w": p.width, "h": p.height, "aabb": grain.aabb.tolist(), "ply_file_path": "points3d.ply",
+        "reference_sets": refs, "frames": frames,
+        "synthetic": {**asdict(p), "generator_version": GENERATOR_VERSION, "camera_distance": distance,
+                      "grain_size": grain.size, "world_up": [0, 0, 1], "substrate_z": grain.substrate_z},
+    }
 
 
 def _u8(x) -> np.ndarray:

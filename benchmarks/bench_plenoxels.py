@@ -2,7 +2,7 @@
 
 Each case runs in its own process so that the process peak (ru_maxrss) belongs to that case:
 
-    .venv/bin/python benchmarks/bench_plenoxels.py              # quick (128^3) and paper (304x304x128)
+    .venv/bin/python benchmarks/bench_plenoxels.py --compare-torch   # quick (128x128x96), dense 128^3, paper (304x304x128)
     .venv/bin/python benchmarks/bench_plenoxels.py --case quick --runs 5
 
 Grids hold a sphere shell (radii 0.5..0.7 of the half box, ~11% of the voxels: a pollen-like shell)
@@ -22,7 +22,7 @@ import time
 import torch
 
 CASES = {  # name: (reso, occupancy)
-    "quick": ([128, 128, 128], "shell"),
+    "quick": ([128, 128, 96], "shell"),  # the largest grid of conf/train/quick.yaml (64^3 -> 128x128x96)
     "dense128": ([128, 128, 128], "dense"),
     "paper": ([304, 304, 128], "shell"),
 }

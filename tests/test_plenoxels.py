@@ -275,6 +275,9 @@ def test_upsample_schedule_resets_optimiser_and_state_dict_round_trip(tmp_path):
     assert opts["sh"].param_groups[0]["params"][0] is bb.sh
     bb.post_backward(20, out, opts)  # last resolution reached: nothing changes
     assert bb.reso == [20, 20, 16]
+    colour_only = make(scene, upsample_every=10)
+    colour_only.post_backward(10, out, colour_only.make_optimizers("color"))  # stage 2: grid kept
+    assert colour_only.reso == [12, 12, 12]
 
     fresh = make(scene)  # at the coarse resolution
     fresh.load_state_dict(bb.state_dict())

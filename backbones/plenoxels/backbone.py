@@ -222,10 +222,16 @@ class Plenoxels(Backbone):
                 pg["lr"] = self.learning_rate(g, step)
 
     def post_backward(self, step: int, out: dict, optimizers: dict[str, torch.optim.Optimizer]) -> None:
-        """Upsample (and prune) every ``upsample_every`` steps until the last resolution."""
+        """Upsample (and prune) every ``upsample_every`` steps until the last resolution.
+
+        Only while the density is being optimised (stage 1): the colour stage keeps its grid.
+        """
         c = self.cfg
         if step > 0 and step % c.upsample_every == 0 and int(self.level) < len(c.reso) - 1:
-            self.upsample(optimizers)
+            trains_density = any(p is self.density for o in optimizers.values() for g in o.param_groups
+                                 for p in g["params"])
+            if trains_density:
+                self.upsample(optimizers)
 
     # ------------------------------------------------------------------ coarse to fine
     def upsample(self, optimizers: dict[str, torch.optim.Optimizer] | None = None) -> None:

@@ -20,6 +20,9 @@ from torch import Tensor
 __all__ = ["load_extension", "march", "resolve_impl"]
 
 SOURCE = Path(__file__).parent / "cpp" / "render.cpp"
+# The backward gives each extra thread a private gradient buffer (no atomic adds) while they total at most
+# this many bytes; larger grids or more threads fall back to atomic adds into one buffer.
+PRIVATE_GRAD_BYTES = float(os.environ.get("ARCSEM_PLX_PRIVATE_GRAD_BYTES", 1 << 30))
 
 
 @lru_cache(maxsize=1)
@@ -68,7 +71,7 @@ class _March(torch.autograd.Function):
         step, scale, stop, degree, has_act = ctx.consts
         gd, gsh, gw, gb = load_extension().backward(
             rays_o, rays_d, index, cell_occ, density, sh, act_w, act_b, bounds, step, scale, stop, degree, has_act,
-            rgb, alpha, wt, g_rgb.contiguous(), g_alpha.contiguous(), g_wt.contiguous(),
+            rgb, alpha, wt, g_rgb.contiguous(), g_alpha.contiguous(), g_wt.contiguous(), PRIVATE_GRAD_BYTES,
         )
         return gd, gsh, (gw if has_act else None), (gb if has_act else None), None, None, None, None, None, None
 

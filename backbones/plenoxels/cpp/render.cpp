@@ -5,6 +5,7 @@
 // colour = act(relu(SH . basis + 0.5)); samples with transmittance < stop_thresh end the ray.
 // Outputs per ray: rgb (no background), alpha = sum w, wt = sum w t. The backward marches again and
 // uses Q = g . outputs for the suffix sums, so nothing per sample is stored.
+#include <omp.h>
 #include <torch/extension.h>
 
 #include <algorithm>
@@ -150,18 +151,27 @@ void forward_impl(const Params& P, const Grid& G, const T* ro, const T* rd, cons
   }
 }
 
+// Gradient sink: with private buffers (one per thread) plain adds, else atomic adds into one buffer.
 template <typename T>
-inline void atomic_add(T* p, T v) {
+inline void grad_add(T* p, T v, bool atomic) {
+  if (atomic) {
 #pragma omp atomic
-  *p += v;
+    *p += v;
+  } else {
+    *p += v;
+  }
 }
 
 template <typename T>
 void backward_impl(const Params& P, const Grid& G, const T* ro, const T* rd, const T* dens, const T* sh,
                    const T* actW, const T* actB, int64_t nrays, const T* rgb, const T* alpha, const T* wt,
-                   const T* g_rgb, const T* g_alpha, const T* g_wt, T* gd, T* gsh, T* gW, T* gB) {
+                   const T* g_rgb, const T* g_alpha, const T* g_wt, T* const* gd_t, T* const* gsh_t, bool atomic,
+                   T* gW, T* gB) {
 #pragma omp parallel for schedule(dynamic, 64)
   for (int64_t r = 0; r < nrays; ++r) {
+    const int tid = atomic ? 0 : omp_get_thread_num();
+    T* gd = gd_t[tid];
+    T* gsh = gsh_t[tid];
     const T* o = ro + 3 * r;
     const T* d = rd + 3 * r;
     const T* gr = g_rgb + 3 * r;
@@ -222,11 +232,11 @@ void backward_impl(const Params& P, const Grid& G, const T* ro, const T* rd, con
       T draw = dtau * k_tau;
       for (int c = 0; c < 8; ++c) {
         if (w[c] == 0) continue;
-        atomic_add(gd + rows[c], w[c] * draw);
+        grad_add(gd + rows[c], w[c] * draw, atomic);
         T* gq = gsh + rows[c] * P.Kstore * 3;
         for (int k = 0; k < P.K; ++k)
           for (int ch = 0; ch < 3; ++ch)
-            if (dpre[ch] != 0) atomic_add(gq + k * 3 + ch, w[c] * basis[k] * dpre[ch]);
+            if (dpre[ch] != 0) grad_add(gq + k * 3 + ch, w[c] * basis[k] * dpre[ch], atomic);
       }
       Tr *= e;
     }
@@ -280,7 +290,7 @@ std::vector<torch::Tensor> plx_backward(torch::Tensor ro, torch::Tensor rd, torc
                                         torch::Tensor actW, torch::Tensor actB, torch::Tensor bounds, double step,
                                         double scale, double stop, int64_t degree, bool has_act, torch::Tensor rgb,
                                         torch::Tensor alpha, torch::Tensor wt, torch::Tensor g_rgb,
-                                        torch::Tensor g_alpha, torch::Tensor g_wt) {
+                                        torch::Tensor g_alpha, torch::Tensor g_wt, double private_bytes) {
   Params P = make_params(bounds, step, scale, stop, (int)degree, sh.size(1), has_act);
   Grid G = make_grid(index, cell_occ, P);
   int64_t R = ro.size(0);
@@ -288,14 +298,32 @@ std::vector<torch::Tensor> plx_backward(torch::Tensor ro, torch::Tensor rd, torc
   auto gsh = torch::zeros_like(sh);
   auto gW = torch::zeros({R, 3}, ro.options());
   auto gB = torch::zeros({R, 3}, ro.options());
+  // Private per-thread buffers avoid atomics; used while they cost at most `private_bytes` in total.
+  int nt = std::max(1, omp_get_max_threads());
+  bool atomic = nt > 1 && double(nt - 1) * double(sh.numel() + dens.numel()) * double(sh.element_size()) >
+                              private_bytes;
+  int nbuf = atomic ? 0 : nt - 1;
+  auto extra_d = torch::zeros({nbuf, dens.numel()}, dens.options());
+  auto extra_sh = torch::zeros({nbuf, sh.numel()}, sh.options());
   AT_DISPATCH_FLOATING_TYPES(ro.scalar_type(), "plx_backward", [&] {
+    std::vector<scalar_t*> pd(nt), psh(nt);
+    pd[0] = gd.data_ptr<scalar_t>();
+    psh[0] = gsh.data_ptr<scalar_t>();
+    for (int i = 0; i < nbuf; ++i) {
+      pd[i + 1] = extra_d.data_ptr<scalar_t>() + i * dens.numel();
+      psh[i + 1] = extra_sh.data_ptr<scalar_t>() + i * sh.numel();
+    }
     backward_impl<scalar_t>(P, G, ro.data_ptr<scalar_t>(), rd.data_ptr<scalar_t>(), dens.data_ptr<scalar_t>(),
                             sh.data_ptr<scalar_t>(), has_act ? actW.data_ptr<scalar_t>() : nullptr,
                             has_act ? actB.data_ptr<scalar_t>() : nullptr, R, rgb.data_ptr<scalar_t>(),
                             alpha.data_ptr<scalar_t>(), wt.data_ptr<scalar_t>(), g_rgb.data_ptr<scalar_t>(),
-                            g_alpha.data_ptr<scalar_t>(), g_wt.data_ptr<scalar_t>(), gd.data_ptr<scalar_t>(),
-                            gsh.data_ptr<scalar_t>(), gW.data_ptr<scalar_t>(), gB.data_ptr<scalar_t>());
+                            g_alpha.data_ptr<scalar_t>(), g_wt.data_ptr<scalar_t>(), pd.data(), psh.data(), atomic,
+                            gW.data_ptr<scalar_t>(), gB.data_ptr<scalar_t>());
   });
+  if (nbuf > 0) {
+    gd.add_(extra_d.sum(0).view_as(gd));
+    gsh.add_(extra_sh.sum(0).view_as(gsh));
+  }
   return {gd, gsh, gW, gB};
 }
 

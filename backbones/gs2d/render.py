@@ -92,41 +92,46 @@ def _pixel_box(lo: Tensor, hi: Tensor, W: int, H: int, ok: Tensor) -> Tensor:
 
 
 def _splat_table(Hm: Tensor, centre2d: Tensor, opac: Tensor, feats: Tensor) -> Tensor:
-    """``[M, 21]`` per (camera, splat): adjugate columns a, b, c of ``[Tu; Tv; Tw]`` (so that
-    ``(u, v, 1) ~ x a + y b + c``), centre ``(2)``, opacity, depth row ``Tz (3)``, colour and normal ``(6)``."""
+    """``[21, M]`` per (camera, splat), one row per quantity: adjugate columns a, b, c of ``[Tu; Tv; Tw]``
+    (``(u, v, 1) ~ x a + y b + c``), centre ``(2)``, opacity, depth row ``Tz (3)``, colour, normal ``(6)``.
+    Rows are gathered per pair-pixel and unbound at once (cheap backward: one stack, no slice copies)."""
     Tu, Tv, Tw, Tz = Hm.unbind(1)
     adj = [torch.cross(Tv, Tw, dim=-1), torch.cross(Tw, Tu, dim=-1), torch.cross(Tu, Tv, dim=-1)]
-    return torch.cat([*adj, centre2d, opac[:, None], Tz, feats], -1).contiguous()
+    return torch.cat([*adj, centre2d, opac[:, None], Tz, feats], -1).t().contiguous()
 
 
 def _shade_2dgs(table: Tensor):
     """Shader for :func:`rasterize`: per-pixel ``[rgb(3), normal(3), alpha, sum w z, distortion, median]``."""
-    geo = table[:, :12].contiguous()
+    geo = table[:12].contiguous()
 
-    def evaluate(G: Tensor, xy: Tensor):
-        x, y = xy[:, :1], xy[:, 1:]
-        q = torch.addcmul(torch.addcmul(G[:, 6:9], x, G[:, :3]), y, G[:, 3:6])
-        qz = torch.where(q[:, 2].abs() < 1e-12, torch.full_like(q[:, 2], 1e-12), q[:, 2])
-        rho3d = (q[:, 0] ** 2 + q[:, 1] ** 2) / qz ** 2
-        rho2d = 2.0 * ((xy - G[:, 9:11]) ** 2).sum(-1)
+    def evaluate(G: tuple[Tensor, ...], xy: Tensor):
+        a0, a1, a2, b0, b1, b2, c0, c1, c2, cx, cy, op = G[:12]
+        x, y = xy.t().unbind(0)
+        q0 = torch.addcmul(torch.addcmul(c0, x, a0), y, b0)
+        q1 = torch.addcmul(torch.addcmul(c1, x, a1), y, b1)
+        q2 = torch.addcmul(torch.addcmul(c2, x, a2), y, b2)
+        qz = torch.where(q2.abs() < 1e-12, torch.full_like(q2, 1e-12), q2)
+        rho3d = (q0 * q0 + q1 * q1) / (qz * qz)
+        dx, dy = x - cx, y - cy
+        rho2d = 2.0 * (dx * dx + dy * dy)
         use3d = rho3d <= rho2d
-        alpha = G[:, 11] * torch.exp(-0.5 * torch.where(use3d, rho3d, rho2d))
-        return alpha, use3d, q, qz
+        alpha = op * torch.exp(-0.5 * torch.where(use3d, rho3d, rho2d))
+        return alpha, use3d, q0, q1, qz
 
     def alpha_fn(splat: Tensor, xy: Tensor) -> Tensor:
-        return evaluate(torch.index_select(geo, 0, splat), xy)[0]
+        return evaluate(torch.index_select(geo, 1, splat).unbind(0), xy)[0]
 
     def shade(splat: Tensor, xy: Tensor, segs: Segments) -> Tensor:
-        G = torch.index_select(table, 0, splat)
-        alpha, use3d, q, qz = evaluate(G, xy)
-        z_hit = (q[:, 0] * G[:, 12] + q[:, 1] * G[:, 13]) / qz + G[:, 14]
-        z = torch.where(use3d, z_hit, G[:, 14])
+        G = torch.index_select(table, 1, splat).unbind(0)
+        alpha, use3d, q0, q1, qz = evaluate(G, xy)
+        tz0, tz1, tz2 = G[12:15]
+        z = torch.where(use3d, (q0 * tz0 + q1 * tz1) / qz + tz2, tz2)
         w, T = composite_kept(alpha, segs)
         m = DIST_FAR / (DIST_FAR - DIST_NEAR) * (1 - DIST_NEAR / z)
         wm = w * m
         dist = w * (m * m * (1 - T) + segs.excl_cumsum(wm * m) - 2 * m * segs.excl_cumsum(wm))
-        f = torch.cat([G[:, 15:21], torch.ones_like(z)[:, None], z[:, None]], -1)
-        sums = segs.sum(torch.cat([w[:, None] * f, dist[:, None]], -1))  # rgb, normal, alpha, w z, dist
+        cols = [w * g for g in G[15:21]] + [w, w * z, dist]  # rgb, normal, alpha, w z, distortion
+        sums = segs.sum(torch.stack(cols, 1))
         last = segs.last(T.detach() > 0.5)
         median = torch.where(last >= 0, torch.index_select(z, 0, last.clamp_min(0)), torch.zeros_like(sums[:, 0]))
         return torch.cat([sums, median[:, None]], -1)

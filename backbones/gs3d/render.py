@@ -62,23 +62,24 @@ def footprint_3dgs(means2d: Tensor, depth: Tensor, cov2d: Tensor, opacities: Ten
 
 
 def _shade_3dgs(table: Tensor):
-    """Shader over ``table [M, 10]`` = (means2d, conic (a, b, c), opacity, colour, depth): per-pixel
-    ``[rgb(3), sum w z, alpha]``."""
-    geo = table[:, :6].contiguous()
+    """Shader over ``table [10, M]`` (rows: means2d (2), conic (a, b, c), opacity, colour (3), depth):
+    per-pixel ``[rgb(3), sum w z, alpha]``."""
+    geo = table[:6].contiguous()
 
-    def evaluate(G: Tensor, xy: Tensor) -> Tensor:
-        d = xy - G[:, :2]
-        dx, dy = d[:, 0], d[:, 1]
-        power = -0.5 * (G[:, 2] * dx * dx + G[:, 4] * dy * dy) - G[:, 3] * dx * dy
-        return torch.where(power > 0, torch.zeros_like(power), G[:, 5] * torch.exp(power))
+    def evaluate(G: tuple[Tensor, ...], xy: Tensor) -> Tensor:
+        mx, my, ca, cb, cc, op = G[:6]
+        x, y = xy.t().unbind(0)
+        dx, dy = x - mx, y - my
+        power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+        return torch.where(power > 0, torch.zeros_like(power), op * torch.exp(power))
 
     def alpha_fn(splat: Tensor, xy: Tensor) -> Tensor:
-        return evaluate(torch.index_select(geo, 0, splat), xy)
+        return evaluate(torch.index_select(geo, 1, splat).unbind(0), xy)
 
     def shade(splat: Tensor, xy: Tensor, segs: Segments) -> Tensor:
-        G = torch.index_select(table, 0, splat)
+        G = torch.index_select(table, 1, splat).unbind(0)
         w, _ = composite_kept(evaluate(G, xy), segs)
-        return segs.sum(w[:, None] * torch.cat([G[:, 6:10], torch.ones_like(w[:, None])], -1))
+        return segs.sum(torch.stack([w * g for g in G[6:10]] + [w], 1))
 
     return alpha_fn, shade
 
@@ -109,6 +110,7 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     colors = colors.expand(C, N, 3) if colors.ndim == 2 else colors
     feats = torch.cat([colors, depth[..., None]], -1).reshape(C * N, 4)
     table = torch.cat([means2d.reshape(C * N, 2), conics.reshape(C * N, 3), opacities.repeat(C)[:, None], feats], -1)
+    table = table.t().contiguous()
     alpha_fn, shade = _shade_3dgs(table)
     out = rasterize(b, eff.reshape(C * N, 4), alpha_fn, shade, 5, means.dtype, chunk_tiles).reshape(C, H, W, 5)
     rgb, wz, alpha = out[..., :3], out[..., 3:4], out[..., 4:5]

@@ -169,7 +169,7 @@ def save_pseudo(path: Path, colors: Tensor, valid: Tensor) -> None:
     try:
         with os.fdopen(fd, "wb") as f:
             np.savez(f, shape=np.array(valid.shape), valid=np.packbits(valid.numpy().reshape(-1)),
-                     colors=colors[valid].numpy().astype(np.float32))
+                     colors=colors[valid].float().numpy())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -1,0 +1,60 @@
+"""Stage 2 end to end on the analytic ellipsoid with a tiny 2DGS: frozen geometry, outputs, metrics, caches."""
+import warnings
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from arcsem.colorize.analytic import analytic_scene
+from arcsem.colorize.stage2 import find_stage1
+from arcsem.colorize.config import ColorizeConfig
+from arcsem.errors import DataError
+
+
+def test_missing_stage1_is_a_clear_error(tmp_path):
+    cfg = OmegaConf.create({"cache_dir": str(tmp_path / "cache")})
+    with pytest.raises(DataError, match="no stage-1 checkpoint"):
+        find_stage1(cfg, ColorizeConfig(), tmp_path)
+
+
+@pytest.mark.slow
+def test_stage2_end_to_end(tmp_path, monkeypatch):
+    from arcsem.colorize import run_stage2
+    from arcsem.train import load_checkpoint, run_stage1
+
+    monkeypatch.setenv("ARCSEM_OFFLINE", "1")
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
+    warnings.simplefilter("ignore")
+    torch.manual_seed(0)
+    scene = analytic_scene(8, 2, 32, 24)
+    ev = {"lpips": False, "video": False, "renders": False}
+    cfg = OmegaConf.create({
+        "backbone": {"name": "gs2d", "random_init_points": 300}, "act": {"enabled": True, "mode": "rgb"},
+        "seed": 0, "device": "cpu", "cache_dir": str(tmp_path / "cache"),
+        "train": {"steps": 3, "progress": False, "checkpoint_every": 0, "eval": ev},
+        "colorize": {"steps": 4, "progress": False, "tcm_downscale": 1, "ccm_downscale": 4, "checkpoint_every": 0,
+                     "eval": ev}})
+    run = tmp_path / "run"
+    run_stage1(cfg, scene, run)
+    before = load_checkpoint(run / "checkpoints" / "last.pt")["model"]
+    r = run_stage2(cfg, scene, run)
+    s2 = r["stage2"]
+    assert r["features"] == "random" and s2["features"] == "random"
+    assert sorted(s2["losses"]) == ["ccm", "pseudo_color", "reference_l1", "tcm"] and s2["steps"] == 4
+    for part in ("train_nonref", "train_ref", "test"):
+        assert {"psnr", "ssim", "psnr_masked"} <= set(s2[part]) and s2[part]["psnr"] > 0
+    assert sorted(p.stem for p in (run / "colored").glob("*.png")) == sorted(scene.train.names)
+    assert (run / "colored_model.ply").is_file() and (run / "colorize" / "views.csv").is_file()
+    assert s2["pseudo"]["cache_hit"] is False and 0.5 < s2["pseudo"]["coverage"] <= 1
+    after = load_checkpoint(run / "colorize" / "checkpoints" / "last.pt")["model"]
+    for k, v in before.items():  # geometry frozen, colour changed, no ACT in stage 2
+        if k.startswith("act."):
+            assert k not in after
+        elif "sh" in k or "f_dc" in k or "feature" in k:
+            continue
+        else:
+            torch.testing.assert_close(after[k], v, msg=k)
+    assert any(not torch.equal(after[k], before[k]) for k in after if "sh" in k or "f_dc" in k or "feature" in k)
+    # a rerun reuses the pseudo-colours and guidance from the cache and the finished checkpoint
+    r2 = run_stage2(cfg, scene, run)
+    assert r2["stage2"]["pseudo"]["cache_hit"] is True

@@ -376,3 +376,35 @@ def test_backbone_renderers_agree():
         ra, rb = a.render(scene.train.cameras[:2]), b.render(scene.train.cameras[:2])
     for k in ("rgb", "alpha", "depth"):
         torch.testing.assert_close(rb[k], ra[k], atol=1e-5, rtol=0)
+
+
+def test_training_with_svox2_settings_fits_a_small_scene():
+    torch.manual_seed(0)
+    scene = small_scene(n=6, w=24, h=18)
+    gt = make(scene, reso=[[16, 16, 16]])
+    with_ball(gt, radius=0.3, sigma=30.0)
+    with torch.no_grad():
+        gt.sh[:, 0, 0], gt.sh[:, 0, 2] = 1.0, -1.0  # an orange-ish ball
+        imgs = gt.render(scene.train.cameras)["rgb"]
+    bb = make(scene, reso=[[16, 16, 16]], lr_sigma_delay_steps=20, lr_sigma_decay_steps=300, lr_sh_decay_steps=300)
+    opts = bb.make_optimizers("geometry")
+    o, d = scene.train.cameras.rays()
+    o, d, tgt = o.reshape(-1, 3), d.reshape(-1, 3), imgs.reshape(-1, 3)
+    gen = torch.Generator().manual_seed(0)
+    psnr = lambda: float(-10 * torch.log10(((bb.render(scene.train.cameras)["rgb"] - imgs) ** 2).mean()))
+    with torch.no_grad():
+        start = psnr()
+    for step in range(100):
+        bb.update_learning_rates(opts, step)
+        sel = torch.randint(0, o.shape[0], (500,), generator=gen)
+        out = bb.render_rays(o[sel], d[sel])
+        loss = ((out["rgb"] - tgt[sel]) ** 2).mean() + out["tv"]
+        for opt in opts.values():
+            opt.zero_grad()
+        loss.backward()
+        bb.post_backward(step, out, opts)
+        for opt in opts.values():
+            opt.step()
+    with torch.no_grad():
+        end = psnr()
+    assert start < 25 and end > 32, (start, end)  # measured: 21.5 dB -> 38 dB

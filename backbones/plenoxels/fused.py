@@ -22,7 +22,7 @@ __all__ = ["load_extension", "march", "resolve_impl"]
 SOURCE = Path(__file__).parent / "cpp" / "render.cpp"
 # The backward gives each extra thread a private gradient buffer (no atomic adds) while they total at most
 # this many bytes; larger grids or more threads fall back to atomic adds into one buffer.
-PRIVATE_GRAD_BYTES = float(os.environ.get("ARCSEM_PLX_PRIVATE_GRAD_BYTES", 1 << 30))
+PRIVATE_GRAD_BYTES = float(os.environ.get("ARCSEM_PLX_PRIVATE_GRAD_BYTES", str(1 << 30)))
 
 
 @lru_cache(maxsize=1)

@@ -375,3 +375,23 @@ def test_real_backbone_resumes_exactly_across_densification(name, tmp_path):
         if torch.is_tensor(v):
             assert torch.equal(v, sb[k]), k
     assert torch.equal(act_a.weight, act_b.weight)
+
+
+@pytest.mark.parametrize("preset", ["quick", "paper"])
+def test_presets_validate_against_trainer_and_backbone_configs(preset):
+    from hydra import compose, initialize_config_module
+
+    from arcsem.registry import validate_config
+    from arcsem.train.stage1 import train_config
+
+    with initialize_config_module("arcsem.conf", version_base=None):
+        cfg = compose("config", overrides=[f"train={preset}", "dataset=transforms"])
+    tc = train_config(cfg)
+    assert tc.losses == {"l1": {"weight": 0.8}, "dssim": {"weight": 0.2}}  # (1-0.2) L1 + 0.2 D-SSIM
+    for name, over in tc.per_backbone.items():
+        cls = BACKBONES.get(name)
+        validate_config(cls.Config, dict(over.get("backbone") or {}), where=f"train.per_backbone.{name}")
+        merged = merge_loss_cfgs(tc.losses, over.get("losses"))
+        assert all(k in LOSSES.names() for k, v in merged.items() if v is not None), merged
+    if preset == "paper":
+        assert tc.steps == 60_000 and tc.downscale == 1 and tc.width is None

@@ -67,7 +67,12 @@ def test_metrics_of_a_known_offset(tmp_path):
     assert [r["name"] for r in rows] == scene.test.names
     for n in scene.test.names:
         assert (tmp_path / "renders" / "test" / f"{n}.png").is_file()
-        assert (tmp_path / "renders" / "test" / f"{n}_depth.png").is_file()
+        for suffix in ("_depth", "_gt", "_depth_gt"):
+            assert (tmp_path / "renders" / "test" / f"{n}{suffix}.png").is_file()
+    import imageio.v2 as imageio
+
+    gt = imageio.imread(tmp_path / "renders" / "test" / f"{scene.test.names[0]}_gt.png")
+    assert abs(gt.astype(float) / 255 - scene.test.clean[0].numpy()).max() <= 0.5 / 255 + 1e-6
 
 
 def test_quaternions_round_trip():

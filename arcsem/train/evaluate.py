@@ -84,7 +84,8 @@ def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test
         rows: one dict per view (``split``, ``name``, metrics, ``depth_mae``, ``depth_mae_pct``).
         summary: means over views (NaN-aware), pooled-median depth error, ``lpips_weights``.
         errors: the per-view absolute depth errors (for pooling across calls).
-    Writes ``out_dir/renders/<split_name>/<name>.png`` and ``<name>_depth.png`` when ``out_dir`` is set.
+    Writes ``out_dir/renders/<split_name>/<name>.png``, ``<name>_depth.png`` and the ground truth
+    ``<name>_gt.png`` / ``<name>_depth_gt.png`` (same depth range as the render) when ``out_dir`` is set.
     """
     n = len(split)
     views = range(n) if not max_views or max_views >= n else np.linspace(0, n - 1, max_views).round().astype(int)
@@ -117,13 +118,19 @@ def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test
 
 
 def _write_view(render_dir: Path, split: Split, i: int, out: dict, depth: torch.Tensor | None) -> None:
+    """``<name>.png``, ``<name>_depth.png`` and the ground truth beside them (``_gt``, ``_depth_gt``)."""
     import imageio.v2 as imageio
 
     name = split.names[i]
     imageio.imwrite(render_dir / f"{name}.png", to_uint8(out["rgb"]))
+    target = split.clean if split.clean is not None else split.images
+    imageio.imwrite(render_dir / f"{name}_gt.png", to_uint8(target[i]))
+    gt = split.depths[i] if split.depths is not None else None
+    lo = hi = None
+    if gt is not None and bool((gt > 0).any()):
+        lo, hi = float(gt[gt > 0].min()), float(gt[gt > 0].max())
+        imageio.imwrite(render_dir / f"{name}_depth_gt.png", depth_image(gt, gt > 0, lo, hi))
     if depth is not None:
-        gt = split.depths[i] if split.depths is not None else None
-        lo, hi = (float(gt[gt > 0].min()), float(gt[gt > 0].max())) if gt is not None and bool((gt > 0).any()) else (None, None)
         valid = out["alpha"][..., 0] > 0.5 if "alpha" in out else torch.ones_like(depth[..., 0], dtype=torch.bool)
         imageio.imwrite(render_dir / f"{name}_depth.png", depth_image(depth[..., 0], valid, lo, hi))
 

@@ -167,7 +167,8 @@ void backward_impl(const Params& P, const Grid& G, const T* ro, const T* rd, con
                    const T* actW, const T* actB, int64_t nrays, const T* rgb, const T* alpha, const T* wt,
                    const T* g_rgb, const T* g_alpha, const T* g_wt, T* const* gd_t, T* const* gsh_t, bool atomic,
                    T* gW, T* gB) {
-#pragma omp parallel for schedule(dynamic, 64)
+  // static schedule: a fixed ray -> thread map, so private-buffer gradients are bitwise reproducible
+#pragma omp parallel for schedule(static)
   for (int64_t r = 0; r < nrays; ++r) {
     const int tid = atomic ? 0 : omp_get_thread_num();
     T* gd = gd_t[tid];

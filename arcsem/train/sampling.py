@@ -50,7 +50,8 @@ class ViewSampler:
 class RaySampler:
     """``rays_per_batch`` rays drawn uniformly (with replacement) from every pixel of every view.
 
-    All rays are generated once (``[N*H*W, 3]`` origins and directions) through :class:`Cameras`.
+    Rays are generated per batch through :meth:`Cameras.rays` (one camera per sampled ray), so memory
+    stays at the images themselves even at full resolution (no ``[N*H*W, 3]`` ray tables).
     """
 
     def __init__(self, split: Split, rays_per_batch: int = 5000, seed: int = 0, device: str | torch.device = "cpu"):
@@ -58,20 +59,21 @@ class RaySampler:
             raise ValueError("cannot train on a split without views")
         self.split, self.R, self.device = split, rays_per_batch, torch.device(device)
         self.gen = torch.Generator().manual_seed(seed)
-        o, d = split.cameras.rays()  # [N, H, W, 3]
-        n, h, w = split.images.shape[:3]
-        self.origins, self.dirs = o.reshape(-1, 3), d.reshape(-1, 3)
+        self.h, self.w = split.images.shape[1:3]
         self.colors = split.images.reshape(-1, 3)
-        self.view = torch.arange(n).repeat_interleave(h * w)
-        self.image_ids = split.cameras.image_ids[self.view]
-        self.masks = None if split.masks is None else split.masks.reshape(-1, 1).to(self.colors.dtype)
+        self.masks = None if split.masks is None else split.masks.reshape(-1, 1)
 
     def next(self) -> Batch:
-        k = torch.randint(0, self.origins.shape[0], (self.R,), generator=self.gen)
+        k = torch.randint(0, self.colors.shape[0], (self.R,), generator=self.gen)
+        view, pix = k // (self.h * self.w), k % (self.h * self.w)
+        uv = torch.stack([pix % self.w, pix // self.w], -1).to(self.split.cameras.K.dtype) + 0.5
+        cams = self.split.cameras[view]
+        o, d = cams.rays(uv[:, None, :])  # [R, 1, 3]
         dev = self.device
-        return Batch(cameras=self.split.cameras.to(dev), images=self.colors[k].to(dev), indices=self.view[k].to(dev),
-                     masks=None if self.masks is None else self.masks[k].to(dev), rays_o=self.origins[k].to(dev),
-                     rays_d=self.dirs[k].to(dev), ray_image_ids=self.image_ids[k].to(dev))
+        masks = None if self.masks is None else self.masks[k].to(self.colors.dtype).to(dev)
+        return Batch(cameras=self.split.cameras.to(dev), images=self.colors[k].to(dev), indices=view.to(dev),
+                     masks=masks, rays_o=o[:, 0].to(dev), rays_d=d[:, 0].to(dev),
+                     ray_image_ids=cams.image_ids.to(dev))
 
     def state_dict(self) -> dict:
         return {"gen": self.gen.get_state()}

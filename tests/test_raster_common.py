@@ -2,7 +2,6 @@
 import math
 
 import torch
-
 from arcsem.backbones.gaussians.raster import Segments, bin_tiles, composite, tile_rects
 from arcsem.backbones.gaussians.raster_camera import pixel_projection, quat_to_rotmat
 from arcsem.backbones.gaussians.raster_scenes import orbit_cameras, random_splats
@@ -25,7 +24,7 @@ def test_composite_skip_clamp():
 
 def test_composite_early_stop():
     alpha = torch.full((5,), 0.95, dtype=torch.float64)
-    w, T, keep = composite(alpha, one_segment(5))
+    w, _, keep = composite(alpha, one_segment(5))
     # T after: 0.05, 0.0025, 1.25e-4, 6.25e-6 < 1e-4 -> the 4th and later are not composited
     torch.testing.assert_close(w, torch.tensor([0.95, 0.0475, 0.002375, 0.0, 0.0], dtype=torch.float64))
     assert keep.tolist() == [True, True, True, False, False]
@@ -39,7 +38,7 @@ def test_segments_two_pixels():
     torch.testing.assert_close(s.excl_cumsum(x), torch.tensor([0.0, 1.0, 3.0, 0.0, 10.0]))
     torch.testing.assert_close(s.sum(x[:, None])[:, 0], torch.tensor([6.0, 30.0]))
     assert s.last(torch.tensor([True, True, False, False, False])).tolist() == [1, -1]
-    w, T, _ = composite(torch.tensor([0.5, 0.5, 0.5, 0.5, 0.5]), s)
+    _, T, _ = composite(torch.tensor([0.5, 0.5, 0.5, 0.5, 0.5]), s)
     torch.testing.assert_close(T, torch.tensor([1.0, 0.5, 0.25, 1.0, 0.5]))
 
 

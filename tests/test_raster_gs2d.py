@@ -1,7 +1,8 @@
 """2DGS rasteriser: values and gradients against the dense reference, gradcheck, chunking, ortho limit."""
+import itertools
+
 import pytest
 import torch
-
 from arcsem.backbones.gaussians.raster_scenes import orbit_cameras, random_splats
 from arcsem.backbones.gs2d.reference import render_2dgs_dense
 from arcsem.backbones.gs2d.render import render_2dgs, splat_homographies
@@ -104,7 +105,7 @@ def test_orthographic_is_limit_of_far_pinhole():
         depth_err = ((p["depth"] - d - o["depth"]) * (o["alpha"] > 0) * (p["alpha"] > 0)).abs().max()
         errs.append(max((p["rgb"] - o["rgb"]).abs().max().item(), depth_err.item(),
                         (p["normal"] - o["normal"]).abs().max().item()))
-    assert all(e2 < e1 for e1, e2 in zip(errs, errs[1:])), errs
+    assert all(e2 < e1 for e1, e2 in itertools.pairwise(errs)), errs
     assert errs[-1] < 1e-4 and o["alpha"].max() > 0.5
 
 
@@ -138,3 +139,21 @@ def test_float32_close_to_float64():
     for k in ["rgb", "alpha", "normal"]:
         assert a[k].dtype == torch.float32
         torch.testing.assert_close(a[k].double(), b[k], atol=1e-4, rtol=1e-4)
+
+
+@pytest.mark.parametrize("ortho", [False, True])
+def test_means2d_grad_is_screen_position_gradient(ortho):
+    """Moving every splat by eps pixels in x equals moving the principal point: sum of means2d.grad."""
+    s = random_splats(10, 1, seed=9)
+    cams = orbit_cameras(1, 20, 16, ortho=ortho)
+    wgt = torch.rand(1, 16, 20, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    out = render_2dgs(*s.params(2), cams)
+    (out["rgb"] * wgt).sum().backward()
+    eps, losses = 1e-6, []
+    for sign in (1, -1):
+        c = orbit_cameras(1, 20, 16, ortho=ortho)
+        c.K[:, 0, 2] += sign * eps
+        with torch.no_grad():
+            losses.append((render_2dgs(*s.params(2), c)["rgb"] * wgt).sum())
+    fd = (losses[0] - losses[1]) / (2 * eps)
+    torch.testing.assert_close(out["means2d"].grad[..., 0].sum(), fd, rtol=1e-5, atol=1e-8)

@@ -1,7 +1,8 @@
 """3DGS rasteriser: values and gradients against the dense reference, gradcheck, chunking, ortho limit."""
+import itertools
+
 import pytest
 import torch
-
 from arcsem.backbones.gaussians.raster_scenes import orbit_cameras, random_splats
 from arcsem.backbones.gs3d.reference import render_3dgs_dense
 from arcsem.backbones.gs3d.render import project_gaussians, render_3dgs
@@ -84,7 +85,7 @@ def test_orthographic_is_limit_of_far_pinhole():
         p = render_3dgs(*s.params(3), pin)
         depth_err = ((p["depth"] - d - o["depth"]) * (o["alpha"] > 0) * (p["alpha"] > 0)).abs().max()
         errs.append(max((p["rgb"] - o["rgb"]).abs().max().item(), depth_err.item()))
-    assert all(e2 < e1 for e1, e2 in zip(errs, errs[1:])), errs
+    assert all(e2 < e1 for e1, e2 in itertools.pairwise(errs)), errs
     assert errs[-1] < 1e-4 and o["alpha"].max() > 0.5
 
 
@@ -117,3 +118,19 @@ def test_near_culling_and_cpp_reserved():
     assert not out["visible"][0, 0] and out["radii"][0, 0] == 0 and out["visible"][0, 1:].any()
     with pytest.raises(NotImplementedError):
         render_3dgs(*s.params(3), cams, impl="cpp")
+
+
+def test_means2d_grad_is_screen_position_gradient():
+    s = random_splats(10, 1, seed=9)
+    cams = orbit_cameras(1, 20, 16)
+    wgt = torch.rand(1, 16, 20, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    out = render_3dgs(*s.params(3), cams)
+    (out["rgb"] * wgt).sum().backward()
+    eps, losses = 1e-6, []
+    for sign in (1, -1):
+        c = orbit_cameras(1, 20, 16)
+        c.K[:, 1, 2] += sign * eps
+        with torch.no_grad():
+            losses.append((render_3dgs(*s.params(3), c)["rgb"] * wgt).sum())
+    fd = (losses[0] - losses[1]) / (2 * eps)
+    torch.testing.assert_close(out["means2d"].grad[..., 1].sum(), fd, rtol=1e-5, atol=1e-8)

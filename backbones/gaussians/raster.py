@@ -21,17 +21,28 @@ logarithm finite). Everything is plain PyTorch, so autograd gives the gradients.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Callable
-
+import itertools
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
 __all__ = [
-    "MIN_ALPHA", "MAX_ALPHA", "MIN_T", "Binning", "Segments", "tile_rects", "bin_tiles", "composite",
-    "rasterize", "effective_cutoff2", "composite_kept", "composited_mask",
+    "MAX_ALPHA",
+    "MIN_ALPHA",
+    "MIN_T",
+    "Binning",
+    "Segments",
+    "bin_tiles",
+    "composite",
+    "composite_kept",
+    "composited_mask",
+    "effective_cutoff2",
+    "rasterize",
+    "screen_position_leaf",
+    "tile_rects",
 ]
 
 MIN_ALPHA = 1.0 / 255.0  # skip splats fainter than this (official value)
@@ -154,7 +165,7 @@ class Segments:
         out = torch.full((self.n,), -1, dtype=torch.long, device=mask.device)
         return out.scatter_reduce(0, self.seg, pos, reduce="amax", include_self=True)
 
-    def select(self, mask: Tensor, idx: Tensor) -> "Segments":
+    def select(self, mask: Tensor, idx: Tensor) -> Segments:
         """The entries where ``mask [Q]`` holds (at ``idx``), still grouped by the same ``n`` pixels."""
         seg = torch.index_select(self.seg, 0, idx)
         counts = torch.bincount(seg, minlength=self.n)
@@ -204,7 +215,7 @@ def _chunks(b: Binning, q_tile: Tensor, chunk_tiles: int | None) -> list[tuple[i
         cid = torch.div(cum, PAIR_PIXEL_BUDGET, rounding_mode="floor")
         bounds = torch.nonzero(torch.diff(cid, prepend=cid[:1] - 1)).flatten()
     edges = b.offsets[torch.cat([bounds, bounds.new_tensor([n_ct])])].tolist()
-    return [(p0, p1) for p0, p1 in zip(edges[:-1], edges[1:]) if p1 > p0]
+    return [(p0, p1) for p0, p1 in itertools.pairwise(edges) if p1 > p0]
 
 
 def _pair_boxes(b: Binning, eff: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -291,3 +302,14 @@ def rasterize(b: Binning, eff: Tensor, alpha_fn: AlphaFn, shade: Shade, K: int, 
     if not pixels:
         return out
     return out.index_put((torch.cat(pixels),), torch.cat(values))
+
+
+def screen_position_leaf(centre2d: Tensor) -> tuple[Tensor, Tensor]:
+    """A leaf ``means2d [C, N, 2]`` (value: the projected centres) and ``shift = means2d - value`` (zero),
+    so that after backward ``means2d.grad`` is the loss gradient w.r.t. each splat's screen position
+    (what densification thresholds, like the official ``viewspace_points``). No-op without grad."""
+    means2d = centre2d.detach().clone()
+    if not torch.is_grad_enabled():
+        return means2d, torch.zeros_like(means2d)
+    means2d.requires_grad_(True)
+    return means2d, means2d - centre2d.detach()

@@ -11,7 +11,7 @@ from torch import Tensor
 
 from arcsem.cameras import Cameras
 
-__all__ = ["quat_to_rotmat", "pixel_projection", "camera_facing_normals"]
+__all__ = ["camera_facing_normals", "pixel_projection", "quat_to_rotmat"]
 
 
 def quat_to_rotmat(quats: Tensor) -> Tensor:

@@ -8,7 +8,7 @@ from torch import Tensor
 
 from arcsem.cameras import Cameras, look_at
 
-__all__ = ["Splats", "random_splats", "orbit_cameras"]
+__all__ = ["Splats", "orbit_cameras", "random_splats"]
 
 
 @dataclass
@@ -33,7 +33,7 @@ def random_splats(N: int, C: int = 1, *, scale: tuple[float, float] = (0.03, 0.1
                   dtype: torch.dtype = torch.float64) -> Splats:
     """``N`` random splats in the box ``[-extent/2, extent/2]^3`` with log-uniform scales."""
     g = torch.Generator().manual_seed(seed)
-    r = lambda *s: torch.rand(*s, generator=g, dtype=dtype)  # noqa: E731
+    r = lambda *s: torch.rand(*s, generator=g, dtype=dtype)
     lo, hi = torch.log(torch.tensor(scale, dtype=dtype))
     return Splats(
         means=(r(N, 3) - 0.5) * extent,

@@ -10,10 +10,10 @@ is a definition rather than maths to check.
 from __future__ import annotations
 
 import torch
-from torch import Tensor
-
 from arcsem.backbones.gaussians.raster import MAX_ALPHA, MIN_ALPHA, MIN_T
 from arcsem.backbones.gs2d.render import DIST_FAR, DIST_NEAR, footprint_2dgs, splat_homographies
+from torch import Tensor
+
 from arcsem.cameras import Cameras
 
 __all__ = ["render_2dgs_dense", "rotate_by_quat"]
@@ -101,6 +101,6 @@ def render_2dgs_dense(means: Tensor, quats: Tensor, scales: Tensor, opacities: T
     rgb, acc, depth, med, nrm, dist = (torch.stack([o[i] for o in outs]) for i in range(6))
     if background is not None:
         rgb = rgb + (1 - acc[..., None]) * background.to(rgb)
-    img = lambda x, k: x.reshape(C, H, W, k)  # noqa: E731
+    img = lambda x, k: x.reshape(C, H, W, k)
     return {"rgb": img(rgb, 3), "alpha": img(acc, 1), "depth": img(depth, 1), "median_depth": img(med, 1),
             "normal": img(nrm, 3), "distortion": img(dist, 1)}

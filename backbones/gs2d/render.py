@@ -11,15 +11,21 @@ from __future__ import annotations
 import math
 
 import torch
-from torch import Tensor
-
 from arcsem.backbones.gaussians.raster import (
-    Segments, bin_tiles, composite_kept, effective_cutoff2, rasterize, tile_rects,
+    Segments,
+    bin_tiles,
+    composite_kept,
+    effective_cutoff2,
+    rasterize,
+    screen_position_leaf,
+    tile_rects,
 )
 from arcsem.backbones.gaussians.raster_camera import camera_facing_normals, pixel_projection, quat_to_rotmat
+from torch import Tensor
+
 from arcsem.cameras import Cameras
 
-__all__ = ["render_2dgs", "splat_homographies", "footprint_2dgs", "DIST_NEAR", "DIST_FAR", "FILTER_RADIUS"]
+__all__ = ["DIST_FAR", "DIST_NEAR", "FILTER_RADIUS", "footprint_2dgs", "render_2dgs", "splat_homographies"]
 
 DIST_NEAR, DIST_FAR = 0.2, 100.0  # normalised depth m = far/(far-near) (1 - near/z) (official 2DGS)
 FILTER_RADIUS = 3.0 / math.sqrt(2.0)  # 3 sigma of the low-pass filter rho2d = 2 |d|^2, in pixels
@@ -151,7 +157,9 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
         depth is ``<= near`` are culled.
     Returns:
         rgb ``[C, H, W, 3]``, alpha, depth (``sum w z / alpha``), median_depth, distortion ``[C, H, W, 1]``,
-        normal ``[C, H, W, 3]`` (world, ``sum w n``), radii ``[C, N]`` long, visible ``[C, N]`` bool.
+        normal ``[C, H, W, 3]`` (world, ``sum w n``), radii ``[C, N]`` long, visible ``[C, N]`` bool,
+        means2d ``[C, N, 2]``: projected centres, a leaf whose ``.grad`` after backward is the gradient
+        w.r.t. the splats' screen positions (for densification).
     """
     if impl != "torch":
         raise NotImplementedError(f"render_2dgs: impl='{impl}' is not available (only 'torch')")
@@ -163,10 +171,14 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     normals = camera_facing_normals(R[:, :, 2], means, cams)
     colors = colors.expand(C, N, 3) if colors.ndim == 2 else colors
     feats = torch.cat([colors, normals], -1).reshape(C * N, 6)
+    means2d, shift = screen_position_leaf(Hm[..., :2, 2] / Hm[..., 2, 2:3])
+    # translating a splat's image by (dx, dy) pixels: Tu += dx Tw, Tv += dy Tw (dx, dy = 0 in value)
+    Hm = torch.cat([Hm[..., :2, :] + shift[..., None] * Hm[..., 2:3, :], Hm[..., 2:, :]], -2)
     centre2d = (Hm[..., :2, 2] / Hm[..., 2, 2:3]).reshape(C * N, 2)
     alpha_fn, shade = _shade_2dgs(_splat_table(Hm.reshape(C * N, 4, 3), centre2d, opacities.repeat(C), feats))
     out = rasterize(b, eff.reshape(C * N, 4), alpha_fn, shade, 10, means.dtype, chunk_tiles).reshape(C, Hh, W, 10)
-    return _outputs(out, background, radius, rects)
+    return {**_outputs(out, background, radius, rects), "means2d": means2d}
+
 
 
 def _outputs(out: Tensor, background: Tensor | None, radius: Tensor, rects: Tensor) -> dict[str, Tensor]:

@@ -8,11 +8,11 @@ projection is taken by autograd through ``Cameras.project`` (kept differentiable
 from __future__ import annotations
 
 import torch
-from torch import Tensor
-
 from arcsem.backbones.gaussians.raster import MAX_ALPHA, MIN_ALPHA, MIN_T
 from arcsem.backbones.gs2d.reference import _tile_mask, rotate_by_quat
 from arcsem.backbones.gs3d.render import COV2D_BLUR, footprint_3dgs, project_gaussians
+from torch import Tensor
+
 from arcsem.cameras import Cameras
 
 __all__ = ["render_3dgs_dense"]

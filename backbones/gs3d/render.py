@@ -8,15 +8,21 @@ orthographic ``[[fx, s, 0], [0, fy, 0]]``); conic = ``Sigma2d^-1``; radius ``cei
 from __future__ import annotations
 
 import torch
-from torch import Tensor
-
 from arcsem.backbones.gaussians.raster import (
-    Segments, bin_tiles, composite_kept, effective_cutoff2, rasterize, tile_rects,
+    Segments,
+    bin_tiles,
+    composite_kept,
+    effective_cutoff2,
+    rasterize,
+    screen_position_leaf,
+    tile_rects,
 )
 from arcsem.backbones.gaussians.raster_camera import pixel_projection, quat_to_rotmat
+from torch import Tensor
+
 from arcsem.cameras import Cameras
 
-__all__ = ["render_3dgs", "project_gaussians", "footprint_3dgs", "COV2D_BLUR"]
+__all__ = ["COV2D_BLUR", "footprint_3dgs", "project_gaussians", "render_3dgs"]
 
 COV2D_BLUR = 0.3  # added to the diagonal of Sigma2d (official low-pass)
 
@@ -95,7 +101,8 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
         ``<= near`` are culled.
     Returns:
         rgb ``[C, H, W, 3]``, alpha ``[C, H, W, 1]``, depth ``[C, H, W, 1]`` (``sum w z / alpha``),
-        radii ``[C, N]`` long, visible ``[C, N]`` bool, means2d ``[C, N, 2]``.
+        radii ``[C, N]`` long, visible ``[C, N]`` bool, means2d ``[C, N, 2]`` (a leaf whose ``.grad`` after
+        backward is the gradient w.r.t. the screen positions, as in 2DGS).
     """
     if impl != "torch":
         raise NotImplementedError(f"render_3dgs: impl='{impl}' is not available (only 'torch')")
@@ -109,7 +116,8 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     conics = torch.stack([cov2d[..., 1, 1], -cov2d[..., 0, 1], cov2d[..., 0, 0]], -1) / det[..., None]
     colors = colors.expand(C, N, 3) if colors.ndim == 2 else colors
     feats = torch.cat([colors, depth[..., None]], -1).reshape(C * N, 4)
-    table = torch.cat([means2d.reshape(C * N, 2), conics.reshape(C * N, 3), opacities.repeat(C)[:, None], feats], -1)
+    leaf2d, shift = screen_position_leaf(means2d)
+    table = torch.cat([(means2d + shift).reshape(C * N, 2), conics.reshape(C * N, 3), opacities.repeat(C)[:, None], feats], -1)
     table = table.t().contiguous()
     alpha_fn, shade = _shade_3dgs(table)
     out = rasterize(b, eff.reshape(C * N, 4), alpha_fn, shade, 5, means.dtype, chunk_tiles).reshape(C, H, W, 5)
@@ -120,5 +128,5 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     return {
         "rgb": rgb, "alpha": alpha,
         "depth": torch.where(alpha > 0, wz / alpha.clamp_min(1e-30), torch.zeros_like(wz)),
-        "radii": torch.where(visible, radius, torch.zeros_like(radius)), "visible": visible, "means2d": means2d,
+        "radii": torch.where(visible, radius, torch.zeros_like(radius)), "visible": visible, "means2d": leaf2d,
     }

@@ -149,6 +149,9 @@ class _Run:
         if self.act_separate and state.get("act") is not None:
             ckpt.load_module_state(self.act, state["act"])
         self.build_optimizers(act_lr)
+        if set(state["optimizers"]) != set(self.optimizers):
+            raise TrainingError(f"cannot resume from {self.path}: it has parameter groups {sorted(state['optimizers'])}, "
+                                f"this run has {sorted(self.optimizers)}")
         for g, o in self.optimizers.items():
             o.load_state_dict(state["optimizers"][g])
         self.sampler.load_state_dict(state["sampler"])

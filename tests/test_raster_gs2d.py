@@ -7,6 +7,8 @@ from arcsem.backbones.gaussians.raster_scenes import orbit_cameras, random_splat
 from arcsem.backbones.gs2d.reference import render_2dgs_dense
 from arcsem.backbones.gs2d.render import render_2dgs, splat_homographies
 
+from arcsem.errors import ArcsemError
+
 OUTS = ["rgb", "alpha", "depth", "median_depth", "normal", "distortion"]
 
 
@@ -120,15 +122,15 @@ def test_homography_matches_ray_plane_intersection():
         torch.testing.assert_close(H[..., 3, 2], z)
 
 
-def test_near_culling_and_cpp_reserved():
+def test_near_culling_and_unknown_impl():
     s = random_splats(6, 1, seed=4)
     s.means[0] = torch.tensor([0.0, 0.0, -3.5], dtype=torch.float64)  # behind the camera at z=-3
     cams = orbit_cameras(1, 20, 16)
     out = render_2dgs(*s.params(2), cams)
     assert not out["visible"][0, 0] and out["radii"][0, 0] == 0 and out["visible"][0, 1:].any()
     assert out["radii"].dtype == torch.long
-    with pytest.raises(NotImplementedError):
-        render_2dgs(*s.params(2), cams, impl="cpp")
+    with pytest.raises(ArcsemError):
+        render_2dgs(*s.params(2), cams, impl="gpu")
 
 
 def test_float32_close_to_float64():

@@ -7,6 +7,8 @@ from arcsem.backbones.gaussians.raster_scenes import orbit_cameras, random_splat
 from arcsem.backbones.gs3d.reference import render_3dgs_dense
 from arcsem.backbones.gs3d.render import project_gaussians, render_3dgs
 
+from arcsem.errors import ArcsemError
+
 OUTS = ["rgb", "alpha", "depth"]
 
 
@@ -110,14 +112,14 @@ def test_projection_hand_values():
     torch.testing.assert_close(out["depth"][0, 7, 9, 0], torch.tensor(2.0, dtype=torch.float64))
 
 
-def test_near_culling_and_cpp_reserved():
+def test_near_culling_and_unknown_impl():
     s = random_splats(6, 1, seed=4)
     s.means[0] = torch.tensor([0.0, 0.0, -3.5], dtype=torch.float64)
     cams = orbit_cameras(1, 20, 16)
     out = render_3dgs(*s.params(3), cams)
     assert not out["visible"][0, 0] and out["radii"][0, 0] == 0 and out["visible"][0, 1:].any()
-    with pytest.raises(NotImplementedError):
-        render_3dgs(*s.params(3), cams, impl="cpp")
+    with pytest.raises(ArcsemError):
+        render_3dgs(*s.params(3), cams, impl="gpu")
 
 
 def test_means2d_grad_is_screen_position_gradient():

@@ -18,6 +18,7 @@ from arcsem.backbones.gaussians.raster import (
     tile_rects,
 )
 from arcsem.backbones.gaussians.raster_camera import pixel_projection, quat_to_rotmat
+from arcsem.backbones.gs2d.render import _resolve
 from torch import Tensor
 
 from arcsem.cameras import Cameras
@@ -104,8 +105,7 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
         radii ``[C, N]`` long, visible ``[C, N]`` bool, means2d ``[C, N, 2]`` (a leaf whose ``.grad`` after
         backward is the gradient w.r.t. the screen positions, as in 2DGS).
     """
-    if impl != "torch":
-        raise NotImplementedError(f"render_3dgs: impl='{impl}' is not available (only 'torch')")
+    impl = _resolve(impl)
     C, N, H, W = len(cams), means.shape[0], cams.height, cams.width
     cams = cams.to(dtype=means.dtype)
     means2d, depth, cov2d = project_gaussians(means, quats, scales, cams)
@@ -120,7 +120,13 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     table = torch.cat([(means2d + shift).reshape(C * N, 2), conics.reshape(C * N, 3), opacities.repeat(C)[:, None], feats], -1)
     table = table.t().contiguous()
     alpha_fn, shade = _shade_3dgs(table)
-    out = rasterize(b, eff.reshape(C * N, 4), alpha_fn, shade, 5, means.dtype, chunk_tiles).reshape(C, H, W, 5)
+    if impl == "torch":
+        out = rasterize(b, eff.reshape(C * N, 4), alpha_fn, shade, 5, means.dtype, chunk_tiles).reshape(C, H, W, 5)
+    else:  # fused C++ kernels: rgb, depth, alpha as here
+        from arcsem.backbones.gaussians.fused import composite_3dgs_packed
+
+        G = table.t()
+        out = composite_3dgs_packed(G[:, :2], G[:, 2:5], G[:, 5], G[:, 6:10], b, eff.reshape(C * N, 4))
     rgb, wz, alpha = out[..., :3], out[..., 3:4], out[..., 4:5]
     if background is not None:
         rgb = rgb + (1 - alpha) * background.to(rgb)

@@ -237,11 +237,13 @@ def _take(x: Tensor, idx: Tensor) -> Tensor:
     return torch.index_select(x, 0, idx)
 
 
-def _expand(b: Binning, p0: int, p1: int, xy0: Tensor, nx: Tensor, ny: Tensor):
-    """Pair-pixels of pairs ``[p0, p1)`` grouped by pixel: (splat ``[Q]``, xy ``[Q, 2]`` long, Segments).
+def _expand(b: Binning, p0: int, p1: int, xy0: Tensor, nx: Tensor, ny: Tensor, alpha_fn, dtype):
+    """Pair-pixels of pairs ``[p0, p1)`` that pass the alpha skip, grouped by pixel.
 
-    Entries are generated pair by pair (so in depth order within each tile); a stable sort by the
-    chunk-local pixel id then groups them by pixel and keeps the depth order.
+    Entries are generated pair by pair (so in depth order within each tile), their alpha is evaluated
+    without gradient and those below 1/255 dropped; a stable sort by the chunk-local pixel id then
+    groups them by pixel and keeps the depth order.
+    Returns: splat ``[Q]``, pixel centres ``[Q, 2]``, raw alpha ``[Q]``, Segments.
     """
     dev = xy0.device
     nx, ny, xy0 = nx[p0:p1], ny[p0:p1], xy0[p0:p1]
@@ -250,19 +252,24 @@ def _expand(b: Binning, p0: int, p1: int, xy0: Tensor, nx: Tensor, ny: Tensor):
     k = (torch.arange(pair.numel(), device=dev) - _take(torch.cumsum(count, 0) - count, pair)).int()
     nxp = _take(nx.int(), pair)
     row = torch.div(k, nxp, rounding_mode="floor")
+    col = k - row * nxp
+    xyp = torch.stack([_take(xy0[:, 0].int(), pair) + col, _take(xy0[:, 1].int(), pair) + row], -1)
+    splat = _take(b.splat[p0:p1], pair)
+    xyf = xyp.to(dtype) + 0.5
+    with torch.no_grad():
+        alpha = alpha_fn(splat, xyf)
+    idx = torch.nonzero(alpha >= MIN_ALPHA).flatten()
     cam = torch.div(b.ctile[p0:p1], b.TX * b.TY, rounding_mode="floor")
     base = (cam * b.H + xy0[:, 1]) * b.W + xy0[:, 0]  # [P] flat pixel id of each pair box's corner
     base0 = int(base.min())
-    local = _take((base - base0).int(), pair) + row * b.W + (k - row * nxp)
-    local, perm = torch.sort(local, stable=True)
-    pair = _take(pair, perm)
+    local = _take((base - base0).int(), pair) + row * b.W + col
+    local, perm = torch.sort(_take(local, idx), stable=True)
+    perm = _take(idx, perm)
     upix, counts = torch.unique_consecutive(local, return_counts=True)
     seg = torch.repeat_interleave(torch.arange(upix.numel(), device=dev), counts)
     start = _take(torch.cumsum(counts, 0) - counts, seg)
-    upix = upix.long() + base0
-    pxy = _take(upix % (b.H * b.W), seg)
-    xy = torch.stack([pxy % b.W, torch.div(pxy, b.W, rounding_mode="floor")], -1)
-    return _take(b.splat[p0:p1], pair), xy, Segments(seg, start, upix.numel(), upix)
+    segs = Segments(seg, start, upix.numel(), upix.long() + base0)
+    return _take(splat, perm), _take(xyf, perm), _take(alpha, perm), segs
 
 
 Shade = Callable[[Tensor, Tensor, Segments], Tensor]
@@ -289,10 +296,8 @@ def rasterize(b: Binning, eff: Tensor, alpha_fn: AlphaFn, shade: Shade, K: int, 
     q_tile.index_add_(0, b.ctile, nx * ny)
     pixels, values = [], []
     for p0, p1 in _chunks(b, q_tile, chunk_tiles):
-        splat, xy, segs = _expand(b, p0, p1, xy0, nx, ny)
-        xy = xy.to(dtype) + 0.5
-        with torch.no_grad():
-            keep = composited_mask(alpha_fn(splat, xy), segs)
+        splat, xy, alpha, segs = _expand(b, p0, p1, xy0, nx, ny, alpha_fn, dtype)
+        keep = composited_mask(alpha, segs)
         if not bool(keep.any()):
             continue
         idx = torch.nonzero(keep).flatten()

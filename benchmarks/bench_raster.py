@@ -4,6 +4,10 @@
     .venv/bin/python benchmarks/bench_raster.py --part speed    # fwd+bwd medians, 2DGS vs 3DGS
     .venv/bin/python benchmarks/bench_raster.py --part dense    # tiled vs dense reference
     .venv/bin/python benchmarks/bench_raster.py --part memory   # 3072x2048, 200k splats, peak RSS
+    .venv/bin/python benchmarks/bench_raster.py --threads 1     # one torch thread (see below)
+
+On a shared, oversubscribed machine torch's worker threads spin while waiting, so with 2 threads the
+process CPU time overstates the work; one thread gives the cleanest measure of the work itself.
 
 Scenes: random splats in a unit box seen by a pinhole camera at distance 3 whose field of view the
 box fills; scales are log-uniform so that each splat covers a few to tens of pixels at 256 px width
@@ -116,8 +120,11 @@ def main() -> None:
     ap.add_argument("--part", choices=["all", "speed", "dense", "memory"], default="all")
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--memory-models", default="2dgs,3dgs")
+    ap.add_argument("--threads", type=int, default=0, help="torch threads (0 = torch's default)")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
     if args.child:
         memory_child(args.child, 200_000, 3072, 2048)
         return

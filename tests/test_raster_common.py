@@ -101,3 +101,27 @@ def test_effective_boxes_contain_every_visible_pixel():
         alpha2 = s.opacities[:, None, None] * torch.exp(-0.5 * torch.minimum(rho3d, rho2d))
         vis = radius[0] > 0
         assert _dense_alpha_outside_box(alpha2[vis], eff2[0][vis], W, H) < 1 / 255
+
+
+def test_automatic_chunks_respect_the_budget(monkeypatch):
+    """A tiny pair-pixel budget splits the work into many chunks without changing the image."""
+    import arcsem.backbones.gaussians.raster as raster
+    from arcsem.backbones.gs2d.render import render_2dgs
+
+    s = random_splats(15, 2, seed=6)
+    cams = orbit_cameras(2, 20, 16)
+    full = render_2dgs(*[p.detach() for p in s.params(2)], cams, tile=4)
+    sizes = []
+    original = raster._expand
+
+    def spy(b, p0, p1, *args):
+        out = original(b, p0, p1, *args)
+        sizes.append(p1 - p0)
+        return out
+
+    monkeypatch.setattr(raster, "PAIR_PIXEL_BUDGET", 64)
+    monkeypatch.setattr(raster, "_expand", spy)
+    small = render_2dgs(*[p.detach() for p in s.params(2)], cams, tile=4)
+    assert len(sizes) > 5
+    for k in ("rgb", "alpha", "depth", "median_depth", "normal", "distortion"):
+        torch.testing.assert_close(small[k], full[k], rtol=1e-12, atol=1e-12)

@@ -91,8 +91,10 @@ class Plenoxels(Backbone):
         """svox2: 0.0005 * 512, divided by the new z resolution."""
         prune_density_thresh: float = 5.0
         prune_dilate: int = 2
-        prune_image_scale: float = 0.25
-        """Training views are rendered at this scale to find the max weights (CPU budget)."""
+        prune_image_scale: float = 1.0
+        """Scale of the training views rendered to find the max weights (svox2: full resolution) ..."""
+        prune_max_rays: int = 1_000_000
+        """... reduced further so that at most this many rays are rendered (CPU budget; our choice)."""
         chunk: int = 8192
         """Rays per chunk when rendering whole images."""
         renderer: str = "auto"
@@ -262,8 +264,10 @@ class Plenoxels(Backbone):
     def training_ray_weights(self) -> Tensor:
         """``[M]`` largest rendering weight of each stored voxel over the training views (scaled)."""
         cams = self._train_cams.to(self.bounds.device)
-        if self.cfg.prune_image_scale != 1.0:
-            cams = cams.scaled(self.cfg.prune_image_scale)
+        budget = math.sqrt(self.cfg.prune_max_rays / max(1, len(cams) * cams.width * cams.height))
+        scale = min(self.cfg.prune_image_scale, budget)
+        if scale < 1.0:
+            cams = cams.scaled(scale)
         best = torch.zeros(self.num_primitives())
         for i in range(len(cams)):
             o, d = cams[i].rays()

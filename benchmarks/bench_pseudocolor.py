@@ -91,11 +91,11 @@ def part_full(n=32, w=3072, h=2048):
         key = pseudo_key(depth, refi, [str(r) for r in REFS5], None, 2.0, mask, cams)
         t_key = time.perf_counter() - t1
         t2 = time.perf_counter()
-        colors, valid, hit = cached_pseudo_colors(
+        colors, valid, _ = cached_pseudo_colors(
             tmp, key, lambda: pseudo_colors(cams, depth, mask, REFS5, refi, progress=True))
         t_pc = time.perf_counter() - t2
         t3 = time.perf_counter()
-        colors2, valid2, hit2 = cached_pseudo_colors(tmp, key, lambda: (_ for _ in ()).throw(RuntimeError))
+        _, valid2, hit2 = cached_pseudo_colors(tmp, key, lambda: (_ for _ in ()).throw(RuntimeError))
         t_hit = time.perf_counter() - t3
     others = [v for v in range(n) if v not in REFS5]
     cover = (valid[others].sum() / mask[others].sum()).item()

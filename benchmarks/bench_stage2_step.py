@@ -9,6 +9,8 @@ groups only. Pseudo-colours and guidance are prepared before timing (they are co
 from __future__ import annotations
 
 import argparse
+import copy
+import dataclasses
 import statistics
 import warnings
 
@@ -24,15 +26,14 @@ from arcsem.plugins import BACKBONES
 from arcsem.train import LoopConfig, build_losses, train
 
 
-def step_times(bb, scene, stage, losses, hook, steps):
-    times = []
+def step_times(bb0, scene, stage, losses, hook, steps):
+    """Mean step time of ``steps`` steps on a fresh copy of ``bb0`` (after 2 warm-up steps)."""
+    bb = copy.deepcopy(bb0)
+    train(bb, scene.train, losses, LoopConfig(steps=2, stage=stage, progress=False, checkpoint_every=0),
+          batch_hook=hook)
+    bb = copy.deepcopy(bb0)
     loop = LoopConfig(steps=steps, stage=stage, progress=False, checkpoint_every=0, resume="never")
-    last = [0.0]
-
-    def on_step(k, rec):
-        pass
-
-    res = train(bb, scene.train, losses, loop, batch_hook=hook, on_step=on_step)
+    res = train(bb, scene.train, losses, loop, batch_hook=hook)
     return res.time_s / max(res.steps, 1)
 
 
@@ -47,7 +48,7 @@ def main():
     a = ap.parse_args()
     warnings.simplefilter("ignore")
     torch.manual_seed(0)
-    scene = analytic_scene(16, 2, a.width, a.height)
+    scene = dataclasses.replace(analytic_scene(16, 2, a.width, a.height), points=None, point_colors=None)
     bb = BACKBONES.build({"name": a.backbone, "random_init_points": a.points}, scene=scene)
     refs = load_references(scene, "five")
     split = scene.train

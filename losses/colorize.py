@@ -23,7 +23,7 @@ from arcsem.colorize.guidance import downscale, patch_means
 from arcsem.errors import ConfigError
 from arcsem.plugins import LOSSES, Batch, Loss, RenderOutput
 
-__all__ = ["ReferenceL1", "PseudoColor", "TCM", "CCM", "tcm_distance", "ccm_distance", "masked_l1"]
+__all__ = ["CCM", "TCM", "PseudoColor", "ReferenceL1", "ccm_distance", "masked_l1", "tcm_distance"]
 
 
 def masked_l1(pred: Tensor, target: Tensor, valid: Tensor) -> Tensor:

@@ -1,10 +1,10 @@
 """Stage-2 loss plugins on hand-computed values; the batch hook; reference views vs other views."""
 import torch
+from arcsem.losses.colorize import CCM, TCM, PseudoColor, ReferenceL1, ccm_distance, masked_l1, tcm_distance
 
 from arcsem.colorize.analytic import arc_cameras
 from arcsem.colorize.references import References
 from arcsem.colorize.stage2 import ColorTargets
-from arcsem.losses.colorize import CCM, TCM, PseudoColor, ReferenceL1, ccm_distance, masked_l1, tcm_distance
 from arcsem.plugins import Batch
 
 
@@ -60,7 +60,7 @@ def test_hook_and_reference_vs_other_views():
 
 def test_tcm_ccm_read_extras():
     b = _batch([1], h=8, w=8)
-    feats = lambda x: [x.permute(0, 3, 1, 2)]  # noqa: E731 identity "VGG"
+    feats = lambda x: [x.permute(0, 3, 1, 2)]
     target = torch.rand(1, 8, 8, 3)
     b.extras = {"is_reference": torch.tensor([False]), "vgg": feats, "tcm_downscale": 1,
                 "tcm_guidance": [target.permute(0, 3, 1, 2)], "ccm_downscale": 4,

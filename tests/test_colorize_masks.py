@@ -35,12 +35,12 @@ def test_grabcut_mask_matches_disc():
 
 
 def test_specimen_mask_sources():
-    img, disc = _disc(48, 64, 15)
+    img, _ = _disc(48, 64, 15)
 
     class S:
         images = torch.from_numpy(np.repeat(img[None, ..., None], 3, -1))
         masks = None
-        names = ["a"]
+        names = ("a",)
 
         class cameras:
             height, width = 48, 64

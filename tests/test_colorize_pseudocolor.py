@@ -2,8 +2,13 @@
 import torch
 
 from arcsem.colorize.analytic import arc_cameras, ellipsoid_depth, point_color
-from arcsem.colorize.pseudocolor import (cached_pseudo_colors, masked_points, pixel_footprint, pseudo_colors,
-                                         pseudo_key)
+from arcsem.colorize.pseudocolor import (
+    cached_pseudo_colors,
+    masked_points,
+    pixel_footprint,
+    pseudo_colors,
+    pseudo_key,
+)
 
 
 def _scene(model="pinhole", n=6, w=64, h=48):

@@ -6,8 +6,8 @@ import torch
 from omegaconf import OmegaConf
 
 from arcsem.colorize.analytic import analytic_scene
-from arcsem.colorize.stage2 import find_stage1
 from arcsem.colorize.config import ColorizeConfig
+from arcsem.colorize.stage2 import find_stage1
 from arcsem.errors import DataError
 
 

@@ -5,8 +5,18 @@ Heavy modules import lazily: ``import arcsem.colorize`` does no work.
 from __future__ import annotations
 
 __all__ = [
-    "run_stage2", "ColorizeConfig", "load_references", "References", "specimen_masks", "otsu_mask",
-    "pseudo_colors", "cached_pseudo_colors", "Guidance", "VGGFeatures", "get_vgg", "ColorTargets",
+    "ColorTargets",
+    "ColorizeConfig",
+    "Guidance",
+    "References",
+    "VGGFeatures",
+    "cached_pseudo_colors",
+    "get_vgg",
+    "load_references",
+    "otsu_mask",
+    "pseudo_colors",
+    "run_stage2",
+    "specimen_masks",
 ]
 
 _WHERE = {

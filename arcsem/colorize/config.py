@@ -7,7 +7,7 @@ from typing import Any
 from ..train.optim import OptimConfig
 from ..train.stage1 import EvalConfig
 
-__all__ = ["ColorizeConfig", "DEFAULT_LOSSES"]
+__all__ = ["DEFAULT_LOSSES", "ColorizeConfig"]
 
 DEFAULT_LOSSES = {
     "reference_l1": {"weight": 20.0},  # reference views: 20 x L1 (paper)

@@ -23,7 +23,7 @@ from torch import Tensor
 
 from .pseudocolor import cache_key
 
-__all__ = ["downscale", "nearest_cosine", "patch_means", "tcm_match", "ccm_match", "ccm_targets", "Guidance"]
+__all__ = ["Guidance", "ccm_match", "ccm_targets", "downscale", "nearest_cosine", "patch_means", "tcm_match"]
 
 log = logging.getLogger(__name__)
 
@@ -32,7 +32,7 @@ def downscale(images: Tensor, factor: int) -> Tensor:
     """``[C, H, W, 3]`` -> ``[C, H//f, W//f, 3]`` (antialiased bilinear, differentiable); f=1: unchanged."""
     if factor == 1:
         return images
-    C, H, W, _ = images.shape
+    H, W = images.shape[1:3]
     x = F.interpolate(images.permute(0, 3, 1, 2), size=(H // factor, W // factor), mode="bilinear",
                       antialias=True, align_corners=False)
     return x.permute(0, 2, 3, 1)

@@ -14,7 +14,7 @@ from torch import Tensor
 
 from ..errors import ConfigError, DataError
 
-__all__ = ["otsu_mask", "grabcut_mask", "sam_mask", "load_mask_files", "specimen_masks"]
+__all__ = ["grabcut_mask", "load_mask_files", "otsu_mask", "sam_mask", "specimen_masks"]
 
 
 def _to_u8(gray: np.ndarray | Tensor) -> np.ndarray:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import torch
 
-__all__ = ["evaluate_colour", "write_outputs", "colour_split"]
+__all__ = ["colour_split", "evaluate_colour", "write_outputs"]
 
 
 def colour_split(split, idx: list[int]):

@@ -16,8 +16,8 @@ import hashlib
 import logging
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import torch
@@ -25,8 +25,17 @@ from torch import Tensor
 
 from ..cameras import Cameras
 
-__all__ = ["pixel_footprint", "masked_points", "reference_cloud", "pseudo_colors", "cache_key", "pseudo_key",
-           "cached_pseudo_colors", "save_pseudo", "load_pseudo"]
+__all__ = [
+    "cache_key",
+    "cached_pseudo_colors",
+    "load_pseudo",
+    "masked_points",
+    "pixel_footprint",
+    "pseudo_colors",
+    "pseudo_key",
+    "reference_cloud",
+    "save_pseudo",
+]
 
 log = logging.getLogger(__name__)
 
@@ -193,7 +202,7 @@ def cached_pseudo_colors(cache_dir: str | Path | None, key: str, compute: Callab
     if path.exists():
         try:
             return (*load_pseudo(path), True)
-        except Exception as exc:  # a corrupt cache file is recomputed, not fatal
+        except (OSError, ValueError, KeyError) as exc:  # a corrupt cache file is recomputed, not fatal
             log.warning("pseudo-colour cache %s unreadable (%s); recomputing", path, exc)
     colors, valid = compute()
     save_pseudo(path, colors, valid)

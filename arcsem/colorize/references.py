@@ -17,7 +17,7 @@ from torch import Tensor
 
 from ..errors import ConfigError, DataError
 
-__all__ = ["References", "load_references", "check_reference", "PRESETS"]
+__all__ = ["PRESETS", "References", "check_reference", "load_references"]
 
 PRESETS = ("five", "four", "three", "two", "one")
 
@@ -49,7 +49,7 @@ def _read_image(path: Path) -> Tensor:
 
     try:
         arr = np.asarray(iio.imread(path))
-    except Exception as exc:  # unreadable file: name it
+    except Exception as exc:  # noqa: BLE001 (any reader error: name the file)
         raise DataError(f"reference '{path}': cannot read image ({exc})") from None
     scale = 65535.0 if arr.dtype == np.uint16 else (255.0 if arr.dtype == np.uint8 else 1.0)
     arr = arr.astype(np.float32) / scale

@@ -29,7 +29,7 @@ from .masks import specimen_masks
 from .pseudocolor import cached_pseudo_colors, pseudo_colors, pseudo_key
 from .references import References, load_references
 
-__all__ = ["run_stage2", "ColorTargets", "colorize_config", "find_stage1", "render_depths"]
+__all__ = ["ColorTargets", "colorize_config", "find_stage1", "render_depths", "run_stage2"]
 
 log = logging.getLogger(__name__)
 
@@ -54,8 +54,8 @@ def find_stage1(cfg: Any, cc: ColorizeConfig, run_dir: Path) -> Path:
             from ..share import stage1_dir
 
             cands.append(stage1_dir(cfg, create=False) / "checkpoints" / "last.pt")
-        except Exception:  # no shared cache configured
-            pass
+        except Exception as exc:  # noqa: BLE001 (no shared cache configured: not an error)
+            log.debug("no shared stage-1 cache: %s", exc)
     for c in cands:
         if c.is_file():
             return c
@@ -149,8 +149,8 @@ def _pseudo_quality(split, masks, refs, colors, valid) -> dict:
 
 def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     """Colour the stage-1 model; returns ``{"stage2": {...}, "features": "imagenet"|"random"}``."""
-    from ..train import LoopConfig, build_losses, load_stage1, train
     from ..share import cache_root
+    from ..train import LoopConfig, build_losses, load_stage1, train
     from .outputs import evaluate_colour, write_outputs
     from .vgg import get_vgg
 

@@ -14,7 +14,7 @@ import warnings
 import torch
 from torch import Tensor, nn
 
-__all__ = ["VGGFeatures", "IMAGENET_MEAN", "IMAGENET_STD", "WEIGHT_FILES", "block_layers", "get_vgg"]
+__all__ = ["IMAGENET_MEAN", "IMAGENET_STD", "WEIGHT_FILES", "VGGFeatures", "block_layers", "get_vgg"]
 
 log = logging.getLogger(__name__)
 

@@ -14,10 +14,13 @@ splat) pairs with a cumulative sum over tiles-per-splat and sorted by one int64 
 ``camera_tile << 32 | depth_rank``. Pairs are processed in chunks of tiles. Inside a chunk each pair
 is expanded to the pixels of its tile that lie inside the splat's *effective rectangle*: a box the
 caller guarantees to contain every pixel where ``opacity * G >= 1/255`` (outside it the alpha would
-be skipped anyway, so this changes nothing but the amount of work). The pair-pixels are sorted by
-(pixel, pair order) so every pixel's splats form one contiguous segment, and the transmittance is a
-segmented exclusive cumulative sum of ``log(1 - alpha)`` (in float64; ``alpha <= 0.99`` keeps the
-logarithm finite). Everything is plain PyTorch, so autograd gives the gradients.
+be skipped anyway, so this changes nothing but the amount of work). Their alpha is evaluated without
+gradient and the skipped ones dropped; the rest are stably sorted by pixel, so every pixel's splats
+form one contiguous, depth-ordered segment. The transmittance is a segmented exclusive cumulative sum
+of ``log(1 - alpha)`` (in float64; ``alpha <= 0.99`` keeps the logarithm finite); entries after the
+early stop are dropped too, and only the composited entries go through the differentiable shader
+(exact: the dropped ones have no value and no gradient). Everything is plain PyTorch, so autograd
+gives the gradients; the fused C++ kernels (``fused.py``) are checked against this path.
 """
 from __future__ import annotations
 

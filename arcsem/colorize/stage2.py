@@ -50,6 +50,7 @@ def find_stage1(cfg: Any, cc: ColorizeConfig, run_dir: Path) -> Path:
         cands = [p] if p.is_file() else [p / "checkpoints" / "last.pt"]
     else:
         cands.append(run_dir / "checkpoints" / "last.pt")
+        cands.append(run_dir / "stage1" / "checkpoints" / "last.pt")  # share_stage1: link to the shared model
         try:
             from ..share import stage1_dir
 

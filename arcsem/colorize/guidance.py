@@ -104,7 +104,7 @@ class Guidance:
 
     def __init__(self, vgg, gray: Tensor, ref_indices, ref_colors: Tensor, tcm_downscale: int = 4,
                  ccm_downscale: int = 16, ccm_max_dist: float = 0.6, ccm_white: float = 0.99,
-                 cache_dir: str | Path | None = None, chunk: int = 4096):
+                 cache_dir: str | Path | None = None, chunk: int = 1024):
         self.vgg, self.gray, self.ref_indices = vgg, gray, list(ref_indices)
         self.tcm_downscale, self.ccm_downscale = tcm_downscale, ccm_downscale
         self.ccm_max_dist, self.ccm_white, self.chunk = ccm_max_dist, ccm_white, chunk

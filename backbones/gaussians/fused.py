@@ -19,7 +19,12 @@ import torch
 from torch import Tensor
 
 __all__ = [
-    "load_extension", "resolve_impl", "composite2d", "composite3d", "composite_2dgs_packed", "composite_3dgs_packed",
+    "composite2d",
+    "composite3d",
+    "composite_2dgs_packed",
+    "composite_3dgs_packed",
+    "load_extension",
+    "resolve_impl",
 ]
 
 SOURCES = [Path(__file__).parent / "cpp" / name for name in ("composite3d.cpp", "composite2d.cpp", "module.cpp")]
@@ -40,7 +45,7 @@ def load_extension(verbose: bool = False):
             extra_ldflags=["-fopenmp"],
             verbose=verbose,
         )
-    except Exception as exc:  # no compiler, no headers, ...: fall back, say it once
+    except Exception as exc:  # noqa: BLE001 - no compiler, no headers, ...: fall back, say it once
         warnings.warn(f"arcsem: fused C++ rasteriser unavailable ({type(exc).__name__}: {str(exc)[:200]}); "
                       "using the PyTorch path (rasterizer=torch)", RuntimeWarning, stacklevel=2)
         return None
@@ -66,11 +71,11 @@ class _Composite3D(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means2d, conics, opacities, feats, offsets, ids, box, C, H, W, tile):
         ext = load_extension()
-        out, t_final, last = ext.forward3d(means2d, conics, opacities, feats, offsets, ids, box, C, H, W, tile)
+        out, t_final, alpha, last = ext.forward3d(means2d, conics, opacities, feats, offsets, ids, box, C, H, W, tile)
         ctx.save_for_backward(means2d, conics, opacities, feats, offsets, ids, box, t_final, last)
         ctx.dims = (C, H, W, tile)
         ctx.mark_non_differentiable(last)
-        return out, 1.0 - t_final, last
+        return out, alpha, last
 
     @staticmethod
     def backward(ctx, g_out, g_alpha, _g_last):
@@ -113,17 +118,18 @@ class _Composite2D(torch.autograd.Function):
     @staticmethod
     def forward(ctx, Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, box, near, C, H, W, tile):
         ext = load_extension()
-        out, tf, dsum, med, dist, m1, m2, last, medi = ext.forward2d(
+        out, tf, alpha, dsum, med, dist, m1, m2, mref, last, medi = ext.forward2d(
             Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, box, near, C, H, W, tile)
-        ctx.save_for_backward(Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, box, tf, m1, m2, last, medi)
+        ctx.save_for_backward(Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, box, tf, m1, m2, mref, last,
+                              medi)
         ctx.dims = (near, C, H, W, tile)
-        return out, 1.0 - tf, dsum, med, dist
+        return out, alpha, dsum, med, dist
 
     @staticmethod
     def backward(ctx, g_out, g_alpha, g_dsum, g_med, g_dist):
-        Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, box, tf, m1, m2, last, medi = ctx.saved_tensors
+        Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, box, tf, m1, m2, mref, last, medi = ctx.saved_tensors
         grads = load_extension().backward2d(
-            Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, box, *ctx.dims, tf, m1, m2, last, medi,
+            Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, box, *ctx.dims, tf, m1, m2, mref, last, medi,
             *(g.contiguous() for g in (g_out, g_alpha, g_dsum, g_med, g_dist)))
         return (*grads, None, None, None, None, None, None, None, None, None)
 
@@ -142,7 +148,7 @@ def composite2d(Hm: Tensor, Dz: Tensor, centers: Tensor, opacities: Tensor, feat
         features ``[C,H,W,K]``, alpha ``[C,H,W]``, depth sum ``sum w z`` ``[C,H,W]``, median depth ``[C,H,W]``,
         distortion ``[C,H,W]``.
     """
-    c = lambda t: t.contiguous()  # noqa: E731
+    c = lambda t: t.contiguous()
     box = _full_box(feats.shape[0], W, H, feats) if box is None else box
     return _Composite2D.apply(c(Hm), c(Dz), c(centers), c(opacities), c(feats), c(mcoef), c(offsets), c(ids),
                               c(box), float(near), C, H, W, tile)

@@ -11,6 +11,8 @@
 // Rules (official 2DGS): rho = min(rho3d, rho2d); depth = hit depth if rho3d <= rho2d else centre depth;
 // skip depth < near, alpha < 1/255; alpha <= 0.99; stop before T would fall below 1e-4;
 // median depth = depth of the last splat composited while T > 0.5.
+// The distortion sum_ij w_i w_j (m_i - m_j)^2 is shift-invariant; m is shifted per pixel by the first
+// composited splat's m to avoid the cancellation of m^2 A + M2 - 2 m M1 in float32 (as the PyTorch path).
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
 #include <cmath>
@@ -22,36 +24,36 @@ constexpr double kMinAlpha = 1.0 / 255.0;
 constexpr double kMaxAlpha = 0.99;
 constexpr double kMinT = 1e-4;
 
-template <typename T>
+// Per-pixel geometry is evaluated in double whatever the storage type (float32 accuracy of depth).
 struct Hit {
-  T k[3], l[3], p[3], u, v, dx, dy, rho3d, rho2d, z, g, alpha;
+  double k[3], l[3], p[3], u, v, dx, dy, rho3d, rho2d, z, g, alpha;
   bool use3d;
 };
 
 template <typename T>
-inline bool eval_surfel(const T* H, const T* Dz, const T* c, T op, T px, T py, T near, Hit<T>& h) {
+inline bool eval_surfel(const T* H, const T* Dz, const T* c, T op, double px, double py, double near, Hit& h) {
   for (int j = 0; j < 3; ++j) {
-    h.k[j] = px * H[6 + j] - H[j];
-    h.l[j] = py * H[6 + j] - H[3 + j];
+    h.k[j] = px * double(H[6 + j]) - double(H[j]);
+    h.l[j] = py * double(H[6 + j]) - double(H[3 + j]);
   }
   h.p[0] = h.k[1] * h.l[2] - h.k[2] * h.l[1];
   h.p[1] = h.k[2] * h.l[0] - h.k[0] * h.l[2];
   h.p[2] = h.k[0] * h.l[1] - h.k[1] * h.l[0];
-  if (h.p[2] == T(0)) return false;
+  if (h.p[2] == 0.0) return false;
   h.u = h.p[0] / h.p[2];
   h.v = h.p[1] / h.p[2];
   h.rho3d = h.u * h.u + h.v * h.v;
-  h.dx = c[0] - px;
-  h.dy = c[1] - py;
-  h.rho2d = T(2) * (h.dx * h.dx + h.dy * h.dy);
+  h.dx = double(c[0]) - px;
+  h.dy = double(c[1]) - py;
+  h.rho2d = 2.0 * (h.dx * h.dx + h.dy * h.dy);
   h.use3d = h.rho3d <= h.rho2d;
-  h.z = h.use3d ? h.u * Dz[0] + h.v * Dz[1] + Dz[2] : Dz[2];
+  h.z = h.use3d ? h.u * double(Dz[0]) + h.v * double(Dz[1]) + double(Dz[2]) : double(Dz[2]);
   if (h.z < near) return false;
-  const T power = T(-0.5) * (h.use3d ? h.rho3d : h.rho2d);
-  if (power > T(0)) return false;
+  const double power = -0.5 * (h.use3d ? h.rho3d : h.rho2d);
+  if (power > 0.0) return false;
   h.g = std::exp(power);
-  h.alpha = std::min(T(kMaxAlpha), op * h.g);
-  return h.alpha >= T(kMinAlpha);
+  h.alpha = std::min(kMaxAlpha, double(op) * h.g);
+  return h.alpha >= kMinAlpha;
 }
 
 struct Grid {
@@ -68,11 +70,11 @@ struct Ptrs {  // inputs
 };
 
 template <typename T>
-void forward_impl(const Grid& gr, const Ptrs<T>& in, T* out, T* tf, T* dsum, T* med, T* dist, T* m1o, T* m2o,
-                  int32_t* last, int32_t* medi) {
+void forward_impl(const Grid& gr, const Ptrs<T>& in, T* out, T* tf, T* aout, T* dsum, T* med, T* dist, T* m1o,
+                  T* m2o, T* mref, int32_t* last, int32_t* medi) {
   at::parallel_for(0, gr.C * gr.tiles(), 1, [&](int64_t b, int64_t e) {
-    std::vector<T> acc(in.K);
-    Hit<T> h;
+    std::vector<double> acc(in.K);  // per-pixel sums and transmittance in double, whatever T is
+    Hit h;
     for (int64_t ct = b; ct < e; ++ct) {
       const int64_t c = ct / gr.tiles(), t = ct % gr.tiles();
       const int64_t x0 = (t % gr.tx) * gr.tile, y0 = (t / gr.tx) * gr.tile;
@@ -80,31 +82,36 @@ void forward_impl(const Grid& gr, const Ptrs<T>& in, T* out, T* tf, T* dsum, T* 
       const T* mc = in.mc + 3 * c;
       for (int64_t y = y0; y < std::min(y0 + gr.tile, gr.H); ++y) {
         for (int64_t x = x0; x < std::min(x0 + gr.tile, gr.W); ++x) {
-          const T px = T(x) + T(0.5), py = T(y) + T(0.5);
-          std::fill(acc.begin(), acc.end(), T(0));
-          T Tr = 1, D = 0, M1 = 0, M2 = 0, dis = 0, md = 0;
+          const double px = x + 0.5, py = y + 0.5;
+          std::fill(acc.begin(), acc.end(), 0.0);
+          double Tr = 1, D = 0, M1 = 0, M2 = 0, dis = 0, m0 = 0;
+          T md = 0;
+          bool first = true;
           int32_t lastc = int32_t(start) - 1, mi = -1;
           for (int64_t i = start; i < end; ++i) {
             const int64_t s = in.ids[i];
             const int64_t* bx = in.box + 4 * s;  // outside the box alpha < 1/255 (PyTorch side guarantees)
             if (x < bx[0] || x > bx[1] || y < bx[2] || y > bx[3]) continue;
-            if (!eval_surfel(in.H + 9 * s, in.Dz + 3 * s, in.c + 2 * s, in.op[s], px, py, in.near, h)) continue;
-            const T next = Tr * (T(1) - h.alpha);
-            if (next < T(kMinT)) break;
-            const T w = h.alpha * Tr;
-            const T m = mc[0] + mc[1] * h.z + mc[2] / h.z;
-            dis += (m * m * (T(1) - Tr) + M2 - T(2) * m * M1) * w;
+            if (!eval_surfel(in.H + 9 * s, in.Dz + 3 * s, in.c + 2 * s, in.op[s], px, py, double(in.near), h)) continue;
+            const double next = Tr * (1.0 - h.alpha);
+            if (next < kMinT) break;
+            const double w = h.alpha * Tr;
+            const double m_abs = double(mc[0]) + double(mc[1]) * h.z + double(mc[2]) / h.z;
+            if (first) { m0 = m_abs; first = false; }
+            const double m = m_abs - m0;
+            dis += (m * m * (1.0 - Tr) + M2 - 2.0 * m * M1) * w;
             D += h.z * w;
             M1 += m * w;
             M2 += m * m * w;
-            if (Tr > T(0.5)) { md = h.z; mi = int32_t(i); }
+            if (Tr > 0.5) { md = T(h.z); mi = int32_t(i); }
             for (int64_t k = 0; k < in.K; ++k) acc[k] += w * in.f[s * in.K + k];
             Tr = next;
             lastc = int32_t(i);
           }
           const int64_t pix = (c * gr.H + y) * gr.W + x;
-          for (int64_t k = 0; k < in.K; ++k) out[pix * in.K + k] = acc[k];
-          tf[pix] = Tr; dsum[pix] = D; med[pix] = md; dist[pix] = dis; m1o[pix] = M1; m2o[pix] = M2;
+          for (int64_t k = 0; k < in.K; ++k) out[pix * in.K + k] = T(acc[k]);
+          tf[pix] = T(Tr); aout[pix] = T(1.0 - Tr); dsum[pix] = T(D); med[pix] = md; dist[pix] = T(dis); m1o[pix] = T(M1); m2o[pix] = T(M2);
+          mref[pix] = T(m0);
           last[pix] = lastc; medi[pix] = mi;
         }
       }
@@ -114,14 +121,14 @@ void forward_impl(const Grid& gr, const Ptrs<T>& in, T* out, T* tf, T* dsum, T* 
 
 // gradient of a scalar function of (u, v) back to the homography rows (adds into gH[9])
 template <typename T>
-inline void backprop_uv(const Hit<T>& h, T gu, T gv, T px, T py, T* gH) {
-  const T gp[3] = {gu / h.p[2], gv / h.p[2], -(gu * h.u + gv * h.v) / h.p[2]};
-  const T gk[3] = {h.l[1] * gp[2] - h.l[2] * gp[1], h.l[2] * gp[0] - h.l[0] * gp[2], h.l[0] * gp[1] - h.l[1] * gp[0]};
-  const T gl[3] = {gp[1] * h.k[2] - gp[2] * h.k[1], gp[2] * h.k[0] - gp[0] * h.k[2], gp[0] * h.k[1] - gp[1] * h.k[0]};
+inline void backprop_uv(const Hit& h, double gu, double gv, double px, double py, T* gH) {
+  const double gp[3] = {gu / h.p[2], gv / h.p[2], -(gu * h.u + gv * h.v) / h.p[2]};
+  const double gk[3] = {h.l[1] * gp[2] - h.l[2] * gp[1], h.l[2] * gp[0] - h.l[0] * gp[2], h.l[0] * gp[1] - h.l[1] * gp[0]};
+  const double gl[3] = {gp[1] * h.k[2] - gp[2] * h.k[1], gp[2] * h.k[0] - gp[0] * h.k[2], gp[0] * h.k[1] - gp[1] * h.k[0]};
   for (int j = 0; j < 3; ++j) {
-    gH[j] -= gk[j];
-    gH[3 + j] -= gl[j];
-    gH[6 + j] += px * gk[j] + py * gl[j];
+    gH[j] -= T(gk[j]);
+    gH[3 + j] -= T(gl[j]);
+    gH[6 + j] += T(px * gk[j] + py * gl[j]);
   }
 }
 
@@ -130,7 +137,8 @@ struct Grads {  // offsets in the per-entry gradient row
 };
 
 template <typename T>
-void backward_impl(const Grid& gr, const Ptrs<T>& in, const T* tf, const T* m1o, const T* m2o, const int32_t* last,
+void backward_impl(const Grid& gr, const Ptrs<T>& in, const T* tf, const T* m1o, const T* m2o, const T* mref,
+                   const int32_t* last,
                    const int32_t* medi, const T* g_out, const T* g_alpha, const T* g_dsum, const T* g_med,
                    const T* g_dist, int64_t M, T* gH, T* gDz, T* gc, T* gop, T* gf) {
   const int64_t D = Grads::f + in.K;
@@ -138,7 +146,7 @@ void backward_impl(const Grid& gr, const Ptrs<T>& in, const T* tf, const T* m1o,
   at::parallel_for(0, gr.C * gr.tiles(), 1, [&](int64_t b, int64_t e) {
     auto& buf = bufs[at::get_thread_num()];
     if (buf.empty()) buf.assign(M * D, T(0));
-    Hit<T> h;
+    Hit h;
     for (int64_t ct = b; ct < e; ++ct) {
       const int64_t c = ct / gr.tiles(), t = ct % gr.tiles();
       const int64_t x0 = (t % gr.tx) * gr.tile, y0 = (t / gr.tx) * gr.tile;
@@ -147,44 +155,45 @@ void backward_impl(const Grid& gr, const Ptrs<T>& in, const T* tf, const T* m1o,
       for (int64_t y = y0; y < std::min(y0 + gr.tile, gr.H); ++y) {
         for (int64_t x = x0; x < std::min(x0 + gr.tile, gr.W); ++x) {
           const int64_t pix = (c * gr.H + y) * gr.W + x;
-          const T px = T(x) + T(0.5), py = T(y) + T(0.5);
-          const T Tf = tf[pix], Wt = T(1) - tf[pix], M1t = m1o[pix], M2t = m2o[pix];
+          const double px = x + 0.5, py = y + 0.5;
+          const double Tf = tf[pix], Wt = 1.0 - Tf, M1t = m1o[pix], M2t = m2o[pix];
           const T* go = g_out + pix * in.K;
-          const T ga = g_alpha[pix], gd = g_dsum[pix], gm = g_med[pix], gdis = g_dist[pix];
-          T Tr = Tf, S = 0;
+          const double ga = g_alpha[pix], gd = g_dsum[pix], gm = g_med[pix], gdis = g_dist[pix];
+          double Tr = Tf, S = 0;
           for (int64_t i = last[pix]; i >= start; --i) {
             const int64_t s = in.ids[i];
             const int64_t* bx = in.box + 4 * s;  // outside the box alpha < 1/255 (PyTorch side guarantees)
             if (x < bx[0] || x > bx[1] || y < bx[2] || y > bx[3]) continue;
-            if (!eval_surfel(in.H + 9 * s, in.Dz + 3 * s, in.c + 2 * s, in.op[s], px, py, in.near, h)) continue;
-            const T inv = T(1) / (T(1) - h.alpha), Ti = Tr * inv, w = h.alpha * Ti;
-            const T m = mc[0] + mc[1] * h.z + mc[2] / h.z, dm_dz = mc[1] - mc[2] / (h.z * h.z);
+            if (!eval_surfel(in.H + 9 * s, in.Dz + 3 * s, in.c + 2 * s, in.op[s], px, py, double(in.near), h)) continue;
+            const double inv = 1.0 / (1.0 - h.alpha), Ti = Tr * inv, w = h.alpha * Ti;
+            const double m = double(mc[0]) + double(mc[1]) * h.z + double(mc[2]) / h.z - double(mref[pix]);
+            const double dm_dz = double(mc[1]) - double(mc[2]) / (double(h.z) * h.z);
             T* gb = buf.data() + s * D;
             // dL/dw_i: every output is a sum over w_i of a per-splat value
-            T gw = ga + gd * h.z + gdis * (m * m * Wt - T(2) * m * M1t + M2t);
+            double gw = ga + gd * h.z + gdis * (m * m * Wt - 2.0 * m * M1t + M2t);
             for (int64_t k = 0; k < in.K; ++k) {
-              gw += go[k] * in.f[s * in.K + k];
-              gb[Grads::f + k] += w * go[k];
+              gw += double(go[k]) * in.f[s * in.K + k];
+              gb[Grads::f + k] += T(w * go[k]);
             }
-            T gz = w * gd + gdis * T(2) * w * (m * Wt - M1t) * dm_dz + (medi[pix] == i ? gm : T(0));
-            const T dalpha = gw * Ti - S * inv;
+            const double gz = w * gd + gdis * 2.0 * w * (m * Wt - M1t) * dm_dz + (medi[pix] == i ? gm : 0.0);
+            const double dalpha = gw * Ti - S * inv;
             S += gw * w;
             Tr = Ti;
-            T dpow = 0;
-            if (in.op[s] * h.g <= T(kMaxAlpha)) {
-              gb[Grads::op] += dalpha * h.g;
-              dpow = dalpha * in.op[s] * h.g;
+            double dpow = 0;
+            if (double(in.op[s]) * h.g <= kMaxAlpha) {
+              gb[Grads::op] += T(dalpha * h.g);
+              dpow = dalpha * double(in.op[s]) * h.g;
             }
             const T* Dz = in.Dz + 3 * s;
             if (h.use3d) {  // power = -0.5 (u^2 + v^2); z = u Dz.x + v Dz.y + Dz.z
-              gb[Grads::Dz] += gz * h.u;
-              gb[Grads::Dz + 1] += gz * h.v;
-              gb[Grads::Dz + 2] += gz;
+              gb[Grads::Dz] += T(gz * h.u);
+              gb[Grads::Dz + 1] += T(gz * h.v);
+              gb[Grads::Dz + 2] += T(gz);
               backprop_uv(h, -dpow * h.u + gz * Dz[0], -dpow * h.v + gz * Dz[1], px, py, gb + Grads::H);
             } else {  // power = -(dx^2 + dy^2) with d = centre - pixel; z = Dz.z
-              gb[Grads::Dz + 2] += gz;
-              gb[Grads::c] += dpow * T(-2) * h.dx;
-              gb[Grads::c + 1] += dpow * T(-2) * h.dy;
+              gb[Grads::Dz + 2] += T(gz);
+              gb[Grads::c] += T(dpow * -2.0 * h.dx);
+              gb[Grads::c + 1] += T(dpow * -2.0 * h.dy);
             }
           }
         }
@@ -225,22 +234,24 @@ std::vector<torch::Tensor> forward2d(torch::Tensor H, torch::Tensor Dz, torch::T
   TORCH_CHECK(off.numel() == C * gr.tiles() + 1, "composite2d: tile offsets must have C*tiles+1 entries");
   auto o = f.options();
   auto out = torch::empty({C, Hh, W, f.size(1)}, o);
-  auto tf = torch::empty({C, Hh, W}, o), dsum = torch::empty_like(tf), med = torch::empty_like(tf),
-       dist = torch::empty_like(tf), m1 = torch::empty_like(tf), m2 = torch::empty_like(tf);
+  auto tf = torch::empty({C, Hh, W}, o), alpha = torch::empty_like(tf), dsum = torch::empty_like(tf), med = torch::empty_like(tf),
+       dist = torch::empty_like(tf), m1 = torch::empty_like(tf), m2 = torch::empty_like(tf),
+       mref = torch::empty_like(tf);
   auto last = torch::empty({C, Hh, W}, o.dtype(torch::kInt32)), medi = torch::empty_like(last);
   AT_DISPATCH_FLOATING_TYPES(f.scalar_type(), "forward2d", [&] {
     forward_impl<scalar_t>(gr, ptrs<scalar_t>(H, Dz, c, op, f, mc, off, ids, box, near), out.data_ptr<scalar_t>(),
-                           tf.data_ptr<scalar_t>(), dsum.data_ptr<scalar_t>(), med.data_ptr<scalar_t>(),
+                           tf.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(), dsum.data_ptr<scalar_t>(), med.data_ptr<scalar_t>(),
                            dist.data_ptr<scalar_t>(), m1.data_ptr<scalar_t>(), m2.data_ptr<scalar_t>(),
-                           last.data_ptr<int32_t>(), medi.data_ptr<int32_t>());
+                           mref.data_ptr<scalar_t>(), last.data_ptr<int32_t>(), medi.data_ptr<int32_t>());
   });
-  return {out, tf, dsum, med, dist, m1, m2, last, medi};
+  return {out, tf, alpha, dsum, med, dist, m1, m2, mref, last, medi};
 }
 
 std::vector<torch::Tensor> backward2d(torch::Tensor H, torch::Tensor Dz, torch::Tensor c, torch::Tensor op,
                                       torch::Tensor f, torch::Tensor mc, torch::Tensor off, torch::Tensor ids,
                                       torch::Tensor box, double near, int64_t C, int64_t Hh, int64_t W, int64_t tile,
-                                      torch::Tensor tf, torch::Tensor m1, torch::Tensor m2, torch::Tensor last,
+                                      torch::Tensor tf, torch::Tensor m1, torch::Tensor m2, torch::Tensor mref,
+                                      torch::Tensor last,
                                       torch::Tensor medi, torch::Tensor g_out, torch::Tensor g_alpha,
                                       torch::Tensor g_dsum, torch::Tensor g_med, torch::Tensor g_dist) {
   const Grid gr{C, Hh, W, tile, (W + tile - 1) / tile, (Hh + tile - 1) / tile};
@@ -248,7 +259,8 @@ std::vector<torch::Tensor> backward2d(torch::Tensor H, torch::Tensor Dz, torch::
        gop = torch::zeros_like(op), gf = torch::zeros_like(f);
   AT_DISPATCH_FLOATING_TYPES(f.scalar_type(), "backward2d", [&] {
     backward_impl<scalar_t>(gr, ptrs<scalar_t>(H, Dz, c, op, f, mc, off, ids, box, near), tf.data_ptr<scalar_t>(),
-                            m1.data_ptr<scalar_t>(), m2.data_ptr<scalar_t>(), last.data_ptr<int32_t>(),
+                            m1.data_ptr<scalar_t>(), m2.data_ptr<scalar_t>(), mref.data_ptr<scalar_t>(),
+                            last.data_ptr<int32_t>(),
                             medi.data_ptr<int32_t>(), g_out.data_ptr<scalar_t>(), g_alpha.data_ptr<scalar_t>(),
                             g_dsum.data_ptr<scalar_t>(), g_med.data_ptr<scalar_t>(), g_dist.data_ptr<scalar_t>(),
                             f.size(0), gH.data_ptr<scalar_t>(), gDz.data_ptr<scalar_t>(), gc.data_ptr<scalar_t>(),

@@ -26,47 +26,51 @@ struct Grid {
 // box: inclusive pixel box (x0, x1, y0, y1) outside which alpha < 1/255 (computed by the PyTorch side)
 inline bool outside(const int64_t* b, int64_t x, int64_t y) { return x < b[0] || x > b[1] || y < b[2] || y > b[3]; }
 
+// evaluated in double whatever the storage type
 template <typename T>
-inline bool eval_splat(const T* m2, const T* con, T op, T px, T py, T& dx, T& dy, T& g, T& alpha) {
-  dx = px - m2[0];
-  dy = py - m2[1];
-  T power = T(-0.5) * (con[0] * dx * dx + con[2] * dy * dy) - con[1] * dx * dy;
-  if (power > T(0)) return false;
+inline bool eval_splat(const T* m2, const T* con, T op, double px, double py, double& dx, double& dy, double& g,
+                       double& alpha) {
+  dx = px - double(m2[0]);
+  dy = py - double(m2[1]);
+  const double power = -0.5 * (double(con[0]) * dx * dx + double(con[2]) * dy * dy) - double(con[1]) * dx * dy;
+  if (power > 0.0) return false;
   g = std::exp(power);
-  alpha = std::min(T(kMaxAlpha), op * g);
-  return alpha >= T(kMinAlpha);
+  alpha = std::min(kMaxAlpha, double(op) * g);
+  return alpha >= kMinAlpha;
 }
 
 template <typename T>
 void forward_impl(const Grid& gr, const T* means2d, const T* conics, const T* opac, const T* feats, int64_t K,
-                  const int64_t* offsets, const int64_t* ids, const int64_t* box, T* out, T* t_final, int32_t* last) {
+                  const int64_t* offsets, const int64_t* ids, const int64_t* box, T* out, T* t_final, T* alpha_out,
+                  int32_t* last) {
   at::parallel_for(0, gr.C * gr.tiles(), 1, [&](int64_t b, int64_t e) {
-    std::vector<T> acc(K);
+    std::vector<double> acc(K);  // per-pixel sums and transmittance in double, whatever T is
     for (int64_t ct = b; ct < e; ++ct) {
       const int64_t c = ct / gr.tiles(), t = ct % gr.tiles();
       const int64_t x0 = (t % gr.tx) * gr.tile, y0 = (t / gr.tx) * gr.tile;
       const int64_t start = offsets[ct], end = offsets[ct + 1];
       for (int64_t y = y0; y < std::min(y0 + gr.tile, gr.H); ++y) {
         for (int64_t x = x0; x < std::min(x0 + gr.tile, gr.W); ++x) {
-          const T px = T(x) + T(0.5), py = T(y) + T(0.5);
-          std::fill(acc.begin(), acc.end(), T(0));
-          T Tr = T(1);
+          const double px = x + 0.5, py = y + 0.5;
+          std::fill(acc.begin(), acc.end(), 0.0);
+          double Tr = 1.0;
           int32_t lastc = int32_t(start) - 1;
           for (int64_t i = start; i < end; ++i) {
             const int64_t s = ids[i];
             if (outside(box + 4 * s, x, y)) continue;
-            T dx, dy, g, alpha;
+            double dx, dy, g, alpha;
             if (!eval_splat(means2d + 2 * s, conics + 3 * s, opac[s], px, py, dx, dy, g, alpha)) continue;
-            const T next = Tr * (T(1) - alpha);
-            if (next < T(kMinT)) break;
-            const T w = alpha * Tr;
+            const double next = Tr * (1.0 - alpha);
+            if (next < kMinT) break;
+            const double w = alpha * Tr;
             for (int64_t k = 0; k < K; ++k) acc[k] += w * feats[s * K + k];
             Tr = next;
             lastc = int32_t(i);
           }
           const int64_t pix = (c * gr.H + y) * gr.W + x;
-          for (int64_t k = 0; k < K; ++k) out[pix * K + k] = acc[k];
-          t_final[pix] = Tr;
+          for (int64_t k = 0; k < K; ++k) out[pix * K + k] = T(acc[k]);
+          t_final[pix] = T(Tr);
+          alpha_out[pix] = T(1.0 - Tr);  // from the double transmittance: no cancellation for faint pixels
           last[pix] = lastc;
         }
       }
@@ -86,7 +90,7 @@ void backward_impl(const Grid& gr, const T* means2d, const T* conics, const T* o
   at::parallel_for(0, gr.C * gr.tiles(), 1, [&](int64_t b, int64_t e) {
     auto& buf = bufs[at::get_thread_num()];
     if (buf.empty()) buf.assign(M * D, T(0));
-    std::vector<T> S(K);
+    std::vector<double> S(K);
     for (int64_t ct = b; ct < e; ++ct) {
       const int64_t c = ct / gr.tiles(), t = ct % gr.tiles();
       const int64_t x0 = (t % gr.tx) * gr.tile, y0 = (t / gr.tx) * gr.tile;
@@ -94,39 +98,39 @@ void backward_impl(const Grid& gr, const T* means2d, const T* conics, const T* o
       for (int64_t y = y0; y < std::min(y0 + gr.tile, gr.H); ++y) {
         for (int64_t x = x0; x < std::min(x0 + gr.tile, gr.W); ++x) {
           const int64_t pix = (c * gr.H + y) * gr.W + x;
-          const T px = T(x) + T(0.5), py = T(y) + T(0.5);
-          const T Tf = t_final[pix];
+          const double px = x + 0.5, py = y + 0.5;
+          const double Tf = t_final[pix];
           const T* go = g_out + pix * K;
           // alpha_out = 1 - T_final: dL/dalpha_i gets +g_alpha * T_final / (1 - alpha_i)
-          const T ga = g_alpha[pix];
-          std::fill(S.begin(), S.end(), T(0));
-          T Tr = Tf;
+          const double ga = g_alpha[pix];
+          std::fill(S.begin(), S.end(), 0.0);
+          double Tr = Tf;
           for (int64_t i = last[pix]; i >= start; --i) {
             const int64_t s = ids[i];
             if (outside(box + 4 * s, x, y)) continue;
-            T dx, dy, g, alpha;
+            double dx, dy, g, alpha;
             if (!eval_splat(means2d + 2 * s, conics + 3 * s, opac[s], px, py, dx, dy, g, alpha)) continue;
-            const T inv = T(1) / (T(1) - alpha);
-            const T Ti = Tr * inv;  // transmittance before splat i
-            const T w = alpha * Ti;
+            const double inv = 1.0 / (1.0 - alpha);
+            const double Ti = Tr * inv;  // transmittance before splat i
+            const double w = alpha * Ti;
             T* gb = buf.data() + s * D;
-            T dalpha = ga * Tf * inv;
+            double dalpha = ga * Tf * inv;
             for (int64_t k = 0; k < K; ++k) {
-              const T f = feats[s * K + k];
-              gb[6 + k] += w * go[k];
+              const double f = feats[s * K + k];
+              gb[6 + k] += T(w * go[k]);
               dalpha += go[k] * (Ti * f - S[k] * inv);
               S[k] += w * f;
             }
             Tr = Ti;
-            if (opac[s] * g > T(kMaxAlpha)) continue;  // clamped: no gradient through alpha
-            gb[5] += dalpha * g;                       // d alpha / d opacity
-            const T dpow = dalpha * opac[s] * g;       // d alpha / d power
+            if (double(opac[s]) * g > kMaxAlpha) continue;  // clamped: no gradient through alpha
+            gb[5] += T(dalpha * g);                         // d alpha / d opacity
+            const double dpow = dalpha * double(opac[s]) * g;  // d alpha / d power
             const T* con = conics + 3 * s;
-            gb[0] += dpow * (con[0] * dx + con[1] * dy);  // d power / d mean_x = -(d power / d dx)
-            gb[1] += dpow * (con[1] * dx + con[2] * dy);
-            gb[2] += dpow * T(-0.5) * dx * dx;
-            gb[3] += dpow * (-dx * dy);
-            gb[4] += dpow * T(-0.5) * dy * dy;
+            gb[0] += T(dpow * (double(con[0]) * dx + double(con[1]) * dy));  // d power / d mean = -(d / d dx)
+            gb[1] += T(dpow * (double(con[1]) * dx + double(con[2]) * dy));
+            gb[2] += T(dpow * -0.5 * dx * dx);
+            gb[3] += T(dpow * (-dx * dy));
+            gb[4] += T(dpow * -0.5 * dy * dy);
           }
         }
       }
@@ -165,15 +169,15 @@ std::vector<torch::Tensor> forward3d(torch::Tensor means2d, torch::Tensor conics
   TORCH_CHECK(offsets.numel() == C * gr.tiles() + 1, "tile offsets must have C*tiles+1 entries");
   const int64_t K = feats.size(1);
   auto out = torch::empty({C, H, W, K}, feats.options());
-  auto tf = torch::empty({C, H, W}, feats.options());
+  auto tf = torch::empty({C, H, W}, feats.options()), alpha = torch::empty_like(tf);
   auto last = torch::empty({C, H, W}, feats.options().dtype(torch::kInt32));
   AT_DISPATCH_FLOATING_TYPES(feats.scalar_type(), "forward3d", [&] {
     forward_impl<scalar_t>(gr, means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
                            opac.data_ptr<scalar_t>(), feats.data_ptr<scalar_t>(), K,
                            offsets.data_ptr<int64_t>(), ids.data_ptr<int64_t>(), box.data_ptr<int64_t>(), out.data_ptr<scalar_t>(),
-                           tf.data_ptr<scalar_t>(), last.data_ptr<int32_t>());
+                           tf.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(), last.data_ptr<int32_t>());
   });
-  return {out, tf, last};
+  return {out, tf, alpha, last};
 }
 
 std::vector<torch::Tensor> backward3d(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opac,

@@ -15,7 +15,7 @@ std::vector<torch::Tensor> backward2d(torch::Tensor, torch::Tensor, torch::Tenso
                                       torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor, double, int64_t,
                                       int64_t, int64_t, int64_t, torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor,
                                       torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor,
-                                      torch::Tensor);
+                                      torch::Tensor, torch::Tensor);
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("forward3d", &forward3d, "3DGS tile compositing, forward");

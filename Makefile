@@ -5,7 +5,7 @@ VENV    := .venv
 BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.arcsem-installed
 EXT     := $(VENV)/.arcsem-ext
-CPP     := $(wildcard backbones/gaussians/cpp/*.cpp)
+CPP     := $(wildcard backbones/gaussians/cpp/*.cpp backbones/gaussians/cpp/*.h)
 JOBS    ?= 2
 export PIP_DISABLE_PIP_VERSION_CHECK=1
 

@@ -18,11 +18,14 @@
 #include <cmath>
 #include <vector>
 
+#include "common.h"
+
 namespace {
 
-constexpr double kMinAlpha = 1.0 / 255.0;
-constexpr double kMaxAlpha = 0.99;
-constexpr double kMinT = 1e-4;
+using arcsem::Grid;
+using arcsem::kMaxAlpha;
+using arcsem::kMinAlpha;
+using arcsem::kMinT;
 
 // Per-pixel geometry is evaluated in double whatever the storage type (float32 accuracy of depth).
 struct Hit {
@@ -56,11 +59,6 @@ inline bool eval_surfel(const T* H, const T* Dz, const T* c, T op, double px, do
   return h.alpha >= kMinAlpha;
 }
 
-struct Grid {
-  int64_t C, H, W, tile, tx, ty;
-  int64_t tiles() const { return tx * ty; }
-};
-
 template <typename T>
 struct Ptrs {  // inputs
   const T *H, *Dz, *c, *op, *f, *mc;
@@ -74,24 +72,24 @@ void forward_impl(const Grid& gr, const Ptrs<T>& in, T* out, T* tf, T* aout, T* 
                   T* m2o, T* mref, int32_t* last, int32_t* medi) {
   at::parallel_for(0, gr.C * gr.tiles(), 1, [&](int64_t b, int64_t e) {
     std::vector<double> acc(in.K);  // per-pixel sums and transmittance in double, whatever T is
+    std::vector<std::vector<int64_t>> rows;
     Hit h;
     for (int64_t ct = b; ct < e; ++ct) {
-      const int64_t c = ct / gr.tiles(), t = ct % gr.tiles();
-      const int64_t x0 = (t % gr.tx) * gr.tile, y0 = (t / gr.tx) * gr.tile;
-      const int64_t start = in.off[ct], end = in.off[ct + 1];
+      const int64_t c = ct / gr.tiles(), x0 = gr.x0(ct), y0 = gr.y0(ct);
       const T* mc = in.mc + 3 * c;
-      for (int64_t y = y0; y < std::min(y0 + gr.tile, gr.H); ++y) {
-        for (int64_t x = x0; x < std::min(x0 + gr.tile, gr.W); ++x) {
+      arcsem::bucket_rows(in.ids, in.box, in.off[ct], in.off[ct + 1], y0, gr.ny(ct), rows);
+      for (int64_t y = y0; y < y0 + gr.ny(ct); ++y) {
+        const auto& row = rows[y - y0];
+        for (int64_t x = x0; x < x0 + gr.nx(ct); ++x) {
           const double px = x + 0.5, py = y + 0.5;
           std::fill(acc.begin(), acc.end(), 0.0);
           double Tr = 1, D = 0, M1 = 0, M2 = 0, dis = 0, m0 = 0;
           T md = 0;
           bool first = true;
-          int32_t lastc = int32_t(start) - 1, mi = -1;
-          for (int64_t i = start; i < end; ++i) {
+          int32_t lastc = -1, mi = -1;
+          for (const int64_t i : row) {
             const int64_t s = in.ids[i];
-            const int64_t* bx = in.box + 4 * s;  // outside the box alpha < 1/255 (PyTorch side guarantees)
-            if (x < bx[0] || x > bx[1] || y < bx[2] || y > bx[3]) continue;
+            if (arcsem::outside_x(in.box, s, x)) continue;
             if (!eval_surfel(in.H + 9 * s, in.Dz + 3 * s, in.c + 2 * s, in.op[s], px, py, double(in.near), h)) continue;
             const double next = Tr * (1.0 - h.alpha);
             if (next < kMinT) break;
@@ -147,23 +145,25 @@ void backward_impl(const Grid& gr, const Ptrs<T>& in, const T* tf, const T* m1o,
     auto& buf = bufs[at::get_thread_num()];
     if (buf.empty()) buf.assign(M * D, T(0));
     Hit h;
+    std::vector<std::vector<int64_t>> rows;
     for (int64_t ct = b; ct < e; ++ct) {
-      const int64_t c = ct / gr.tiles(), t = ct % gr.tiles();
-      const int64_t x0 = (t % gr.tx) * gr.tile, y0 = (t / gr.tx) * gr.tile;
-      const int64_t start = in.off[ct];
+      const int64_t c = ct / gr.tiles(), x0 = gr.x0(ct), y0 = gr.y0(ct);
       const T* mc = in.mc + 3 * c;
-      for (int64_t y = y0; y < std::min(y0 + gr.tile, gr.H); ++y) {
-        for (int64_t x = x0; x < std::min(x0 + gr.tile, gr.W); ++x) {
+      arcsem::bucket_rows(in.ids, in.box, in.off[ct], in.off[ct + 1], y0, gr.ny(ct), rows);
+      for (int64_t y = y0; y < y0 + gr.ny(ct); ++y) {
+        const auto& row = rows[y - y0];
+        for (int64_t x = x0; x < x0 + gr.nx(ct); ++x) {
           const int64_t pix = (c * gr.H + y) * gr.W + x;
           const double px = x + 0.5, py = y + 0.5;
           const double Tf = tf[pix], Wt = 1.0 - Tf, M1t = m1o[pix], M2t = m2o[pix];
           const T* go = g_out + pix * in.K;
           const double ga = g_alpha[pix], gd = g_dsum[pix], gm = g_med[pix], gdis = g_dist[pix];
           double Tr = Tf, S = 0;
-          for (int64_t i = last[pix]; i >= start; --i) {
+          // back to front from the last composited pair (row is in pair order)
+          for (auto it = std::upper_bound(row.begin(), row.end(), int64_t(last[pix])); it != row.begin();) {
+            const int64_t i = *--it;
             const int64_t s = in.ids[i];
-            const int64_t* bx = in.box + 4 * s;  // outside the box alpha < 1/255 (PyTorch side guarantees)
-            if (x < bx[0] || x > bx[1] || y < bx[2] || y > bx[3]) continue;
+            if (arcsem::outside_x(in.box, s, x)) continue;
             if (!eval_surfel(in.H + 9 * s, in.Dz + 3 * s, in.c + 2 * s, in.op[s], px, py, double(in.near), h)) continue;
             const double inv = 1.0 / (1.0 - h.alpha), Ti = Tr * inv, w = h.alpha * Ti;
             const double m = double(mc[0]) + double(mc[1]) * h.z + double(mc[2]) / h.z - double(mref[pix]);
@@ -230,7 +230,7 @@ Ptrs<T> ptrs(const torch::Tensor& H, const torch::Tensor& Dz, const torch::Tenso
 std::vector<torch::Tensor> forward2d(torch::Tensor H, torch::Tensor Dz, torch::Tensor c, torch::Tensor op,
                                      torch::Tensor f, torch::Tensor mc, torch::Tensor off, torch::Tensor ids,
                                      torch::Tensor box, double near, int64_t C, int64_t Hh, int64_t W, int64_t tile) {
-  const Grid gr{C, Hh, W, tile, (W + tile - 1) / tile, (Hh + tile - 1) / tile};
+  const Grid gr = arcsem::make_grid(C, Hh, W, tile);
   TORCH_CHECK(off.numel() == C * gr.tiles() + 1, "composite2d: tile offsets must have C*tiles+1 entries");
   auto o = f.options();
   auto out = torch::empty({C, Hh, W, f.size(1)}, o);
@@ -254,7 +254,7 @@ std::vector<torch::Tensor> backward2d(torch::Tensor H, torch::Tensor Dz, torch::
                                       torch::Tensor last,
                                       torch::Tensor medi, torch::Tensor g_out, torch::Tensor g_alpha,
                                       torch::Tensor g_dsum, torch::Tensor g_med, torch::Tensor g_dist) {
-  const Grid gr{C, Hh, W, tile, (W + tile - 1) / tile, (Hh + tile - 1) / tile};
+  const Grid gr = arcsem::make_grid(C, Hh, W, tile);
   auto gH = torch::zeros_like(H), gDz = torch::zeros_like(Dz), gc = torch::zeros_like(c),
        gop = torch::zeros_like(op), gf = torch::zeros_like(f);
   AT_DISPATCH_FLOATING_TYPES(f.scalar_type(), "backward2d", [&] {

@@ -12,19 +12,14 @@
 #include <cmath>
 #include <vector>
 
+#include "common.h"
+
 namespace {
 
-constexpr double kMinAlpha = 1.0 / 255.0;
-constexpr double kMaxAlpha = 0.99;
-constexpr double kMinT = 1e-4;
-
-struct Grid {
-  int64_t C, H, W, tile, tx, ty;
-  int64_t tiles() const { return tx * ty; }
-};
-
-// box: inclusive pixel box (x0, x1, y0, y1) outside which alpha < 1/255 (computed by the PyTorch side)
-inline bool outside(const int64_t* b, int64_t x, int64_t y) { return x < b[0] || x > b[1] || y < b[2] || y > b[3]; }
+using arcsem::Grid;
+using arcsem::kMaxAlpha;
+using arcsem::kMinAlpha;
+using arcsem::kMinT;
 
 // evaluated in double whatever the storage type
 template <typename T>
@@ -45,19 +40,20 @@ void forward_impl(const Grid& gr, const T* means2d, const T* conics, const T* op
                   int32_t* last) {
   at::parallel_for(0, gr.C * gr.tiles(), 1, [&](int64_t b, int64_t e) {
     std::vector<double> acc(K);  // per-pixel sums and transmittance in double, whatever T is
+    std::vector<std::vector<int64_t>> rows;
     for (int64_t ct = b; ct < e; ++ct) {
-      const int64_t c = ct / gr.tiles(), t = ct % gr.tiles();
-      const int64_t x0 = (t % gr.tx) * gr.tile, y0 = (t / gr.tx) * gr.tile;
-      const int64_t start = offsets[ct], end = offsets[ct + 1];
-      for (int64_t y = y0; y < std::min(y0 + gr.tile, gr.H); ++y) {
-        for (int64_t x = x0; x < std::min(x0 + gr.tile, gr.W); ++x) {
+      const int64_t c = ct / gr.tiles(), x0 = gr.x0(ct), y0 = gr.y0(ct);
+      arcsem::bucket_rows(ids, box, offsets[ct], offsets[ct + 1], y0, gr.ny(ct), rows);
+      for (int64_t y = y0; y < y0 + gr.ny(ct); ++y) {
+        const auto& row = rows[y - y0];
+        for (int64_t x = x0; x < x0 + gr.nx(ct); ++x) {
           const double px = x + 0.5, py = y + 0.5;
           std::fill(acc.begin(), acc.end(), 0.0);
           double Tr = 1.0;
-          int32_t lastc = int32_t(start) - 1;
-          for (int64_t i = start; i < end; ++i) {
+          int32_t lastc = -1;
+          for (const int64_t i : row) {
             const int64_t s = ids[i];
-            if (outside(box + 4 * s, x, y)) continue;
+            if (arcsem::outside_x(box, s, x)) continue;
             double dx, dy, g, alpha;
             if (!eval_splat(means2d + 2 * s, conics + 3 * s, opac[s], px, py, dx, dy, g, alpha)) continue;
             const double next = Tr * (1.0 - alpha);
@@ -91,12 +87,13 @@ void backward_impl(const Grid& gr, const T* means2d, const T* conics, const T* o
     auto& buf = bufs[at::get_thread_num()];
     if (buf.empty()) buf.assign(M * D, T(0));
     std::vector<double> S(K);
+    std::vector<std::vector<int64_t>> rows;
     for (int64_t ct = b; ct < e; ++ct) {
-      const int64_t c = ct / gr.tiles(), t = ct % gr.tiles();
-      const int64_t x0 = (t % gr.tx) * gr.tile, y0 = (t / gr.tx) * gr.tile;
-      const int64_t start = offsets[ct];
-      for (int64_t y = y0; y < std::min(y0 + gr.tile, gr.H); ++y) {
-        for (int64_t x = x0; x < std::min(x0 + gr.tile, gr.W); ++x) {
+      const int64_t c = ct / gr.tiles(), x0 = gr.x0(ct), y0 = gr.y0(ct);
+      arcsem::bucket_rows(ids, box, offsets[ct], offsets[ct + 1], y0, gr.ny(ct), rows);
+      for (int64_t y = y0; y < y0 + gr.ny(ct); ++y) {
+        const auto& row = rows[y - y0];
+        for (int64_t x = x0; x < x0 + gr.nx(ct); ++x) {
           const int64_t pix = (c * gr.H + y) * gr.W + x;
           const double px = x + 0.5, py = y + 0.5;
           const double Tf = t_final[pix];
@@ -105,9 +102,10 @@ void backward_impl(const Grid& gr, const T* means2d, const T* conics, const T* o
           const double ga = g_alpha[pix];
           std::fill(S.begin(), S.end(), 0.0);
           double Tr = Tf;
-          for (int64_t i = last[pix]; i >= start; --i) {
-            const int64_t s = ids[i];
-            if (outside(box + 4 * s, x, y)) continue;
+          // back to front from the last composited pair (row is in pair order)
+          for (auto it = std::upper_bound(row.begin(), row.end(), int64_t(last[pix])); it != row.begin();) {
+            const int64_t s = ids[*--it];
+            if (arcsem::outside_x(box, s, x)) continue;
             double dx, dy, g, alpha;
             if (!eval_splat(means2d + 2 * s, conics + 3 * s, opac[s], px, py, dx, dy, g, alpha)) continue;
             const double inv = 1.0 / (1.0 - alpha);
@@ -149,10 +147,6 @@ void backward_impl(const Grid& gr, const T* means2d, const T* conics, const T* o
   }
 }
 
-Grid make_grid(int64_t C, int64_t H, int64_t W, int64_t tile) {
-  return Grid{C, H, W, tile, (W + tile - 1) / tile, (H + tile - 1) / tile};
-}
-
 void check(const torch::Tensor& t, const char* name, int64_t dim) {
   TORCH_CHECK(t.is_contiguous() && t.device().is_cpu(), name, " must be a contiguous CPU tensor");
   TORCH_CHECK(t.dim() == dim, name, " must have ", dim, " dims");
@@ -165,7 +159,7 @@ std::vector<torch::Tensor> forward3d(torch::Tensor means2d, torch::Tensor conics
                                      int64_t C, int64_t H, int64_t W, int64_t tile) {
   check(means2d, "means2d", 2); check(conics, "conics", 2); check(opac, "opacities", 1);
   check(feats, "features", 2); check(offsets, "tile offsets", 1); check(ids, "ids", 1); check(box, "pixel boxes", 2);
-  const Grid gr = make_grid(C, H, W, tile);
+  const Grid gr = arcsem::make_grid(C, H, W, tile);
   TORCH_CHECK(offsets.numel() == C * gr.tiles() + 1, "tile offsets must have C*tiles+1 entries");
   const int64_t K = feats.size(1);
   auto out = torch::empty({C, H, W, K}, feats.options());
@@ -184,7 +178,7 @@ std::vector<torch::Tensor> backward3d(torch::Tensor means2d, torch::Tensor conic
                                       torch::Tensor feats, torch::Tensor offsets, torch::Tensor ids,
                                       torch::Tensor box, torch::Tensor t_final, torch::Tensor last, torch::Tensor g_out,
                                       torch::Tensor g_alpha, int64_t C, int64_t H, int64_t W, int64_t tile) {
-  const Grid gr = make_grid(C, H, W, tile);
+  const Grid gr = arcsem::make_grid(C, H, W, tile);
   const int64_t K = feats.size(1), M = feats.size(0);
   auto gm = torch::zeros_like(means2d), gc = torch::zeros_like(conics), go = torch::zeros_like(opac),
        gf = torch::zeros_like(feats);

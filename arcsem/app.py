@@ -186,5 +186,10 @@ def run(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
         metrics["timings"].update({f"{name}.{k}": v for k, v in (result.get("timings") or {}).items()})
     metrics["timings"]["total_s"] = time.perf_counter() - t_start
     write_json_atomic(run_dir / "metrics.json", metrics)
+    if cfg.get("report", False):  # the demo: tables, grids and the HTML page of this run
+        from .report import build_report
+
+        page = build_report([run_dir], out=run_dir / "report")
+        print(f"report: {page}")
     return metrics
 

@@ -1,0 +1,226 @@
+"""``GaussianBackbone``: what 2DGS and 3DGS share (parameters, SH colours, ACT, densification, PLY).
+
+Subclasses set ``num_scales`` (2 surfels / 3 ellipsoids), ``random_rotations`` and ``_rasterize``
+(the pure render function). Defaults are those of the official 3DGS/2DGS repositories (30k-step
+schedule); see ``shared/design/METHOD.md``.
+
+Step convention: ``post_backward(step, ...)`` is called after the backward pass of step ``step``
+(0-based) and prepares step ``step + 1`` (SH degree, position learning rate, densification), like the
+official loop with its 1-based ``iteration = step + 1``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import torch
+from torch import Tensor, nn
+
+from arcsem.cameras import Cameras
+from arcsem.plugins import Backbone, RenderOutput
+
+from .densify import DensifyStats, clone_split_prune, reset_opacity, screen_grad_norms
+from .init import init_gaussians, random_points
+from .model import GaussianModel, active_sh_degree_at
+from .ply import read_ply, write_ply
+
+__all__ = ["GaussianBackbone", "GaussianConfig"]
+
+GEOMETRY_GROUPS = {"xyz": "means", "f_dc": "sh_dc", "f_rest": "sh_rest", "opacity": "opacity_logits",
+                   "scaling": "log_scales", "rotation": "quats"}
+COLOR_GROUPS = ("f_dc", "f_rest")
+
+
+@dataclass
+class GaussianConfig:
+    """Shared Gaussian settings; defaults = the official 3DGS/2DGS ones."""
+
+    sh_degree: int = 3  # maximum SH degree
+    sh_increase_every: int = 1000  # active SH degree +1 every this many steps (stage 1)
+    random_init_points: int = 100_000  # random init inside the scene bounds when there is no point cloud
+    init_opacity: float = 0.1  # initial opacity of every Gaussian
+    background: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])  # RGB behind the scene
+    # learning rates (Adam); position is multiplied by the scene extent and decays log-linearly
+    lr_position_init: float = 1.6e-4
+    lr_position_final: float = 1.6e-6
+    lr_position_max_steps: int = 30_000
+    lr_feature: float = 2.5e-3  # SH DC
+    lr_feature_rest: float = 2.5e-3 / 20  # higher SH bands
+    lr_opacity: float = 0.05
+    lr_scaling: float = 0.005
+    lr_rotation: float = 0.001
+    schedule_lr: bool = True  # post_backward writes learning_rates(step+1) into the optimiser groups
+    # adaptive density control
+    densify: bool = True
+    densify_from: int = 500
+    densify_until: int = 15_000
+    densify_every: int = 100
+    densify_grad_threshold: float = 2e-4  # mean NDC gradient norm (see densify.py)
+    percent_dense: float = 0.01  # clone if max scale <= this x extent, else split
+    opacity_reset_every: int = 3000  # opacities -> min(o, 0.01)
+    prune_opacity: float = 0.05  # 2DGS 0.05, 3DGS 0.005
+    max_screen_size: float = 20.0  # prune screen radius > this (px) after the first opacity reset
+    max_world_scale: float = 0.1  # ... and max scale > this x extent
+    # rasteriser
+    tile: int = 16
+    chunk_tiles: int | None = None  # tiles composited at once (None = renderer's default)
+    impl: str = "torch"  # rasteriser implementation ("torch" reference; faster ones where available)
+
+
+class GaussianBackbone(Backbone):
+    """Gaussians with SH colours, an optional ACT, and official-style densification."""
+
+    Config: ClassVar[type] = GaussianConfig
+    num_scales: ClassVar[int] = 3
+    random_rotations: ClassVar[bool] = False
+
+    def __init__(self, cfg: GaussianConfig, scene: Any = None, act: nn.Module | None = None, **runtime: Any):
+        super().__init__(cfg, scene)
+        self.model = GaussianModel(self._initial_params(scene), cfg.sh_degree)
+        extent = float(scene.extent) if scene is not None else 1.0
+        self.register_buffer("extent", torch.tensor(extent, dtype=torch.float64))
+        self.act = act  # ACT or None; its parameters are optimised by the trainer (group "act")
+        self.stage = "geometry"
+        self.stats = DensifyStats.zeros(len(self.model))
+        self._last_cams: Cameras | None = None
+
+    def _initial_params(self, scene: Any) -> dict[str, Tensor]:
+        cfg = self.cfg
+        points = getattr(scene, "points", None)
+        colors = getattr(scene, "point_colors", None)
+        if points is None or len(points) == 0:
+            bounds = scene.bounds if scene is not None else torch.tensor([[-1.0] * 3, [1.0] * 3])
+            points, colors = random_points(bounds, cfg.random_init_points), None
+        return init_gaussians(points, colors, num_scales=self.num_scales, sh_degree=cfg.sh_degree,
+                              opacity=cfg.init_opacity, random_rotations=self.random_rotations)
+
+    # ------------------------------------------------------------------ rendering
+    def _rasterize(self, means, quats, scales, opacities, colors, cams, **kw) -> RenderOutput:
+        raise NotImplementedError
+
+    def render(self, cams: Cameras, background: Tensor | None = None, **kw: Any) -> RenderOutput:
+        """Render ``C`` cameras: SH colours per view (+ ACT by ``cams.image_ids``), then rasterise.
+
+        Returns the renderer's dict: ``rgb [C,H,W,3]``, ``alpha``, ``depth`` ... plus ``radii [C,N]`` and
+        ``visible [C,N]`` (used for densification statistics).
+        """
+        m = self.model
+        cams = cams.to(device=m.means.device, dtype=m.means.dtype)
+        colors = m.colors(cams)  # [C, N, 3]
+        if self.act is not None:
+            colors = self.act.apply(colors, cams.image_ids)
+        if background is None:
+            background = torch.tensor(self.cfg.background, dtype=m.means.dtype, device=m.means.device)
+        out = self._rasterize(m.means, m.quats, m.scales, m.opacities, colors, cams, background=background,
+                              tile=self.cfg.tile, chunk_tiles=self.cfg.chunk_tiles, impl=self.cfg.impl)
+        if torch.is_grad_enabled():
+            self._last_cams = cams  # the cameras whose gradient post_backward reads
+        return out
+
+    # ------------------------------------------------------------------ optimisation
+    def param_groups(self, stage: str) -> dict[str, list[nn.Parameter]]:
+        """``"geometry"``: all six groups (official names); ``"color"``: ``f_dc`` and ``f_rest`` only.
+
+        Selecting a stage also sets ``requires_grad`` (the colour stage freezes geometry) and the
+        stage used by :meth:`post_backward` (no densification in the colour stage). ACT is not
+        included: the trainer adds it as its own group.
+        """
+        if stage not in ("geometry", "color"):
+            raise ValueError(f"unknown stage '{stage}'; expected 'geometry' or 'color'")
+        self.stage = stage
+        names = GEOMETRY_GROUPS if stage == "geometry" else COLOR_GROUPS
+        for group, attr in GEOMETRY_GROUPS.items():
+            getattr(self.model, attr).requires_grad_(group in names)
+        return {g: [getattr(self.model, GEOMETRY_GROUPS[g])] for g in names}
+
+    def learning_rates(self, step: int) -> dict[str, float]:
+        """Learning rate of every group at ``step``; position: log-linear from init to final x extent."""
+        c = self.cfg
+        t = min(max(step / max(c.lr_position_max_steps, 1), 0.0), 1.0)
+        ext = float(self.extent)
+        xyz = math.exp((1 - t) * math.log(c.lr_position_init * ext) + t * math.log(c.lr_position_final * ext))
+        return {"xyz": xyz, "f_dc": c.lr_feature, "f_rest": c.lr_feature_rest, "opacity": c.lr_opacity,
+                "scaling": c.lr_scaling, "rotation": c.lr_rotation}
+
+    def _set_lrs(self, step: int, optimizers) -> None:
+        lrs = self.learning_rates(step)
+        by_param = {id(getattr(self.model, attr)): lrs[g] for g, attr in GEOMETRY_GROUPS.items()}
+        for opt in (optimizers.values() if isinstance(optimizers, dict) else optimizers):
+            for group in opt.param_groups:
+                ids = {id(p) for p in group["params"]}
+                mine = [by_param[i] for i in ids if i in by_param]
+                if len(mine) == len(ids) == 1:
+                    group["lr"] = mine[0]
+
+    def pre_backward(self, step: int, out: RenderOutput) -> None:
+        """Nothing to do: the densification statistic is read from the 3-D means' gradient."""
+
+    def post_backward(self, step: int, out: RenderOutput, optimizers) -> None:
+        """Stage 1 only: SH degree, position lr, densification statistics, densify/prune/reset.
+
+        Runs after the backward pass of 0-based ``step`` and before the optimiser step; changed
+        parameters lose their ``.grad`` for this step (as the official new Parameters do).
+        """
+        if self.stage != "geometry":
+            return
+        c, it = self.cfg, step + 1  # official 1-based iteration
+        self.model.active_sh_degree.fill_(active_sh_degree_at(it, c.sh_degree, c.sh_increase_every))
+        if c.schedule_lr:
+            self._set_lrs(it, optimizers)
+        if not c.densify or it >= c.densify_until:
+            return
+        with torch.no_grad():
+            self._accumulate(out)
+            if it > c.densify_from and it % c.densify_every == 0:
+                self.densify_and_prune(optimizers, screen=it > c.opacity_reset_every)
+            if it % c.opacity_reset_every == 0:
+                reset_opacity(self.model, optimizers)
+
+    def _accumulate(self, out: RenderOutput) -> None:
+        grad, cams = self.model.means.grad, self._last_cams
+        if grad is None or cams is None or "radii" not in out:
+            return
+        radii = out["radii"]
+        visible = out.get("visible", radii > 0)
+        if visible.shape[1] != len(self.stats):  # the model changed since this render
+            return
+        self.stats.accumulate(screen_grad_norms(grad, self.model.means, cams), visible, radii)
+
+    def densify_and_prune(self, optimizers, screen: bool = True) -> dict[str, int]:
+        """One clone/split/prune pass with the accumulated statistics; resets them."""
+        c = self.cfg
+        info = clone_split_prune(
+            self.model, self.stats, optimizers, grad_threshold=c.densify_grad_threshold,
+            percent_dense=c.percent_dense, extent=float(self.extent), min_opacity=c.prune_opacity,
+            max_screen_size=c.max_screen_size if screen else None, max_world_scale=c.max_world_scale,
+        )
+        self.stats = DensifyStats.zeros(len(self.model), device=self.model.means.device)
+        return info
+
+    # ------------------------------------------------------------------ persistence
+    def num_primitives(self) -> int:
+        return len(self.model)
+
+    def export(self, path: str) -> None:
+        """Write a PLY that common 3DGS viewers read (2DGS: two scales, see ply.py)."""
+        write_ply(path, self.model.params())
+
+    def load_ply(self, path: str) -> None:
+        """Replace the Gaussians by those of a PLY written by :meth:`export` or the official code."""
+        params = read_ply(path)
+        if params["log_scales"].shape[1] != self.num_scales:
+            raise ValueError(f"{path}: {params['log_scales'].shape[1]} scales, {self.name} needs {self.num_scales}")
+        self.model.set_params(params)
+        self.model.active_sh_degree.fill_(min(self.cfg.sh_degree, math.isqrt(params["sh_rest"].shape[1] + 1) - 1))
+        self.stats = DensifyStats.zeros(len(self.model), device=self.model.means.device)
+
+    def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
+        """Load a checkpoint with any number of Gaussians (parameters are resized); ACT entries are
+        ignored when this backbone has no ACT (e.g. the colour stage)."""
+        sd = dict(state_dict)
+        if self.act is None:
+            sd = {k: v for k, v in sd.items() if not k.startswith("act.")}
+        result = super().load_state_dict(sd, strict=strict, assign=assign)
+        self.stats = DensifyStats.zeros(len(self.model), device=self.model.means.device)
+        return result

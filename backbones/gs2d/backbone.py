@@ -1,0 +1,33 @@
+"""The ``gs2d`` backbone: 2D Gaussian Splatting (Huang et al. 2024) on the shared Gaussian code."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+from arcsem.plugins import BACKBONES, RenderOutput
+
+from ..gaussians.base import GaussianBackbone, GaussianConfig
+
+__all__ = ["GS2DBackbone"]
+
+
+@BACKBONES.register("gs2d")
+class GS2DBackbone(GaussianBackbone):
+    """Surfels with two scales; renders colour, alpha, expected/median depth, normals and distortion."""
+
+    provides: ClassVar[frozenset[str]] = frozenset(
+        {"rgb", "alpha", "depth", "median_depth", "normal", "distortion"}
+    )
+    num_scales: ClassVar[int] = 2
+    random_rotations: ClassVar[bool] = True  # official 2DGS starts from random rotations
+
+    @dataclass
+    class Config(GaussianConfig):
+        """2DGS defaults (official repository)."""
+
+        prune_opacity: float = 0.05  # official 2DGS opacity_cull
+
+    def _rasterize(self, means, quats, scales, opacities, colors, cams, **kw) -> RenderOutput:
+        from .render import render_2dgs  # the rasteriser module (imported when first used)
+
+        return render_2dgs(means, quats, scales, opacities, colors, cams, **kw)

@@ -1,0 +1,63 @@
+"""2DGS geometry regularisers as loss plugins (Huang et al. 2024; METHOD.md).
+
+* ``normal_consistency``: ``1 - n_rendered . n_surface``, with ``n_surface`` the normal of the
+  rendered expected depth unprojected to world points (central differences, cross product),
+  weighted by the detached alpha. Default weight 0.05 from step 7000.
+* ``distortion``: mean of the per-pixel distortion ``sum_i w_i (m_i^2 A + M2 - 2 m_i M1)``.
+  Default weight 0 (1000 for object scans in the 2DGS paper's DTU runs) from step 3000.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from arcsem.cameras import Cameras
+from arcsem.plugins import LOSSES, Batch, Loss, RenderOutput
+
+__all__ = ["Distortion", "NormalConsistency", "depth_normals"]
+
+
+def depth_normals(depth: Tensor, cams: Cameras) -> Tensor:
+    """World normals ``[C, H, W, 3]`` of depth maps ``[C, H, W, 1]`` (zero on the one-pixel border).
+
+    Points come from :meth:`Cameras.unproject`; the normal is the cross product of the central
+    differences along x and y, oriented towards the camera (OpenCV: y down, so ``dx x dy`` faces it).
+    """
+    pts = cams.unproject(depth)
+    dx = pts[:, 1:-1, 2:] - pts[:, 1:-1, :-2]
+    dy = pts[:, 2:, 1:-1] - pts[:, :-2, 1:-1]
+    n = F.normalize(torch.cross(dy, dx, dim=-1), dim=-1)
+    return F.pad(n.permute(0, 3, 1, 2), (1, 1, 1, 1)).permute(0, 2, 3, 1)
+
+
+@LOSSES.register("normal_consistency")
+class NormalConsistency(Loss):
+    requires = frozenset({"normal", "depth", "alpha"})
+
+    @dataclass
+    class Config:
+        weight: float = 0.05
+        start_step: int = 7000
+
+    def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
+        surf = depth_normals(out["depth"], batch.cameras)
+        n = F.normalize(out["normal"], dim=-1)
+        err = (1.0 - (n * surf).sum(-1, keepdim=True)) * out["alpha"].detach()
+        valid = (surf.abs().sum(-1, keepdim=True) > 0).to(err.dtype)
+        return (err * valid).sum() / valid.sum().clamp_min(1.0)
+
+
+@LOSSES.register("distortion")
+class Distortion(Loss):
+    requires = frozenset({"distortion"})
+
+    @dataclass
+    class Config:
+        weight: float = 0.0
+        start_step: int = 3000
+
+    def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
+        return out["distortion"].mean()

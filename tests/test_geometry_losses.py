@@ -1,0 +1,58 @@
+"""Geometry losses: depth normals of an analytic plane, hand-computed consistency values."""
+from __future__ import annotations
+
+import torch
+
+from arcsem.cameras import Cameras, look_at
+from arcsem.plugins import LOSSES, Batch
+from arcsem.registry import validate_config
+
+
+def cams(model: str) -> Cameras:
+    eye = torch.tensor([[0.0, 0.0, -5.0]], dtype=torch.float64)
+    w2c = look_at(eye, torch.zeros_like(eye), torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64))
+    K = torch.tensor([[[40.0, 0, 12], [0, 40.0, 10], [0, 0, 1]]], dtype=torch.float64)
+    return Cameras(w2c, K, 24, 20, model)
+
+
+def plane_depth(c: Cameras, tilt: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Depth of the plane z_world = tilt * x_world (seen from -z) and its unit normal facing the camera."""
+    o, d = c.rays()
+    t = (tilt * o[..., 0] - o[..., 2]) / (d[..., 2] - tilt * d[..., 0])
+    n = torch.tensor([tilt, 0.0, -1.0], dtype=torch.float64)
+    return t[..., None], n / n.norm()
+
+
+def test_depth_normals_of_a_plane_pinhole_and_ortho():
+    from arcsem.losses.geometry import depth_normals
+
+    for model in ("pinhole", "orthographic"):
+        c = cams(model)
+        depth, n = plane_depth(c, 0.4)
+        got = depth_normals(depth, c)[:, 1:-1, 1:-1]
+        torch.testing.assert_close(got, n.expand_as(got), atol=1e-9, rtol=0)
+
+
+def test_normal_consistency_hand_values():
+    cls = LOSSES.get("normal_consistency")
+    loss = cls(validate_config(cls.Config, {}, where="nc"))
+    c = cams("pinhole")
+    depth, n = plane_depth(c, 0.0)
+    alpha = torch.full_like(depth, 0.5)
+    batch = Batch(cameras=c, images=torch.zeros(1, 20, 24, 3), indices=torch.tensor([0]))
+    same = {"depth": depth, "alpha": alpha, "normal": n.expand(1, 20, 24, 3)}
+    assert loss(same, batch, 0).item() < 1e-12  # agreeing normals cost nothing
+    # normals tilted by 60 deg: 1 - cos 60 = 0.5, times alpha 0.5 = 0.25
+    tilted = torch.tensor([0.0, 3 ** 0.5 / 2, -0.5], dtype=torch.float64)
+    val = loss({**same, "normal": tilted.expand(1, 20, 24, 3)}, batch, 0).item()
+    assert abs(val - 0.25) < 1e-9
+
+
+def test_distortion_is_mean_and_defaults_are_the_papers():
+    cls = LOSSES.get("distortion")
+    cfg = validate_config(cls.Config, {}, where="d")
+    assert (cfg.weight, cfg.start_step) == (0.0, 3000)
+    nc = LOSSES.get("normal_consistency").Config()
+    assert (nc.weight, nc.start_step) == (0.05, 7000)
+    d = torch.tensor([[[[1.0], [3.0]]]])
+    assert cls(cfg)({"distortion": d}, None, 0).item() == 2.0

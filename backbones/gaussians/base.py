@@ -65,7 +65,8 @@ class GaussianConfig:
     # rasteriser
     tile: int = 16
     chunk_tiles: int | None = None  # tiles composited at once (None = renderer's default)
-    impl: str = "torch"  # rasteriser implementation ("torch" reference; faster ones where available)
+    # auto: fused C++ kernels when they build (CPU), else the PyTorch reference (one warning); torch | cpp explicit
+    rasterizer: str = "auto"
 
 
 class GaussianBackbone(Backbone):
@@ -113,7 +114,7 @@ class GaussianBackbone(Backbone):
         if background is None:
             background = torch.tensor(self.cfg.background, dtype=m.means.dtype, device=m.means.device)
         out = self._rasterize(m.means, m.quats, m.scales, m.opacities, colors, cams, background=background,
-                              tile=self.cfg.tile, chunk_tiles=self.cfg.chunk_tiles, impl=self.cfg.impl)
+                              tile=self.cfg.tile, chunk_tiles=self.cfg.chunk_tiles, impl=self.cfg.rasterizer)
         if torch.is_grad_enabled():
             self._last_cams = cams  # the cameras whose gradient post_backward reads
         return out

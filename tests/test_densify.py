@@ -5,11 +5,15 @@ import math
 
 import pytest
 import torch
-
 from arcsem.backbones.gaussians.densify import (
-    DensifyStats, clone_split_prune, remap_optimizers, reset_opacity, screen_grad_norms,
+    DensifyStats,
+    clone_split_prune,
+    remap_optimizers,
+    reset_opacity,
+    screen_grad_norms,
 )
 from arcsem.backbones.gaussians.model import GaussianModel
+
 from arcsem.cameras import Cameras
 
 
@@ -104,7 +108,7 @@ def test_prune_huge_in_screen_and_world_only_when_asked():
         m.log_scales[2] = math.log(0.3)  # > 0.1 * extent (1.0)
     stats = DensifyStats.zeros(4)
     stats.max_radii[0] = 25.0
-    kw = dict(grad_threshold=1.0, percent_dense=0.01, extent=1.0, min_opacity=0.005)
+    kw = {"grad_threshold": 1.0, "percent_dense": 0.01, "extent": 1.0, "min_opacity": 0.005}
     assert clone_split_prune(m, stats, [], **kw)["pruned"] == 0
     info = clone_split_prune(m, stats, [], max_screen_size=20, **kw)
     assert info["pruned"] == 2 and len(m) == 2

@@ -6,11 +6,11 @@ import math
 
 import pytest
 import torch
+from arcsem.backbones.gaussians.init import init_gaussians, knn_scales
+from arcsem.backbones.gaussians.model import active_sh_degree_at, quat_to_rotmat
+from arcsem.backbones.gaussians.sh import C0, eval_sh
 
 from arcsem.act import ACT
-from arcsem.backbones.gaussians.init import init_gaussians, knn_scales
-from arcsem.backbones.gaussians.model import GaussianModel, active_sh_degree_at, quat_to_rotmat
-from arcsem.backbones.gaussians.sh import C0, eval_sh
 from arcsem.cameras import Cameras, look_at
 from arcsem.plugins import BACKBONES
 from arcsem.registry import validate_config
@@ -35,7 +35,7 @@ def scene_of(model: str = "pinhole", n: int = 3, w: int = 12, h: int = 8, points
 
 def fake_raster(means, quats, scales, opacities, colors, cams, *, background=None, **kw):
     """Every splat is an isotropic 1.5 px blob at its projected centre, summed (no occlusion)."""
-    uv, z = cams.project(means)  # [C, N, 2]
+    uv, _ = cams.project(means)  # [C, N, 2]
     pix = cams.pixel_grid(means.dtype).reshape(-1, 2)  # [P, 2]
     wgt = torch.exp(-((pix[None, :, None] - uv[:, None]) ** 2).sum(-1) / 4.5) * opacities  # [C, P, N]
     rgb = (wgt @ colors).reshape(len(cams), cams.height, cams.width, 3)

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-
 from arcsem.backbones.gaussians.ply import ply_properties, read_ply, write_ply
+
 from arcsem.errors import DataError
 
 

@@ -4,9 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from arcsem.backbones.gaussians.sh import C0, RGB2SH, SH2RGB, eval_sh, sh_basis
 from scipy.special import sph_harm_y
-
-from arcsem.backbones.gaussians.sh import RGB2SH, SH2RGB, C0, eval_sh, sh_basis
 
 
 def scipy_real_sh(l: int, m: int, dirs: np.ndarray) -> np.ndarray:

@@ -31,7 +31,11 @@ from arcsem.cameras import Cameras
 from .model import GaussianModel, quat_to_rotmat
 
 __all__ = [
-    "DensifyStats", "screen_grad_norms", "remap_optimizers", "clone_split_prune", "reset_opacity",
+    "DensifyStats",
+    "clone_split_prune",
+    "remap_optimizers",
+    "reset_opacity",
+    "screen_grad_norms",
 ]
 
 
@@ -44,7 +48,7 @@ class DensifyStats:
     max_radii: Tensor
 
     @staticmethod
-    def zeros(n: int, device=None) -> "DensifyStats":
+    def zeros(n: int, device=None) -> DensifyStats:
         z = torch.zeros(n, device=device)
         return DensifyStats(z, z.clone(), z.clone())
 

@@ -17,7 +17,7 @@ from torch import Tensor
 
 from .sh import num_sh_coeffs, rgb_to_sh
 
-__all__ = ["knn_scales", "random_points", "init_gaussians"]
+__all__ = ["init_gaussians", "knn_scales", "random_points"]
 
 
 def knn_scales(points: Tensor, k: int = 3) -> Tensor:

@@ -25,7 +25,7 @@ from arcsem.cameras import Cameras
 
 from .sh import eval_sh, num_sh_coeffs
 
-__all__ = ["GaussianModel", "PARAM_NAMES", "active_sh_degree_at", "quat_to_rotmat"]
+__all__ = ["PARAM_NAMES", "GaussianModel", "active_sh_degree_at", "quat_to_rotmat"]
 
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
 

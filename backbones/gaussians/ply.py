@@ -21,7 +21,7 @@ from torch import Tensor
 
 from arcsem.errors import DataError
 
-__all__ = ["write_ply", "read_ply", "ply_properties"]
+__all__ = ["ply_properties", "read_ply", "write_ply"]
 
 
 def ply_properties(num_rest: int, num_scales: int) -> list[str]:
@@ -118,9 +118,9 @@ def read_ply(path: str | Path) -> dict[str, Tensor]:
     if missing:
         raise DataError(f"{path}: PLY lacks vertex properties {missing}")
     rest = cols("f_rest_") if any(k.startswith("f_rest_") for k in names) else np.zeros((n, 0), np.float32)
-    if rest.shape[1] % 3 or int(math.isqrt(rest.shape[1] // 3 + 1)) ** 2 != rest.shape[1] // 3 + 1:
+    if rest.shape[1] % 3 or math.isqrt(rest.shape[1] // 3 + 1) ** 2 != rest.shape[1] // 3 + 1:
         raise DataError(f"{path}: {rest.shape[1]} f_rest values is not 3 x ((d+1)^2 - 1)")
-    t = lambda a: torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
+    t = lambda a: torch.from_numpy(np.ascontiguousarray(a))
     return {
         "means": t(np.stack([arr[k].astype(np.float32) for k in "xyz"], 1)),
         "quats": t(cols("rot_", 4)),

@@ -13,7 +13,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-__all__ = ["C0", "C1", "C2", "C3", "eval_sh", "sh_basis", "rgb_to_sh", "sh_to_rgb", "num_sh_coeffs", "RGB2SH", "SH2RGB"]
+__all__ = ["C0", "C1", "C2", "C3", "RGB2SH", "SH2RGB", "eval_sh", "num_sh_coeffs", "rgb_to_sh", "sh_basis", "sh_to_rgb"]
 
 C0 = 0.28209479177387814  # 1 / (2 sqrt(pi))
 C1 = 0.4886025119029199  # sqrt(3 / (4 pi))

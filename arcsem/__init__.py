@@ -8,8 +8,20 @@ from __future__ import annotations
 import importlib
 
 __all__ = [
-    "Cameras", "Scene", "Split", "Backbone", "Loss", "Batch", "RenderOutput", "BACKBONES", "LOSSES",
-    "ArcsemError", "ConfigError", "DataError", "PluginError", "TrainingError",
+    "BACKBONES",
+    "LOSSES",
+    "ArcsemError",
+    "Backbone",
+    "Batch",
+    "Cameras",
+    "ConfigError",
+    "DataError",
+    "Loss",
+    "PluginError",
+    "RenderOutput",
+    "Scene",
+    "Split",
+    "TrainingError",
 ]
 __version__ = "0.1.0"
 

@@ -22,7 +22,7 @@ from typing import Literal
 import torch
 from torch import Tensor
 
-__all__ = ["Cameras", "CameraModel", "look_at", "opengl_to_opencv"]
+__all__ = ["CameraModel", "Cameras", "look_at", "opengl_to_opencv"]
 
 CameraModel = Literal["pinhole", "orthographic"]
 MODELS = ("pinhole", "orthographic")
@@ -64,12 +64,12 @@ class Cameras:
     def __len__(self) -> int:
         return self.world_to_cam.shape[0]
 
-    def __getitem__(self, idx) -> "Cameras":
+    def __getitem__(self, idx) -> Cameras:
         if isinstance(idx, int):
             idx = slice(idx, idx + 1) if idx >= 0 else slice(idx, (idx + 1) or None)
         return replace(self, world_to_cam=self.world_to_cam[idx], K=self.K[idx], image_ids=self.image_ids[idx])
 
-    def to(self, device=None, dtype=None) -> "Cameras":
+    def to(self, device=None, dtype=None) -> Cameras:
         return replace(
             self,
             world_to_cam=self.world_to_cam.to(device=device, dtype=dtype),
@@ -78,7 +78,7 @@ class Cameras:
         )
 
     @staticmethod
-    def cat(batches: list["Cameras"]) -> "Cameras":
+    def cat(batches: list[Cameras]) -> Cameras:
         first = batches[0]
         for b in batches[1:]:
             if (b.width, b.height, b.model) != (first.width, first.height, first.model):
@@ -114,7 +114,7 @@ class Cameras:
         """``[C, 3]`` unit viewing direction (camera +z) in world coordinates."""
         return self.world_to_cam[:, 2, :3]
 
-    def scaled(self, factor: float) -> "Cameras":
+    def scaled(self, factor: float) -> Cameras:
         """Cameras for images resized by ``factor`` (0.5 = half size); pixel centres stay consistent."""
         K = self.K.clone()
         K[:, :2, :] *= factor

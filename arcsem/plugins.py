@@ -21,7 +21,7 @@ from torch import Tensor, nn
 from .cameras import Cameras
 from .registry import Registry
 
-__all__ = ["BACKBONES", "LOSSES", "Backbone", "Loss", "Batch", "RenderOutput"]
+__all__ = ["BACKBONES", "LOSSES", "Backbone", "Batch", "Loss", "RenderOutput"]
 
 BACKBONES = Registry("backbone", "arcsem.backbones")
 LOSSES = Registry("loss", "arcsem.losses")

@@ -13,7 +13,7 @@ from torch import Tensor
 
 from .cameras import Cameras
 
-__all__ = ["Split", "Scene"]
+__all__ = ["Scene", "Split"]
 
 
 @dataclass
@@ -51,10 +51,10 @@ class Split:
         except ValueError:
             raise KeyError(f"no view named '{name}'; views: {', '.join(self.names)}") from None
 
-    def subset(self, idx: list[int] | Tensor) -> "Split":
+    def subset(self, idx: list[int] | Tensor) -> Split:
         """The views ``idx`` (cameras keep their ``image_ids``)."""
         idx = torch.as_tensor(idx, dtype=torch.long)
-        pick = lambda t: None if t is None else t[idx]  # noqa: E731
+        pick = lambda t: None if t is None else t[idx]
         return replace(
             self,
             names=[self.names[i] for i in idx.tolist()],

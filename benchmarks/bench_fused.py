@@ -17,11 +17,10 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_raster import time_fwd_bwd  # noqa: E402
-
-from arcsem.backbones.gaussians.fused import load_extension  # noqa: E402
-from arcsem.backbones.gs2d.render import render_2dgs  # noqa: E402
-from arcsem.backbones.gs3d.render import render_3dgs  # noqa: E402
+from arcsem.backbones.gaussians.fused import load_extension
+from arcsem.backbones.gs2d.render import render_2dgs
+from arcsem.backbones.gs3d.render import render_3dgs
+from bench_raster import time_fwd_bwd
 
 MODELS = {"2DGS": (render_2dgs, 2), "3DGS": (render_3dgs, 3)}
 

@@ -105,7 +105,7 @@ def test_effective_boxes_contain_every_visible_pixel():
 
 def test_automatic_chunks_respect_the_budget(monkeypatch):
     """A tiny pair-pixel budget splits the work into many chunks without changing the image."""
-    import arcsem.backbones.gaussians.raster as raster
+    from arcsem.backbones.gaussians import raster
     from arcsem.backbones.gs2d.render import render_2dgs
 
     s = random_splats(15, 2, seed=6)

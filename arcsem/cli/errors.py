@@ -14,7 +14,7 @@ from typing import Any
 
 from ..errors import ArcsemError
 
-__all__ = ["EXIT_USER_ERROR", "debug_requested", "one_line", "with_error_handling"]
+__all__ = ["EXIT_USER_ERROR", "call_reporting_errors", "debug_requested", "one_line", "with_error_handling"]
 
 EXIT_USER_ERROR = 2
 
@@ -46,6 +46,18 @@ def one_line(exc: BaseException) -> str:
     return msg
 
 
+def call_reporting_errors(call: Callable[[], Any], debug: bool = False) -> Any:
+    """``call()``; a user error prints one ``error:`` line and returns 2 (re-raised when ``debug``)."""
+    debug = debug or debug_requested([])
+    try:
+        return call()
+    except _user_error_types() as exc:
+        if debug:
+            raise
+        print(f"error: {one_line(exc)}", file=sys.stderr)
+        return EXIT_USER_ERROR
+
+
 def with_error_handling(func: Callable[..., Any]) -> Callable[..., Any]:
     """Wrap a console-script ``main``: user errors print one ``error:`` line and exit 2."""
 
@@ -54,12 +66,9 @@ def with_error_handling(func: Callable[..., Any]) -> Callable[..., Any]:
         debug = debug_requested()
         if not debug:
             os.environ.setdefault("HYDRA_FULL_ERROR", "1")  # Hydra re-raises; we print the one line
-        try:
-            return func(*args, **kwargs)
-        except _user_error_types() as exc:
-            if debug:
-                raise
-            print(f"error: {one_line(exc)}", file=sys.stderr)
+        result = call_reporting_errors(lambda: func(*args, **kwargs), debug)
+        if result == EXIT_USER_ERROR:
             sys.exit(EXIT_USER_ERROR)
+        return result
 
     return wrapper

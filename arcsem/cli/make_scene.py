@@ -5,7 +5,6 @@ Example: ``arcsem-make-scene --out scenes/grain --seed 0 --width 192 --height 12
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 
@@ -31,14 +30,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    from ..errors import ArcsemError, ConfigError
+    from ..errors import ConfigError
     from ..synthetic import ensure_scene, generate_scene
+    from .errors import call_reporting_errors
 
     params = {"seed": args.seed, "width": args.width, "height": args.height, "camera": args.camera,
                   "n_horizontal": args.n_horizontal, "n_vertical": args.n_vertical, "substrate": not args.no_substrate,
                   "supersample": args.supersample, "noise": args.noise}
     t0 = time.perf_counter()
-    try:
+
+    def make() -> int:
         if args.n_horizontal < 3 or args.n_vertical < 3 or args.supersample < 1:
             raise ConfigError("--n-horizontal/--n-vertical must be >= 3 and --supersample >= 1")
         if args.out is not None and args.force:
@@ -46,13 +47,10 @@ def main(argv: list[str] | None = None) -> int:
             (path.parent / ".complete").write_text("{}")
         else:
             path = ensure_scene(args.out, **params)
-    except ArcsemError as e:
-        if args.debug or os.environ.get("ARCSEM_DEBUG"):
-            raise
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    print(f"{path}  ({time.perf_counter() - t0:.1f} s)")
-    return 0
+        print(f"{path}  ({time.perf_counter() - t0:.1f} s)")
+        return 0
+
+    return call_reporting_errors(make, args.debug)
 
 
 if __name__ == "__main__":

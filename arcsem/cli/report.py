@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 
 __all__ = ["main"]
@@ -18,18 +17,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--debug", action="store_true", help="show tracebacks")
     args = parser.parse_args(argv)
 
-    from arcsem.errors import ArcsemError
+    from arcsem.cli.errors import call_reporting_errors
     from arcsem.report import build_report
 
-    try:
-        page = build_report(args.paths, args.out)
-    except ArcsemError as err:
-        if args.debug or os.environ.get("ARCSEM_DEBUG"):
-            raise
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    print(f"report: {page}")
-    return 0
+    def report() -> int:
+        print(f"report: {build_report(args.paths, args.out)}")
+        return 0
+
+    return call_reporting_errors(report, args.debug)
 
 
 if __name__ == "__main__":

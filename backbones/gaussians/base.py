@@ -50,7 +50,6 @@ class GaussianConfig:
     lr_opacity: float = 0.05
     lr_scaling: float = 0.005
     lr_rotation: float = 0.001
-    schedule_lr: bool = True  # post_backward writes learning_rates(step+1) into the optimiser groups
     # adaptive density control
     densify: bool = True
     densify_from: int = 500
@@ -144,21 +143,14 @@ class GaussianBackbone(Backbone):
         return {"xyz": xyz, "f_dc": c.lr_feature, "f_rest": c.lr_feature_rest, "opacity": c.lr_opacity,
                 "scaling": c.lr_scaling, "rotation": c.lr_rotation}
 
-    def _set_lrs(self, step: int, optimizers) -> None:
-        lrs = self.learning_rates(step)
-        by_param = {id(getattr(self.model, attr)): lrs[g] for g, attr in GEOMETRY_GROUPS.items()}
-        for opt in (optimizers.values() if isinstance(optimizers, dict) else optimizers):
-            for group in opt.param_groups:
-                ids = {id(p) for p in group["params"]}
-                mine = [by_param[i] for i in ids if i in by_param]
-                if len(mine) == len(ids) == 1:
-                    group["lr"] = mine[0]
-
     def pre_backward(self, step: int, out: RenderOutput) -> None:
         """Nothing to do: the densification statistic is read from the 3-D means' gradient."""
 
     def post_backward(self, step: int, out: RenderOutput, optimizers) -> None:
-        """Stage 1 only: SH degree, position lr, densification statistics, densify/prune/reset.
+        """Stage 1 only: SH degree, densification statistics, densify/prune/reset.
+
+        Learning rates are the trainer's (:func:`arcsem.train.optim.apply_schedules` reads
+        :meth:`learning_rates` unless ``train.optim.groups`` overrides a group).
 
         Runs after the backward pass of 0-based ``step`` and before the optimiser step; changed
         parameters lose their ``.grad`` for this step (as the official new Parameters do).
@@ -167,8 +159,6 @@ class GaussianBackbone(Backbone):
             return
         c, it = self.cfg, step + 1  # official 1-based iteration
         self.model.active_sh_degree.fill_(active_sh_degree_at(it, c.sh_degree, c.sh_increase_every))
-        if c.schedule_lr:
-            self._set_lrs(it, optimizers)
         if not c.densify or it >= c.densify_until:
             return
         with torch.no_grad():
@@ -216,12 +206,27 @@ class GaussianBackbone(Backbone):
         self.model.active_sh_degree.fill_(min(self.cfg.sh_degree, math.isqrt(params["sh_rest"].shape[1] + 1) - 1))
         self.stats = DensifyStats.zeros(len(self.model), device=self.model.means.device)
 
+    def get_extra_state(self) -> dict[str, Tensor]:
+        """The densification statistics ride in ``state_dict()`` (key ``_extra_state``), so a run
+        resumed between two densification passes continues exactly where it stopped."""
+        return {"grad_sum": self.stats.grad_sum, "count": self.stats.count, "max_radii": self.stats.max_radii}
+
+    def set_extra_state(self, state: dict[str, Tensor]) -> None:
+        dev = self.model.means.device
+        self.stats = DensifyStats(*(state[k].detach().clone().to(dev) for k in ("grad_sum", "count", "max_radii")))
+
     def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
         """Load a checkpoint with any number of Gaussians (parameters are resized); ACT entries are
-        ignored when this backbone has no ACT (e.g. the colour stage)."""
+        ignored when this backbone has no ACT (e.g. the colour stage). Checkpoints without
+        densification statistics (older files, exported models) start them at zero."""
         sd = dict(state_dict)
         if self.act is None:
             sd = {k: v for k, v in sd.items() if not k.startswith("act.")}
+        sd.setdefault("_extra_state", None)
+        if sd["_extra_state"] is None:
+            n = len(sd.get("model.means", self.model.means))
+            sd["_extra_state"] = DensifyStats.zeros(n).__dict__
         result = super().load_state_dict(sd, strict=strict, assign=assign)
-        self.stats = DensifyStats.zeros(len(self.model), device=self.model.means.device)
+        if len(self.stats) != len(self.model):  # the model was edited outside densification: start afresh
+            self.stats = DensifyStats.zeros(len(self.model), device=self.model.means.device)
         return result

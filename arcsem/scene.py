@@ -80,6 +80,8 @@ class Scene:
         points: ``[P, 3]`` initial point cloud, or None. ``point_colors``: ``[P, 3]`` in [0, 1], or None.
         references: artist colour images by training-view name, ``{name: [H, W, 3]}``.
         reference_sets: named presets -> list of training-view names (``five``, ``four``, ...).
+        specimen_size: the specimen's diameter in world units when the dataset states it (transforms
+            key ``specimen_size``; the synthetic grain's ``grain_size``), else None: see :attr:`scale`.
         extent: scene extent used by Gaussian learning rates (1.1 x max camera distance from centroid).
     """
 
@@ -91,6 +93,7 @@ class Scene:
     point_colors: Tensor | None = None
     references: dict[str, Tensor] = field(default_factory=dict)
     reference_sets: dict[str, list[str]] = field(default_factory=dict)
+    specimen_size: float | None = None
 
     @property
     def extent(self) -> float:
@@ -103,3 +106,11 @@ class Scene:
     def size(self) -> float:
         """Diameter of the bounding box (a length scale for tolerances)."""
         return float((self.bounds[1] - self.bounds[0]).norm())
+
+    @property
+    def scale(self) -> tuple[float, str]:
+        """The length that relative depth errors are quoted in, and its name: the specimen's
+        diameter where the dataset states it, else the bounding-box diagonal."""
+        if self.specimen_size:
+            return float(self.specimen_size), "specimen diameter"
+        return self.size, "bounding-box diagonal"

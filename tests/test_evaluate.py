@@ -55,7 +55,7 @@ def test_depth_error_inside_gt_mask():
 def test_metrics_of_a_known_offset(tmp_path):
     scene = tiny_scene()
     bb = BACKBONES.build({"name": "_oracle"}, scene=scene)
-    rows, summary, _ = evaluate_split(bb, scene.test, split_name="test", scene_size=scene.size, out_dir=tmp_path,
+    rows, summary, _ = evaluate_split(bb, scene.test, split_name="test", length_scale=scene.size, out_dir=tmp_path,
                                       with_lpips=False)
     # rgb = clean + 0.1 everywhere -> MSE 0.01 -> 20 dB, inside the mask too
     assert summary["psnr"] == pytest.approx(20.0, abs=1e-3)

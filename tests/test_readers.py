@@ -123,6 +123,22 @@ def test_orthographic_aabb_extras(tiny_transforms, tmp_path):
     np.testing.assert_allclose(s.references["view_01"].numpy(), bgr[..., ::-1] / 255.0, atol=1e-6)
     assert list(s.references) == ["view_01"] and s.reference_sets == {"one": ["view_01"]}
     np.testing.assert_allclose(s.bounds.numpy(), aabb)
+    assert s.specimen_size is None and s.scale == (pytest.approx(np.sqrt(56)), "bounding-box diagonal")
+
+
+def test_specimen_size_sets_the_length_scale_of_depth_errors(tiny_transforms):
+    path = tiny_transforms(n=3)
+    meta = json.loads(path.read_text())
+    meta["synthetic"] = {"grain_size": 2.0}  # what the built-in generator writes
+    path.write_text(json.dumps(meta))
+    assert read_transforms(path).scale == (2.0, "specimen diameter")
+    meta["specimen_size"] = 0.5  # a user's own dataset states it directly (it wins)
+    path.write_text(json.dumps(meta))
+    assert read_transforms(path).scale == (0.5, "specimen diameter")
+    meta["specimen_size"] = -1
+    path.write_text(json.dumps(meta))
+    with pytest.raises(DataError, match="transforms.json.*'specimen_size' must be a positive number"):
+        read_transforms(path)
 
 
 def test_rgba_and_point_cloud(tiny_transforms, tmp_path):

@@ -38,7 +38,7 @@ def evaluate_colour(backbone, scene, refs, run_dir: Path, cc) -> dict:
             out[name] = {}
             continue
         limit = cc.eval.max_train_views if name.startswith("train") else None
-        r, summary, _ = evaluate_split(backbone, colour_split(split, idx), split_name=name, scene_size=scene.size,
+        r, summary, _ = evaluate_split(backbone, colour_split(split, idx), split_name=name, length_scale=scene.scale[0],
                                        with_lpips=cc.eval.lpips, max_views=limit)
         weights.add(summary.pop("lpips_weights", "skipped"))
         for k in [k for k in summary if k.startswith("depth")]:

@@ -195,7 +195,7 @@ def bounds_from_cameras(cams: Cameras) -> torch.Tensor:
 
 def assemble_scene(root: Path, views: list[ViewSpec], opts: ReaderOptions, *, bounds: Any = None,
                    points: np.ndarray | None = None, point_colors: np.ndarray | None = None,
-                   reference_sets: dict[str, list[str]] | None = None) -> Scene:
+                   reference_sets: dict[str, list[str]] | None = None, specimen_size: float | None = None) -> Scene:
     """Select, split and read ``views``; bounds from ``bounds``, else the points, else the frusta."""
     if not views:
         raise DataError(f"{root}: the dataset has no views")
@@ -226,5 +226,5 @@ def assemble_scene(root: Path, views: list[ViewSpec], opts: ReaderOptions, *, bo
         box = bounds_from_cameras(train.cameras)
     to_t = lambda a: None if a is None else torch.as_tensor(np.asarray(a, dtype=np.float32))
     return Scene(str(root), train, test, box, points=to_t(points), point_colors=to_t(point_colors),
-                 references=refs, reference_sets=sets)
+                 references=refs, reference_sets=sets, specimen_size=specimen_size)
 

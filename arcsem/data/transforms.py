@@ -162,4 +162,14 @@ def read_transforms(path: str | Path, opts: ReaderOptions | None = None) -> Scen
     if not isinstance(sets, dict) or not all(isinstance(v, list) for v in sets.values()):
         raise DataError(f"{file}: 'reference_sets' must map names to lists of view names")
     return assemble_scene(file.parent, views, opts, bounds=data.get("aabb"), points=points,
-                          point_colors=colors, reference_sets=sets)
+                          point_colors=colors, reference_sets=sets, specimen_size=_specimen_size(file, data))
+
+
+def _specimen_size(file: Path, data: dict) -> float | None:
+    """``specimen_size`` (or the synthetic generator's ``synthetic.grain_size``): a positive length, or None."""
+    size = data.get("specimen_size", (data.get("synthetic") or {}).get("grain_size"))
+    if size is None:
+        return None
+    if not isinstance(size, (int, float)) or not size > 0:
+        raise DataError(f"{file}: 'specimen_size' must be a positive number, got {size!r}")
+    return float(size)

@@ -137,7 +137,8 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
     if study == "grayscale_comparison":
         notes.append("train views: the paper's protocol (ACT per training image); held-out: test views "
                      "rendered with the mean ACT; depth err.: median |depth - GT| over held-out "
-                     "views inside the mask (% of the scene's bounding-box diagonal, and in scene units).")
+                     "views inside the mask (% of the specimen's diameter where the dataset states it, e.g. the "
+                     "synthetic grain's 2 units, else of the bounding-box diagonal; and in scene units).")
         notes.append("paper Table 1: ArCSEM's published numbers on real SEM data (32 views, 3072x2048); "
                      "not the same scene as ours.")
     elif study == "runs":

@@ -5,7 +5,8 @@ views with the mean ACT (their cameras carry ``image_id = -1``). The reference i
 noise-free ``split.clean`` when the dataset has it, else the observed image. With masks, masked
 variants (``psnr_masked`` ...) are added. With ground-truth depth, the median absolute depth error
 over the pixels inside the GT mask (``depth > 0`` and the specimen mask) is reported, also as a
-percentage of ``scene.size`` (the bounding-box diagonal). The rendered depth is ``median_depth``
+percentage of ``length_scale`` (``scene.scale``: the specimen's diameter where the dataset states
+it, else the bounding-box diagonal). The rendered depth is ``median_depth``
 when the backbone provides it (2DGS), else the expected ``depth``.
 
 Metrics come from :mod:`arcsem.metrics` (the one implementation); LPIPS is NaN when its ImageNet
@@ -75,7 +76,7 @@ def _image_row(pred, gt, mask, with_lpips: bool) -> dict[str, Any]:
     return row
 
 
-def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test", scene_size: float = 1.0,
+def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test", length_scale: float = 1.0,
                    out_dir: str | Path | None = None, with_lpips: bool = True, max_views: int | None = None,
                    ) -> tuple[list[dict[str, Any]], dict[str, Any], list[torch.Tensor]]:
     """Render and score every view of ``split`` (up to ``max_views``, evenly spaced).
@@ -104,7 +105,7 @@ def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test
             err = depth_error(depth[..., 0], split.depths[i], mask)
             errors.append(err)
             row["depth_mae"] = float(err.median()) if err.numel() else math.nan
-            row["depth_mae_pct"] = 100.0 * row["depth_mae"] / scene_size
+            row["depth_mae_pct"] = 100.0 * row["depth_mae"] / length_scale
         rows.append(row)
         if render_dir is not None:
             _write_view(render_dir, split, i, out, depth)
@@ -112,7 +113,7 @@ def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test
     if errors:
         pooled = torch.cat(errors)
         summary["depth_mae"] = float(pooled.median()) if pooled.numel() else math.nan
-        summary["depth_mae_pct"] = 100.0 * summary["depth_mae"] / scene_size
+        summary["depth_mae_pct"] = 100.0 * summary["depth_mae"] / length_scale
     summary["lpips_weights"] = min(weights) if len(weights) == 1 else "; ".join(sorted(weights))
     return rows, summary, errors
 

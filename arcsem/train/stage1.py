@@ -126,7 +126,7 @@ def _periodic_eval(backbone, scene: Scene, ec: EvalConfig):
     split, name = (scene.test, "test") if len(scene.test) else (scene.train, "train")
 
     def fn(step: int) -> dict:
-        _, summary, _ = evaluate_split(backbone, split, split_name=name, scene_size=scene.size, with_lpips=False,
+        _, summary, _ = evaluate_split(backbone, split, split_name=name, length_scale=scene.scale[0], with_lpips=False,
                                        max_views=ec.periodic_views)
         return {f"{name}_{k}": summary[k] for k in ("psnr", "ssim") if k in summary}
     return fn
@@ -169,7 +169,7 @@ def evaluate(backbone, scene: Scene, run_dir: str | Path | None, ec: EvalConfig 
         if len(split) == 0:
             result[sname] = {}
             continue
-        r, summary, _ = evaluate_split(backbone, split, split_name=sname, scene_size=scene.size, out_dir=out_dir,
+        r, summary, _ = evaluate_split(backbone, split, split_name=sname, length_scale=scene.scale[0], out_dir=out_dir,
                                        with_lpips=ec.lpips, max_views=limit)
         rows += r
         for k in ("depth_mae", "depth_mae_pct"):
@@ -178,7 +178,8 @@ def evaluate(backbone, scene: Scene, run_dir: str | Path | None, ec: EvalConfig 
         result["lpips_weights"] = summary.pop("lpips_weights")
         result[sname] = summary
     if depth:
-        depth.update(scene_size=scene.size, source="median_depth" if "median_depth" in backbone.provides else "depth")
+        source = "median_depth" if "median_depth" in backbone.provides else "depth"
+        depth.update(length_scale=scene.scale[0], length_scale_name=scene.scale[1], source=source)
     result["depth"] = depth
     result["all_views"] = mean_metrics(rows) if rows else {}
     if run_dir is not None:

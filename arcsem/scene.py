@@ -82,7 +82,7 @@ class Scene:
         reference_sets: named presets -> list of training-view names (``five``, ``four``, ...).
         specimen_size: the specimen's diameter in world units when the dataset states it (transforms
             key ``specimen_size``; the synthetic grain's ``grain_size``), else None: see :attr:`scale`.
-        extent: scene extent used by Gaussian learning rates (1.1 x max camera distance from centroid).
+        extent: scene extent used by Gaussian learning rates (see :attr:`extent`).
     """
 
     root: str
@@ -97,10 +97,19 @@ class Scene:
 
     @property
     def extent(self) -> float:
+        """Length scale of the Gaussian learning rates and densification thresholds.
+
+        3DGS uses 1.1 x the radius of the camera centres, the right scale when the cameras surround
+        the scene at a few object sizes. SEM cameras sit far away (pinhole at ~30 grain sizes) or
+        anywhere (orthographic), so the scale is capped by 1.1 x the bounding-box diagonal: otherwise
+        the position lr and the clone/split threshold (``percent_dense x extent``) would be tens of
+        times the specimen's scale.
+        """
+        box = float(1.1 * (self.bounds[1] - self.bounds[0]).norm())
+        if self.train.cameras.is_ortho:
+            return box
         centers = self.train.cameras.centers
-        if self.train.cameras.is_ortho:  # camera planes can sit anywhere; use the specimen instead
-            return float(1.1 * (self.bounds[1] - self.bounds[0]).norm())
-        return float(1.1 * (centers - centers.mean(0)).norm(dim=-1).max())
+        return min(box, float(1.1 * (centers - centers.mean(0)).norm(dim=-1).max()))
 
     @property
     def size(self) -> float:

@@ -213,3 +213,23 @@ def test_render_contract_with_real_rasteriser(name, model):
     assert out["radii"].shape == (2, N) and out["visible"].shape == (2, N) and out["visible"].dtype == torch.bool
     out["rgb"].sum().backward()
     assert bb.model.sh_dc.grad is not None and bb.act.weight.grad is not None
+
+
+@pytest.mark.parametrize("radius", [1.0, 4.0, 60.0])
+def test_scene_extent_is_the_camera_radius_capped_by_the_specimen(radius):
+    """3DGS's 1.1 x camera radius for cameras near the specimen; 1.1 x bbox diagonal for far SEM cameras."""
+    ang = torch.linspace(-math.pi / 2, math.pi / 2, 3)  # centres on a half circle: centroid off-centre
+    eye = torch.stack([radius * torch.sin(ang), torch.zeros(3), -radius * torch.cos(ang)], -1)
+    w2c = look_at(eye, torch.zeros_like(eye), torch.tensor([0.0, -1.0, 0.0]))
+    cams = Cameras(w2c, torch.tensor([[10.0, 0, 4], [0, 10.0, 4], [0, 0, 1]]).repeat(3, 1, 1), 8, 8, "pinhole")
+    img = torch.zeros(3, 8, 8, 3)
+    scene = Scene("t", Split(["a", "b", "c"], cams, img), Split([], cams[[]], img[:0]),
+                  torch.tensor([[-0.5] * 3, [0.5] * 3]))
+    centroid = eye.mean(0)
+    cam_radius = 1.1 * float((eye - centroid).norm(dim=-1).max())
+    box = 1.1 * math.sqrt(3.0)
+    assert scene.extent == pytest.approx(min(cam_radius, box), rel=1e-6)
+    assert (scene.extent == pytest.approx(box, rel=1e-6)) == (radius > 1.0)
+    ortho = Scene("t", Split(["a", "b", "c"], Cameras(w2c, cams.K, 8, 8, "orthographic"), img), scene.test,
+                  scene.bounds)
+    assert ortho.extent == pytest.approx(box, rel=1e-6)

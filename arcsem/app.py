@@ -111,6 +111,21 @@ def run_directory(cfg: DictConfig) -> Path:
     return Path(rd) if rd else Path("outputs") / time.strftime("%Y-%m-%d/%H-%M-%S")
 
 
+def set_threads(threads: Any) -> None:
+    """``threads``: torch (and fused-kernel) threads of this job; None keeps torch's default (all cores).
+
+    Jobs that share a machine (``hydra/launcher=joblib``, several runs at once) should divide the
+    cores between them: oversubscribed threads spin-wait and slow every job down several times.
+    """
+    if threads is None:
+        return
+    if not isinstance(threads, int) or threads < 1:
+        raise ConfigError(f"threads: expected a positive integer or null, got {threads!r}")
+    import torch
+
+    torch.set_num_threads(threads)
+
+
 def _stage_function(stage: str) -> Callable[..., dict]:
     module, func = {"gray": ("arcsem.train", "run_stage1"), "color": ("arcsem.colorize", "run_stage2")}[stage]
     import importlib
@@ -165,6 +180,7 @@ def run(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
     _, overrides = _hydra_info()
     write_text_atomic(run_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
     seed_everything(int(cfg.seed))
+    set_threads(cfg.get("threads"))
     metrics: dict[str, Any] = {
         "seed": int(cfg.seed), "git_revision": git_revision(), "overrides": overrides, "stage": stage,
         "backbone": str(cfg.backbone.name), "dataset": {"kind": str(cfg.dataset.kind)},

@@ -344,3 +344,17 @@ def test_broken_metrics_json_is_missing_not_fatal(gray_sweep):
     assert broken.job_dir.endswith("/1") and "metrics.json: not valid JSON" in broken.reason
     md = to_markdown(build_table(coll, "grayscale_comparison"))
     assert "| 3DGS | missing |" in md and "not valid JSON" in md
+
+
+def test_grid_reads_renders_of_a_shared_stage1_model(tmp_path):
+    """share_stage1: the run's stage-1 renders live behind its stage1/ link to the shared model."""
+    from arcsem.report.grids import study_grids
+
+    shared, run = tmp_path / "cache" / "abc", tmp_path / "r"
+    _png(shared / "renders/test/a.png", 70)
+    _png(shared / "renders/test/a_depth.png", 80)
+    run.mkdir()
+    (run / "stage1").symlink_to(shared, target_is_directory=True)
+    grids = study_grids("grayscale_comparison", {"2DGS": run}, tmp_path / "g")
+    assert [t for t, _ in grids] == ["grayscale_comparison: renders (held-out views)",
+                                     "grayscale_comparison: depth maps (held-out views)"]

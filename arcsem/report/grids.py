@@ -148,9 +148,12 @@ def _write(img: np.ndarray, path: Path) -> Path:
 KINDS = {"grayscale_comparison": ("gray", "depth"), "colorization_ablation": ("color",),
          "reference_count": ("color",)}
 """Grid kinds per study; any other study (``runs``) gets every kind that has files."""
+STAGE1_RENDERS = ("renders/test", "stage1/renders/test", "renders/train", "stage1/renders/train")
+"""Where a run keeps its stage-1 renders: its own folder, or ``stage1/`` (``share_stage1``: a link to the
+shared model's folder)."""
 GRID = {  # kind -> (run folders, first with files wins; file suffix; ground-truth kind; first column; title)
-    "gray": (("renders/test", "renders/train"), "", "gray", "ground truth", "renders"),
-    "depth": (("renders/test", "renders/train"), "_depth", "depth", "GT depth", "depth maps"),
+    "gray": (STAGE1_RENDERS, "", "gray", "ground truth", "renders"),
+    "depth": (STAGE1_RENDERS, "_depth", "depth", "GT depth", "depth maps"),
     "color": (("colored",), "", "color", "GT colour", "coloured views"),
 }
 
@@ -182,6 +185,7 @@ def study_grids(study: str, runs: Mapping[str, Path], out: Path,
         paths = [[gt_path(dirs[0], n, gt_kind, gt, folder)] + [d / folder / f"{n}{suffix}.png" for d in dirs]
                  for n in names]
         img = make_grid(paths, [gt_label, *labels], names)
-        where = {"renders/test": " (held-out views)", "renders/train": " (training views)"}.get(folder, "")
+        where = " (held-out views)" if folder.endswith("renders/test") else (
+            " (training views)" if folder.endswith("renders/train") else "")
         grids.append((f"{study}: {title}{where}", _write(img, out / f"{study}_{kind}.png")))
     return grids

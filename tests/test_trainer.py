@@ -388,6 +388,7 @@ def test_presets_validate_against_trainer_and_backbone_configs(preset):
     for name, over in tc.per_backbone.items():
         cls = BACKBONES.get(name)
         validate_config(cls.Config, dict(over.get("backbone") or {}), where=f"train.per_backbone.{name}")
+        assert set(over) <= {"backbone", "losses", "steps"}, over
         merged = merge_loss_cfgs(tc.losses, over.get("losses"))
         assert all(k in LOSSES.names() for k, v in merged.items() if v is not None), merged
     if preset == "paper":
@@ -403,15 +404,15 @@ def test_gaussian_rates_follow_the_backbone_schedule_unless_the_config_overrides
     bb = BACKBONES.build({"name": "gs2d", **TINY_OVERRIDES["gs2d"]}, scene=scene)
     opts, seen = {}, []
 
-    def spy(optimizers, schedules, step, total):
+    def spy(optimizers, *args):
         opts.update(optimizers)
-        return loop_mod_apply(optimizers, schedules, step, total)
+        return loop_mod_apply(optimizers, *args)
 
     loop_mod_apply = loop_mod.apply_schedules
     monkeypatch.setattr(loop_mod, "apply_schedules", spy)
     losses = build_losses(L1_DSSIM, bb.provides, bb.batch_mode)
-    train(bb, scene.train, losses, loop(12), optim={"groups": {"opacity": {"lr": 0.0123}}},
+    train(bb, scene.train, losses, loop(12), optim={"groups": {"opacity": {"lr": 0.0123}}, "lr_scale": 2.0},
           on_step=lambda s, rec: seen.append({g: o.param_groups[0]["lr"] for g, o in opts.items()}))
-    assert len(seen) == 12 and all(r["opacity"] == 0.0123 for r in seen)
-    assert [r["xyz"] for r in seen] == pytest.approx([bb.learning_rates(s)["xyz"] for s in range(12)])
+    assert len(seen) == 12 and all(r["opacity"] == pytest.approx(2 * 0.0123) for r in seen)  # x lr_scale
+    assert [r["xyz"] for r in seen] == pytest.approx([2 * bb.learning_rates(s)["xyz"] for s in range(12)])
     assert seen[0]["xyz"] > seen[-1]["xyz"]  # the position rate decays

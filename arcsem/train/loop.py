@@ -168,7 +168,7 @@ def _device(backbone: nn.Module) -> torch.device:
 def _step(run: _Run, losses: LossSet, batch_hook, step: int) -> tuple[float, float, dict]:
     """One optimisation step; returns (loss, batch PSNR, {term: value})."""
     bb = run.backbone
-    apply_schedules(run.optimizers, run.schedules, step, run.loop.steps)
+    apply_schedules(run.optimizers, run.schedules, step, run.loop.steps, run.optim.lr_scale)
     batch = run.sampler.next()
     if batch_hook is not None:
         batch = batch_hook(batch)

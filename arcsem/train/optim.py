@@ -62,6 +62,7 @@ class OptimConfig:
     rmsprop_alpha: float = 0.95  # svox2's RMSProp beta
     rmsprop_eps: float = 1.0e-8
     groups: dict[str, Any] = dataclasses.field(default_factory=dict)  # group -> GroupSchedule overrides
+    lr_scale: float = 1.0  # every group's rate (not ACT's) times this: short schedules take larger steps
 
 
 def lr_at(s: Schedule, step: int, total_steps: int) -> float:
@@ -160,11 +161,11 @@ def make_optimizers(backbone: nn.Module, groups: dict[str, list[nn.Parameter]], 
 
 
 def apply_schedules(optimizers: dict[str, torch.optim.Optimizer], schedules: dict[str, Schedule],
-                    step: int, total_steps: int) -> dict[str, float]:
-    """Set every group's rate for ``step``; returns ``{group: lr}``."""
+                    step: int, total_steps: int, lr_scale: float = 1.0) -> dict[str, float]:
+    """Set every group's rate for ``step`` (times ``lr_scale``, except the ``act`` group); returns ``{group: lr}``."""
     lrs = {}
     for g, opt in optimizers.items():
-        lrs[g] = lr_at(schedules[g], step, total_steps)
+        lrs[g] = lr_at(schedules[g], step, total_steps) * (1.0 if g == "act" else lr_scale)
         for pg in opt.param_groups:
             pg["lr"] = lrs[g]
     return lrs

@@ -11,8 +11,9 @@ returned dict into ``metrics.json``). It writes into ``run_dir``:
 
 The ``train`` config group (``conf/train/*.yaml``) is validated against :class:`TrainConfig`.
 ``per_backbone.<name>`` adapts a preset to a backbone: ``backbone`` keys merged into
-``cfg.backbone`` (e.g. a shortened densification schedule) and ``losses`` merged into
-``losses`` (``null`` removes a term), so one preset serves every backbone of a sweep.
+``cfg.backbone`` (e.g. a shortened densification schedule), ``losses`` merged into
+``losses`` (``null`` removes a term) and ``steps`` (a backbone whose step costs more), so one
+preset serves every backbone of a sweep.
 """
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ from typing import Any
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from ..errors import TrainingError
+from ..errors import ConfigError, TrainingError
 from ..plugins import BACKBONES
 from ..registry import validate_config
 from ..scene import Scene
@@ -82,7 +83,7 @@ class TrainConfig:
     losses: dict[str, Any] = field(default_factory=lambda: {"l1": {"weight": 0.8}, "dssim": {"weight": 0.2}})
     optim: OptimConfig = field(default_factory=OptimConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
-    per_backbone: dict[str, Any] = field(default_factory=dict)  # name -> {backbone: {...}, losses: {...}}
+    per_backbone: dict[str, Any] = field(default_factory=dict)  # name -> {backbone: {...}, losses: {...}, steps: n}
 
 
 def _plain(x: Any) -> Any:
@@ -142,7 +143,11 @@ def run_stage1(cfg: Any, scene: Scene, run_dir: str | Path) -> dict:
     losses = build_losses(merge_loss_cfgs(tc.losses, (tc.per_backbone.get(name) or {}).get("losses")),
                           backbone.provides, backbone.batch_mode, backbone=name)
     rays = tc.rays_per_batch or int(getattr(backbone.cfg, "batch_size", 5000))
-    loop = LoopConfig(steps=tc.steps, stage="geometry", batch_views=tc.batch_views, rays_per_batch=rays,
+    over = tc.per_backbone.get(name) or {}
+    unknown = set(over) - {"backbone", "losses", "steps"}
+    if unknown:
+        raise ConfigError(f"train.per_backbone.{name}: unknown key(s) {sorted(unknown)}; valid: backbone, losses, steps")
+    loop = LoopConfig(steps=int(over.get("steps", tc.steps)), stage="geometry", batch_views=tc.batch_views, rays_per_batch=rays,
                       log_every=tc.log_every, eval_every=tc.eval_every, checkpoint_every=tc.checkpoint_every,
                       resume=tc.resume, seed=int(cfg.get("seed", 0)), progress=tc.progress, desc=f"stage 1 ({name})")
     act_lr = float((_plain(cfg.get("act")) or {}).get("lr", 1e-4))

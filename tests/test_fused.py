@@ -81,7 +81,7 @@ def test_fused_matches_torch_values_and_gradients(kind, model, dtype, tol):
         if impl == "torch":
             cot = {k: torch.rand(out[k].shape, generator=g, dtype=dtype) for k in OUTPUTS[kind]}
         loss = sum((out[k] * cot[k]).sum() for k in OUTPUTS[kind])
-        grads[impl] = torch.autograd.grad(loss, ps)
+        grads[impl] = torch.autograd.grad(loss, [*ps, out["means2d"]])  # + the screen-position gradient
         outs[impl] = out
     truth = render(kind, *scene(kind, torch.float64, model), "torch") if dtype == torch.float32 else None
     for k in OUTPUTS[kind]:
@@ -95,12 +95,51 @@ def test_fused_matches_torch_values_and_gradients(kind, model, dtype, tol):
             assert_rel(a, b, 2e-5, f"{kind} {model} {k}")
         else:
             assert_rel(a, b, tol, f"{kind} {model} {k}")
-    for name, a, b in zip(("means", "quats", "scales", "opacities", "colors"), grads["cpp"], grads["torch"]):
+    for name, a, b in zip(("means", "quats", "scales", "opacities", "colors", "means2d"), grads["cpp"], grads["torch"]):
         assert_rel(a, b, tol, f"{kind} {model} d/d{name}")
+    for k in ("radii", "visible"):
+        assert torch.equal(outs["cpp"][k], outs["torch"][k]), k
+    assert_rel(outs["cpp"]["means2d"].detach(), outs["torch"]["means2d"].detach(), tol, "means2d")
     # the scene really exercises the edge cases
     alpha = outs["torch"]["alpha"].detach()
     assert (alpha[:, :, -8:] == 0).all(), "right-hand tiles should be empty"
     assert alpha.max() > 0.99, "the opaque stack should saturate some pixels (early termination)"
+
+
+@pytest.mark.parametrize("model", ["pinhole", "orthographic"])
+@pytest.mark.parametrize("kind", ["gs2d", "gs3d"])
+def test_fused_footprint_and_binning_equal_torch(kind, model):
+    """The C++ footprints, tile rectangles, pixel boxes and (tile, depth)-sorted pairs are those of the torch
+    functions exactly (2 cameras, splats partly off-screen and behind the camera, some ties in depth)."""
+    from arcsem.backbones.gaussians import fused
+    from arcsem.backbones.gaussians.raster import bin_tiles
+    from arcsem.backbones.gaussians.raster_scenes import orbit_cameras, random_splats
+    from arcsem.backbones.gs2d.render import footprint_2dgs, splat_homographies
+    from arcsem.backbones.gs3d.render import footprint_3dgs, project_gaussians
+
+    s = random_splats(3000, 1, seed=3, scale=(0.002, 0.3), extent=4.0, opacity=(0.001, 1.0))
+    s.means[:50] = s.means[50:100]  # equal depths: ties keep the index order
+    cams = orbit_cameras(2, 72, 40, ortho=model == "orthographic")
+    C, N, W, H, tile, near = 2, 3000, 72, 40, 16, 0.01
+    if kind == "gs2d":
+        Hm, _ = splat_homographies(s.means, s.quats, s.scales[:, :2], cams)
+        radius, rects, eff, depth = footprint_2dgs(Hm, s.opacities, cams, tile, near)
+        got = fused.footprint_bin_2dgs(Hm[..., :3, :].reshape(C * N, 9), Hm[..., 3, :].reshape(C * N, 3),
+                                       s.opacities, C, near, W, H, tile)
+    else:
+        m2, depth, cov2d = project_gaussians(s.means, s.quats, s.scales, cams)
+        radius, rects, eff, _ = footprint_3dgs(m2, depth, cov2d, s.opacities, cams, tile, near)
+        cov = torch.stack([cov2d[..., 0, 0], cov2d[..., 0, 1], cov2d[..., 1, 1]], -1)
+        got = fused.footprint_bin_3dgs(m2.reshape(C * N, 2), depth.reshape(-1), cov.reshape(C * N, 3), s.opacities,
+                                       C, near, W, H, tile)
+    radii, visible, rects_c, eff_c, offsets, ids = got
+    b = bin_tiles(rects, depth, W, H, tile)
+    vis = (radius > 0) & (rects[..., 1] > rects[..., 0]) & (rects[..., 3] > rects[..., 2])
+    assert 0 < int(vis.sum()) < C * N, "the scene should have visible and culled splats"
+    assert torch.equal(visible, vis.reshape(-1)) and torch.equal(radii, torch.where(vis, radius, 0).reshape(-1))
+    assert torch.equal(rects_c, rects.reshape(-1, 4))
+    assert torch.equal(eff_c[visible], eff.reshape(-1, 4)[visible])
+    assert torch.equal(offsets, b.offsets) and torch.equal(ids, b.splat)
 
 
 def test_resolve_impl_choices():

@@ -1,8 +1,11 @@
 """Fused C++ CPU compositing kernels (forward + backward), built as a PyTorch JIT extension.
 
-The kernels in ``cpp/`` replace only the per-pixel front-to-back loop; projection, binning and
-sorting stay in PyTorch, so autograd chains through them unchanged. The PyTorch compositor is the
-reference: tests/test_fused.py checks values and gradients of both paths against each other.
+The kernels in ``cpp/`` cover the whole ``rasterizer: cpp`` pipeline in a few calls (on a shared,
+oversubscribed 2-core machine every multi-threaded PyTorch op can cost a scheduler slice, so op count
+matters as much as arithmetic): the differentiable projection (``project.cpp``: 2DGS homographies and
+normals, 3DGS EWA conics, with backward kernels), footprints + tile binning + depth sort (``binning.cpp``,
+no gradient) and the front-to-back compositing (``composite2d.cpp``, ``composite3d.cpp``). The PyTorch
+path is the reference: tests/test_fused.py checks values and gradients of both paths against each other.
 
 ``load_extension()`` compiles once (about a minute with gcc; cached under
 ``$TORCH_EXTENSIONS_DIR`` or ``~/.cache/torch_extensions``) and returns None with one warning when
@@ -10,6 +13,7 @@ the toolchain is missing, so ``rasterizer: auto`` falls back to PyTorch.
 """
 from __future__ import annotations
 
+import hashlib
 import os
 import warnings
 from functools import lru_cache
@@ -21,13 +25,26 @@ from torch import Tensor
 __all__ = [
     "composite2d",
     "composite3d",
-    "composite_2dgs_packed",
-    "composite_3dgs_packed",
+    "footprint_bin_2dgs",
+    "footprint_bin_3dgs",
     "load_extension",
+    "project_2dgs",
+    "project_3dgs",
     "resolve_impl",
 ]
 
-SOURCES = [Path(__file__).parent / "cpp" / name for name in ("composite3d.cpp", "composite2d.cpp", "module.cpp")]
+CPP_DIR = Path(__file__).parent / "cpp"
+SOURCES = [CPP_DIR / name for name in ("composite3d.cpp", "composite2d.cpp", "binning.cpp", "project.cpp", "module.cpp")]
+CFLAGS = ["-O3", "-fopenmp"]
+
+
+def build_name() -> str:
+    """Extension name with a hash of the sources, headers and flags: every change builds into its own
+    folder, so a stale build is never loaded and a running job's library is never overwritten."""
+    h = hashlib.sha1(" ".join(CFLAGS).encode())
+    for f in sorted([*SOURCES, *CPP_DIR.glob("*.h")]):
+        h.update(f.name.encode() + f.read_bytes())
+    return f"arcsem_fused_raster_{h.hexdigest()[:12]}"
 
 
 @lru_cache(maxsize=1)
@@ -39,9 +56,9 @@ def load_extension(verbose: bool = False):
         from torch.utils.cpp_extension import load
 
         return load(
-            name="arcsem_fused_raster",
-            sources=[str(s) for s in SOURCES if s.exists()],
-            extra_cflags=["-O3", "-fopenmp"],
+            name=build_name(),
+            sources=[str(s) for s in SOURCES],
+            extra_cflags=CFLAGS,
             extra_ldflags=["-fopenmp"],
             verbose=verbose,
         )
@@ -155,31 +172,76 @@ def composite2d(Hm: Tensor, Dz: Tensor, centers: Tensor, opacities: Tensor, feat
 
 
 
-def composite_2dgs_packed(Hm: Tensor, centre2d: Tensor, opacities: Tensor, feats: Tensor, binning, box: Tensor,
-                          dist_near: float, dist_far: float) -> Tensor:
-    """The 2DGS torch shader's packed per-pixel output, from the fused kernel.
+class _Project2D(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means, quats, scales, leaf, P, view, ortho):
+        outs = load_extension().project2d_forward(means, quats, scales, P, view, ortho)
+        ctx.save_for_backward(means, quats, scales, P, view)
+        ctx.ortho, ctx.leaf_shape = ortho, leaf.shape
+        return tuple(outs)
 
-    Args: Hm ``[C*N, 4, 3]`` rows Tu, Tv, Tw, Tz; centre2d ``[C*N, 2]``; opacities ``[C*N]``;
-        feats ``[C*N, 6]`` (colour, normal); binning: :class:`~arcsem.backbones.gaussians.raster.Binning`;
-        box: ``[C*N, 4]`` effective pixel boxes of the torch path.
-    Returns: ``[C, H, W, 10]`` = rgb(3), alpha, sum w z, normal(3), distortion, median depth.
+    @staticmethod
+    def backward(ctx, g_H, g_Dz, g_centre, g_normal):
+        means, quats, scales, P, view = ctx.saved_tensors
+        gm, gq, gs, gsh = load_extension().project2d_backward(
+            means, quats, scales, P, view, ctx.ortho, *(g.contiguous() for g in (g_H, g_Dz, g_centre, g_normal)))
+        return gm, gq, gs, gsh.reshape(ctx.leaf_shape), None, None, None
+
+
+def project_2dgs(means: Tensor, quats: Tensor, scales: Tensor, leaf: Tensor, P: Tensor, view: Tensor, ortho: bool):
+    """Fused 2DGS projection (``splat_homographies`` + ``camera_facing_normals`` + screen shift, gs2d/render.py).
+
+    Args: means ``[N, 3]``, quats ``[N, 4]``, scales ``[N, 2]``; leaf ``[C, N, 2]`` screen-position leaf (its value
+        is not read: it enters as a zero shift, its gradient is the screen-position gradient); P ``[C, 4, 4]``
+        (:func:`pixel_projection`); view ``[C, 3]`` camera forward (orthographic) or centre (pinhole).
+    Returns: H ``[C*N, 9]`` rows Tu, Tv, Tw; Dz ``[C*N, 3]`` row Tz; centre ``[C*N, 2]``; normals ``[C*N, 3]``.
     """
-    b = binning
-    a = dist_far / (dist_far - dist_near)  # m = a (1 - near / z) = a - a near / z
-    mcoef = Hm.new_tensor([a, 0.0, -a * dist_near]).expand(b.C, 3)
-    f, alpha, dsum, med, dist = composite2d(
-        Hm[:, :3, :].reshape(-1, 9), Hm[:, 3, :], centre2d, opacities, feats, mcoef, b.offsets, b.splat,
-        float("-inf"), b.C, b.H, b.W, b.tile, box)
-    return torch.cat([f[..., :3], alpha[..., None], dsum[..., None], f[..., 3:6], dist[..., None],
-                      med[..., None]], -1)
+    c = lambda t: t.contiguous()
+    return _Project2D.apply(c(means), c(quats), c(scales), leaf, c(P), c(view), bool(ortho))
 
 
-def composite_3dgs_packed(means2d: Tensor, conics: Tensor, opacities: Tensor, feats: Tensor, binning,
-                          box: Tensor) -> Tensor:
-    """The 3DGS torch shader's packed output ``[C, H, W, K + 1]`` = features (colour, depth), alpha."""
-    b = binning
-    f, alpha = composite3d(means2d, conics, opacities, feats, b.offsets, b.splat, b.C, b.H, b.W, b.tile, box)
-    return torch.cat([f, alpha[..., None]], -1)
+class _Project3D(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means, quats, scales, leaf, P, near):
+        m2, depth, conics, cov = load_extension().project3d_forward(means, quats, scales, P, near)
+        ctx.save_for_backward(means, quats, scales, P)
+        ctx.near, ctx.leaf_shape = near, leaf.shape
+        ctx.mark_non_differentiable(cov)
+        return m2, depth, conics, cov
+
+    @staticmethod
+    def backward(ctx, g_m2, g_depth, g_conics, _g_cov):
+        means, quats, scales, P = ctx.saved_tensors
+        gm, gq, gs, gsh = load_extension().project3d_backward(
+            means, quats, scales, P, ctx.near, *(g.contiguous() for g in (g_m2, g_depth, g_conics)))
+        return gm, gq, gs, gsh.reshape(ctx.leaf_shape), None, None
+
+
+def project_3dgs(means: Tensor, quats: Tensor, scales: Tensor, leaf: Tensor, P: Tensor, near: float):
+    """Fused 3DGS EWA projection (``project_gaussians`` + conics of ``render_3dgs``, gs3d/render.py).
+
+    Args: means ``[N, 3]``, quats ``[N, 4]``, scales ``[N, 3]``; leaf ``[C, N, 2]`` as in :func:`project_2dgs`;
+        P ``[C, 4, 4]``; near: conics of centres at depth ``<= near`` are not inverted (culled anyway).
+    Returns: means2d ``[C*N, 2]``, depth ``[C*N]``, conics ``[C*N, 3]``, cov ``[C*N, 3]`` (a, b, c; no gradient).
+    """
+    c = lambda t: t.contiguous()
+    return _Project3D.apply(c(means), c(quats), c(scales), leaf, c(P), float(near))
+
+
+@torch.no_grad()
+def footprint_bin_2dgs(H: Tensor, Dz: Tensor, opacities: Tensor, C: int, near: float, W: int, Hh: int, tile: int):
+    """``footprint_2dgs`` + ``bin_tiles`` fused: radii ``[C*N]`` (0 where not visible), visible ``[C*N]``,
+    rects ``[C*N, 4]``, effective pixel boxes ``[C*N, 4]``, tile offsets ``[C*TY*TX + 1]``, sorted ids ``[P]``."""
+    return load_extension().footprint_bin2d(H.contiguous(), Dz.contiguous(), opacities.contiguous(), C, float(near),
+                                            W, Hh, tile)
+
+
+@torch.no_grad()
+def footprint_bin_3dgs(means2d: Tensor, depth: Tensor, cov: Tensor, opacities: Tensor, C: int, near: float, W: int,
+                       H: int, tile: int):
+    """``footprint_3dgs`` + ``bin_tiles`` fused; returns as :func:`footprint_bin_2dgs`."""
+    c = lambda t: t.contiguous()
+    return load_extension().footprint_bin3d(c(means2d), c(depth), c(cov), c(opacities), C, float(near), W, H, tile)
 
 
 if __name__ == "__main__":  # `python -m arcsem.backbones.gaussians.fused`: build now (make setup does this)

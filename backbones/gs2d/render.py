@@ -168,6 +168,8 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     impl = _resolve(impl)
     C, N, Hh, W = len(cams), means.shape[0], cams.height, cams.width
     cams = cams.to(dtype=means.dtype)
+    if impl == "cpp":
+        return _render_2dgs_fused(means, quats, scales, opacities, colors, cams, background, tile, near)
     Hm, R = splat_homographies(means, quats, scales, cams)
     radius, rects, eff, depth = footprint_2dgs(Hm, opacities, cams, tile, near)
     b = bin_tiles(rects, depth, W, Hh, tile)
@@ -179,15 +181,37 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     Hm = torch.cat([Hm[..., :2, :] + shift[..., None] * Hm[..., 2:3, :], Hm[..., 2:, :]], -2)
     centre2d = (Hm[..., :2, 2] / Hm[..., 2, 2:3]).reshape(C * N, 2)
     alpha_fn, shade = _shade_2dgs(_splat_table(Hm.reshape(C * N, 4, 3), centre2d, opacities.repeat(C), feats))
-    if impl == "torch":
-        out = rasterize(b, eff.reshape(C * N, 4), alpha_fn, shade, 10, means.dtype, chunk_tiles).reshape(C, Hh, W, 10)
-    else:  # fused C++ kernels (backbones/gaussians/fused.py), packed as rgb, alpha, w z, normal, dist, median
-        from arcsem.backbones.gaussians.fused import composite_2dgs_packed
-
-        o = composite_2dgs_packed(Hm.reshape(C * N, 4, 3), centre2d, opacities.repeat(C), feats, b,
-                                  eff.reshape(C * N, 4), DIST_NEAR, DIST_FAR)
-        out = torch.cat([o[..., :3], o[..., 5:8], o[..., 3:5], o[..., 8:10]], -1)
+    out = rasterize(b, eff.reshape(C * N, 4), alpha_fn, shade, 10, means.dtype, chunk_tiles).reshape(C, Hh, W, 10)
     return {**_outputs(out, background, radius, rects), "means2d": means2d}
+
+
+def _render_2dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
+                       cams: Cameras, background: Tensor | None, tile: int, near: float) -> dict[str, Tensor]:
+    """:func:`render_2dgs` on the fused C++ kernels: projection, footprint + binning and compositing are one
+    call each (few PyTorch ops: on a shared machine every multi-threaded op can cost a scheduler slice)."""
+    from arcsem.backbones.gaussians import fused
+
+    C, N, Hh, W = len(cams), means.shape[0], cams.height, cams.width
+    P = pixel_projection(cams).to(means.dtype)
+    view = (cams.forward if cams.is_ortho else cams.centers).to(means.dtype)
+    leaf = means.new_empty(C, N, 2).requires_grad_(torch.is_grad_enabled())
+    H9, Dz, centre2d, normals = fused.project_2dgs(means, quats, scales, leaf, P, view, cams.is_ortho)
+    with torch.no_grad():
+        leaf.copy_(centre2d.view(C, N, 2))
+    opac = opacities.expand(C, N).reshape(C * N)
+    radii, visible, _, eff, offsets, ids = fused.footprint_bin_2dgs(H9, Dz, opacities, C, near, W, Hh, tile)
+    feats = torch.cat([colors.expand(C, N, 3).reshape(C * N, 3), normals], -1)
+    a = DIST_FAR / (DIST_FAR - DIST_NEAR)  # m = a (1 - near / z) = a - a near / z
+    mcoef = means.new_tensor([a, 0.0, -a * DIST_NEAR]).expand(C, 3)
+    f, alpha, dsum, med, dist = fused.composite2d(H9, Dz, centre2d, opac, feats, mcoef, offsets, ids, float("-inf"),
+                                                  C, Hh, W, tile, eff)
+    alpha = alpha[..., None]
+    rgb = f[..., :3] if background is None else f[..., :3] + (1 - alpha) * background.to(f)
+    return {
+        "rgb": rgb, "alpha": alpha, "depth": torch.where(alpha > 0, dsum[..., None] / alpha.clamp_min(1e-30), 0.0),
+        "median_depth": med[..., None], "normal": f[..., 3:6], "distortion": dist[..., None],
+        "radii": radii.view(C, N), "visible": visible.view(C, N), "means2d": leaf,
+    }
 
 
 

@@ -108,6 +108,8 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     impl = _resolve(impl)
     C, N, H, W = len(cams), means.shape[0], cams.height, cams.width
     cams = cams.to(dtype=means.dtype)
+    if impl == "cpp":
+        return _render_3dgs_fused(means, quats, scales, opacities, colors, cams, background, tile, near)
     means2d, depth, cov2d = project_gaussians(means, quats, scales, cams)
     radius, rects, eff, ok = footprint_3dgs(means2d, depth, cov2d, opacities, cams, tile, near)
     b = bin_tiles(rects, depth, W, H, tile)
@@ -120,13 +122,7 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     table = torch.cat([(means2d + shift).reshape(C * N, 2), conics.reshape(C * N, 3), opacities.repeat(C)[:, None], feats], -1)
     table = table.t().contiguous()
     alpha_fn, shade = _shade_3dgs(table)
-    if impl == "torch":
-        out = rasterize(b, eff.reshape(C * N, 4), alpha_fn, shade, 5, means.dtype, chunk_tiles).reshape(C, H, W, 5)
-    else:  # fused C++ kernels: rgb, depth, alpha as here
-        from arcsem.backbones.gaussians.fused import composite_3dgs_packed
-
-        G = table.t()
-        out = composite_3dgs_packed(G[:, :2], G[:, 2:5], G[:, 5], G[:, 6:10], b, eff.reshape(C * N, 4))
+    out = rasterize(b, eff.reshape(C * N, 4), alpha_fn, shade, 5, means.dtype, chunk_tiles).reshape(C, H, W, 5)
     rgb, wz, alpha = out[..., :3], out[..., 3:4], out[..., 4:5]
     if background is not None:
         rgb = rgb + (1 - alpha) * background.to(rgb)
@@ -135,4 +131,27 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
         "rgb": rgb, "alpha": alpha,
         "depth": torch.where(alpha > 0, wz / alpha.clamp_min(1e-30), torch.zeros_like(wz)),
         "radii": torch.where(visible, radius, torch.zeros_like(radius)), "visible": visible, "means2d": leaf2d,
+    }
+
+
+def _render_3dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
+                       cams: Cameras, background: Tensor | None, tile: int, near: float) -> dict[str, Tensor]:
+    """:func:`render_3dgs` on the fused C++ kernels (projection, footprint + binning, compositing)."""
+    from arcsem.backbones.gaussians import fused
+
+    C, N, H, W = len(cams), means.shape[0], cams.height, cams.width
+    P = pixel_projection(cams).to(means.dtype)
+    leaf = means.new_empty(C, N, 2).requires_grad_(torch.is_grad_enabled())
+    m2, depth, conics, cov = fused.project_3dgs(means, quats, scales, leaf, P, near)
+    with torch.no_grad():
+        leaf.copy_(m2.view(C, N, 2))
+    opac = opacities.expand(C, N).reshape(C * N)
+    radii, visible, _, eff, offsets, ids = fused.footprint_bin_3dgs(m2, depth, cov, opacities, C, near, W, H, tile)
+    feats = torch.cat([colors.expand(C, N, 3).reshape(C * N, 3), depth[:, None]], -1)
+    f, alpha = fused.composite3d(m2, conics, opac, feats, offsets, ids, C, H, W, tile, eff)
+    alpha = alpha[..., None]
+    rgb = f[..., :3] if background is None else f[..., :3] + (1 - alpha) * background.to(f)
+    return {
+        "rgb": rgb, "alpha": alpha, "depth": torch.where(alpha > 0, f[..., 3:4] / alpha.clamp_min(1e-30), 0.0),
+        "radii": radii.view(C, N), "visible": visible.view(C, N), "means2d": leaf,
     }

@@ -1,0 +1,222 @@
+// Screen footprints (no gradient) and tile binning of 2DGS / 3DGS splats, fused.
+//
+// Ports of the PyTorch reference functions (same double arithmetic, same results):
+//   footprint2d: backbones/gs2d/render.py footprint_2dgs (+ raster.tile_rects, effective_cutoff2)
+//   footprint3d: backbones/gs3d/render.py footprint_3dgs
+//   binning:     backbones/gaussians/raster.py bin_tiles -> offsets [C*TY*TX+1], ids [P] sorted by tile,
+//                then by (depth, index) within the tile (the torch stable argsort rank).
+// Inputs are flattened (camera, splat) entries s = c * N + n; opacities are per splat n.
+#include <torch/extension.h>
+#include <ATen/Parallel.h>
+#include <cmath>
+#include <limits>
+#include <numeric>
+#include <vector>
+
+namespace {
+
+const double kFilterRadius = 3.0 / std::sqrt(2.0);  // 3 / sqrt(2): 2DGS low-pass filter, 3 sigma
+
+inline double cutoff2(double op) {  // raster.effective_cutoff2
+  const double c2 = 2.0 * std::log(255.0 * std::max(op, 1e-30));
+  return c2 * (1 + 1e-4) + 1e-4;
+}
+
+inline double clampd(double v, double lo, double hi) { return std::isnan(v) ? v : std::min(std::max(v, lo), hi); }
+inline int64_t to_long(double v) { return std::isfinite(v) ? int64_t(v) : std::numeric_limits<int64_t>::min(); }
+
+struct Screen {
+  int64_t W, H, tile, TX, TY;
+};
+
+// raster.tile_rects: rect (tx0, tx1, ty0, ty1), upper bounds exclusive
+inline void tile_rect(const Screen& sc, double cx, double cy, int64_t radius, int64_t* rect) {
+  const bool ok = radius > 0;
+  const double c[2] = {(ok ? cx : 0.0) - 0.5, (ok ? cy : 0.0) - 0.5};
+  const double r = double(radius), big = 4.0 * double(sc.W + sc.H + sc.tile);
+  const int64_t lim[2] = {sc.TX, sc.TY};
+  for (int a = 0; a < 2; ++a) {
+    const int64_t lo = to_long(std::floor(clampd((c[a] - r) / double(sc.tile), -big, big)));
+    const int64_t hi = to_long(std::floor(clampd((c[a] + r + double(sc.tile) - 1) / double(sc.tile), -big, big)));
+    const int64_t l = std::min(std::max(lo, int64_t(0)), lim[a]);
+    const int64_t h = std::min(std::max(hi, int64_t(0)), lim[a]);
+    rect[2 * a] = l;
+    rect[2 * a + 1] = ok ? h : l;
+  }
+}
+
+// inclusive pixel-index box from float bounds (gs2d render._pixel_box / the gs3d equivalent)
+inline void pixel_box(const Screen& sc, const double lo[2], const double hi[2], bool ok, int64_t* box) {
+  const double m = double(std::max(sc.W, sc.H) + 1);
+  const int64_t lim[2] = {sc.W - 1, sc.H - 1};
+  for (int a = 0; a < 2; ++a) {
+    box[2 * a] = std::max(to_long(std::ceil(clampd(lo[a] - 0.5, -1, m))), int64_t(0));
+    box[2 * a + 1] = std::min(to_long(std::floor(clampd(hi[a] - 0.5, -2, m))), lim[a]);
+  }
+  if (!ok) box[1] = -1;
+}
+
+// gs2d render._conic_box: bounding box of the image of the disk u^2 + v^2 <= cut2 under rows T[0..2]
+inline bool conic_box(const double* T, double cut2, double c[2], double e[2]) {
+  const double f[3] = {1.0, 1.0, -1.0 / cut2};
+  double D[3][3];
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) {
+      double acc = 0;
+      for (int k = 0; k < 3; ++k) acc += T[3 * i + k] * f[k] * T[3 * j + k];
+      D[i][j] = acc;
+    }
+  const bool valid = D[2][2] < 0;
+  const double d22 = valid ? D[2][2] : 1.0;
+  c[0] = D[0][2] / d22;
+  c[1] = D[1][2] / d22;
+  e[0] = std::sqrt(std::max(c[0] * c[0] - D[0][0] / d22, 1e-4));
+  e[1] = std::sqrt(std::max(c[1] * c[1] - D[1][1] / d22, 1e-4));
+  return valid;
+}
+
+template <typename T>
+void footprint2d_impl(const T* Hm, const T* Dz, const T* op, int64_t M, int64_t N, double near, const Screen& sc, int64_t* radius,
+                      int64_t* rects, int64_t* eff, double* depth) {
+  at::parallel_for(0, M, 2048, [&](int64_t b, int64_t e) {
+    for (int64_t s = b; s < e; ++s) {
+      double Td[12];
+      for (int j = 0; j < 9; ++j) Td[j] = double(Hm[9 * s + j]);
+      for (int j = 0; j < 3; ++j) Td[9 + j] = double(Dz[3 * s + j]);
+      const double z = Td[11], cx = Td[2] / Td[8], cy = Td[5] / Td[8];
+      double c3[2], e3[2];
+      const bool ok3 = conic_box(Td, 9.0, c3, e3);
+      const bool ok = ok3 && z > near && std::isfinite(e3[0]) && std::isfinite(e3[1]);
+      const double r = std::ceil(std::max(std::max(e3[0], e3[1]), kFilterRadius));
+      radius[s] = ok ? int64_t(std::min(r, 1e7)) : 0;
+      tile_rect(sc, c3[0], c3[1], radius[s], rects + 4 * s);
+      const double cut2 = cutoff2(double(op[s % N]));
+      double ce[2], ee[2];
+      const bool oke = conic_box(Td, std::max(cut2, 1e-6), ce, ee);
+      const double r2d = std::sqrt(std::max(cut2, 0.0) / 2), inf = std::numeric_limits<double>::infinity();
+      const double lo[2] = {std::min(oke ? ce[0] - ee[0] : -inf, cx - r2d) - 0.01,
+                            std::min(oke ? ce[1] - ee[1] : -inf, cy - r2d) - 0.01};
+      const double hi[2] = {std::max(oke ? ce[0] + ee[0] : inf, cx + r2d) + 0.01,
+                            std::max(oke ? ce[1] + ee[1] : inf, cy + r2d) + 0.01};
+      pixel_box(sc, lo, hi, cut2 > 0, eff + 4 * s);
+      depth[s] = z;
+    }
+  });
+}
+
+template <typename T>
+void footprint3d_impl(const T* m2d, const T* dep, const T* cov, const T* op, int64_t M, int64_t N, double near,
+                      const Screen& sc, int64_t* radius, int64_t* rects, int64_t* eff, bool* okout) {
+  at::parallel_for(0, M, 2048, [&](int64_t b, int64_t e) {
+    for (int64_t s = b; s < e; ++s) {
+      const double a = cov[3 * s], bb = cov[3 * s + 1], c = cov[3 * s + 2];
+      const double det = a * c - bb * bb, mid = 0.5 * (a + c);
+      const double lam = mid + std::sqrt(std::max(mid * mid - det, 0.1));
+      const bool ok = det > 0 && dep[s] > T(near) && std::isfinite(lam);
+      radius[s] = ok ? int64_t(std::min(std::ceil(3 * std::sqrt(std::max(lam, 0.0))), 1e7)) : 0;
+      const double mx = double(m2d[2 * s]), my = double(m2d[2 * s + 1]);
+      tile_rect(sc, mx, my, radius[s], rects + 4 * s);
+      const double cut2 = cutoff2(double(op[s % N])), c2 = std::max(cut2, 0.0);
+      const double hx = std::sqrt(c2 * a) * 1.001 + 0.01, hy = std::sqrt(c2 * c) * 1.001 + 0.01;
+      const double lo[2] = {mx - hx, my - hy}, hi[2] = {mx + hx, my + hy};
+      pixel_box(sc, lo, hi, cut2 > 0, eff + 4 * s);
+      okout[s] = ok;
+    }
+  });
+}
+
+// raster.bin_tiles: pairs sorted by camera-tile, then by (depth, splat index)
+template <typename D>
+std::vector<torch::Tensor> bin_impl(const int64_t* rects, const D* depth, int64_t C, int64_t N, const Screen& sc,
+                                    const torch::TensorOptions& lo) {
+  const int64_t M = C * N, TT = sc.TX * sc.TY;
+  std::vector<int64_t> order(M);
+  std::iota(order.begin(), order.end(), 0);
+  // NaN last (as torch.argsort); such entries have no tiles anyway
+  std::stable_sort(order.begin(), order.end(), [&](int64_t i, int64_t j) {
+    const double a = double(depth[i]), b = double(depth[j]);
+    return !std::isnan(a) && (std::isnan(b) || a < b);
+  });
+  auto offsets = torch::zeros({C * TT + 1}, lo);
+  int64_t* off = offsets.data_ptr<int64_t>();
+  for (int64_t s = 0; s < M; ++s) {
+    const int64_t* r = rects + 4 * s;
+    const int64_t base = (s / N) * TT;
+    for (int64_t ty = r[2]; ty < r[3]; ++ty)
+      for (int64_t tx = r[0]; tx < r[1]; ++tx) ++off[base + ty * sc.TX + tx + 1];
+  }
+  for (int64_t t = 0; t < C * TT; ++t) off[t + 1] += off[t];
+  auto ids = torch::empty({off[C * TT]}, lo);
+  int64_t* out = ids.data_ptr<int64_t>();
+  std::vector<int64_t> cur(off, off + C * TT);
+  for (const int64_t s : order) {  // depth order (ties: index) per tile by construction
+    const int64_t* r = rects + 4 * s;
+    const int64_t base = (s / N) * TT;
+    for (int64_t ty = r[2]; ty < r[3]; ++ty)
+      for (int64_t tx = r[0]; tx < r[1]; ++tx) out[cur[base + ty * sc.TX + tx]++] = s;
+  }
+  return {offsets, ids};
+}
+
+// render._outputs: visible = radius > 0 and a non-empty tile rectangle; radii zeroed where not visible
+torch::Tensor visibility(torch::Tensor& radius, const torch::Tensor& rects) {
+  auto vis = torch::empty({radius.numel()}, radius.options().dtype(torch::kBool));
+  int64_t* r = radius.data_ptr<int64_t>();
+  const int64_t* rc = rects.data_ptr<int64_t>();
+  bool* v = vis.data_ptr<bool>();
+  for (int64_t s = 0; s < radius.numel(); ++s) {
+    v[s] = r[s] > 0 && rc[4 * s + 1] > rc[4 * s] && rc[4 * s + 3] > rc[4 * s + 2];
+    if (!v[s]) r[s] = 0;
+  }
+  return vis;
+}
+
+Screen screen(int64_t W, int64_t H, int64_t tile) { return Screen{W, H, tile, (W + tile - 1) / tile, (H + tile - 1) / tile}; }
+
+void check(const torch::Tensor& t, const char* name) {
+  TORCH_CHECK(t.is_contiguous() && t.device().is_cpu(), name, " must be a contiguous CPU tensor");
+}
+
+}  // namespace
+
+// Hm [M, 9] rows Tu, Tv, Tw and Dz [M, 3] row Tz (detached), opacities [N] -> radii [M] (0 where not visible), visible [M],
+// rects [M, 4], eff [M, 4], offsets, ids
+std::vector<torch::Tensor> footprint_bin2d(torch::Tensor Hm, torch::Tensor Dz, torch::Tensor op, int64_t C, double near, int64_t W,
+                                           int64_t H, int64_t tile) {
+  check(Hm, "homographies"); check(Dz, "depth rows"); check(op, "opacities");
+  const int64_t M = Hm.size(0), N = op.numel();
+  TORCH_CHECK(M == C * N && Hm.size(1) == 9 && Dz.size(1) == 3, "footprint_bin2d: Hm, Dz must be [C*N, 9], [C*N, 3]");
+  const Screen sc = screen(W, H, tile);
+  auto lo = Hm.options().dtype(torch::kLong);
+  auto radius = torch::empty({M}, lo), rects = torch::empty({M, 4}, lo), eff = torch::empty({M, 4}, lo);
+  auto depth = torch::empty({M}, Hm.options().dtype(torch::kDouble));
+  AT_DISPATCH_FLOATING_TYPES(Hm.scalar_type(), "footprint2d", [&] {
+    footprint2d_impl<scalar_t>(Hm.data_ptr<scalar_t>(), Dz.data_ptr<scalar_t>(), op.data_ptr<scalar_t>(), M, N, near, sc,
+                               radius.data_ptr<int64_t>(), rects.data_ptr<int64_t>(), eff.data_ptr<int64_t>(),
+                               depth.data_ptr<double>());
+  });
+  auto b = bin_impl<double>(rects.data_ptr<int64_t>(), depth.data_ptr<double>(), C, N, sc, lo);
+  auto vis = visibility(radius, rects);
+  return {radius, vis, rects, eff, b[0], b[1]};
+}
+
+// means2d [M,2], depth [M], cov (a, b, c) [M,3], opacities [N] -> as footprint_bin2d
+std::vector<torch::Tensor> footprint_bin3d(torch::Tensor m2d, torch::Tensor depth, torch::Tensor cov, torch::Tensor op,
+                                           int64_t C, double near, int64_t W, int64_t H, int64_t tile) {
+  for (auto* t : {&m2d, &depth, &cov, &op}) check(*t, "footprint_bin3d input");
+  const int64_t M = depth.numel(), N = op.numel();
+  TORCH_CHECK(M == C * N, "footprint_bin3d: depth must have C*N entries");
+  const Screen sc = screen(W, H, tile);
+  auto lo = depth.options().dtype(torch::kLong);
+  auto radius = torch::empty({M}, lo), rects = torch::empty({M, 4}, lo), eff = torch::empty({M, 4}, lo);
+  auto ok = torch::empty({M}, depth.options().dtype(torch::kBool));
+  std::vector<torch::Tensor> b;
+  AT_DISPATCH_FLOATING_TYPES(depth.scalar_type(), "footprint3d", [&] {
+    footprint3d_impl<scalar_t>(m2d.data_ptr<scalar_t>(), depth.data_ptr<scalar_t>(), cov.data_ptr<scalar_t>(),
+                               op.data_ptr<scalar_t>(), M, N, near, sc, radius.data_ptr<int64_t>(),
+                               rects.data_ptr<int64_t>(), eff.data_ptr<int64_t>(), ok.data_ptr<bool>());
+    b = bin_impl<scalar_t>(rects.data_ptr<int64_t>(), depth.data_ptr<scalar_t>(), C, N, sc, lo);
+  });
+  auto vis = visibility(radius, rects);
+  return {radius, vis, rects, eff, b[0], b[1]};
+}

@@ -56,7 +56,7 @@ def load_extension(verbose: bool = False):
         from torch.utils.cpp_extension import load
 
         return load(
-            name=build_name(),
+            name=os.environ.get("ARCSEM_FUSED_BUILD_NAME") or build_name(),  # fixed name: incremental dev builds
             sources=[str(s) for s in SOURCES],
             extra_cflags=CFLAGS,
             extra_ldflags=["-fopenmp"],

@@ -15,6 +15,8 @@
 
 namespace {
 
+constexpr int64_t kGrain = 1 << 16;  // per-splat loops: small inputs run on the calling thread (no fork/join stall)
+
 const double kFilterRadius = 3.0 / std::sqrt(2.0);  // 3 / sqrt(2): 2DGS low-pass filter, 3 sigma
 
 inline double cutoff2(double op) {  // raster.effective_cutoff2
@@ -78,7 +80,7 @@ inline bool conic_box(const double* T, double cut2, double c[2], double e[2]) {
 template <typename T>
 void footprint2d_impl(const T* Hm, const T* Dz, const T* op, int64_t M, int64_t N, double near, const Screen& sc, int64_t* radius,
                       int64_t* rects, int64_t* eff, double* depth) {
-  at::parallel_for(0, M, 2048, [&](int64_t b, int64_t e) {
+  at::parallel_for(0, M, kGrain, [&](int64_t b, int64_t e) {
     for (int64_t s = b; s < e; ++s) {
       double Td[12];
       for (int j = 0; j < 9; ++j) Td[j] = double(Hm[9 * s + j]);
@@ -107,7 +109,7 @@ void footprint2d_impl(const T* Hm, const T* Dz, const T* op, int64_t M, int64_t 
 template <typename T>
 void footprint3d_impl(const T* m2d, const T* dep, const T* cov, const T* op, int64_t M, int64_t N, double near,
                       const Screen& sc, int64_t* radius, int64_t* rects, int64_t* eff, bool* okout) {
-  at::parallel_for(0, M, 2048, [&](int64_t b, int64_t e) {
+  at::parallel_for(0, M, kGrain, [&](int64_t b, int64_t e) {
     for (int64_t s = b; s < e; ++s) {
       const double a = cov[3 * s], bb = cov[3 * s + 1], c = cov[3 * s + 2];
       const double det = a * c - bb * bb, mid = 0.5 * (a + c);

@@ -33,11 +33,17 @@ struct Hit {
   bool use3d;
 };
 
-template <typename T>
-inline bool eval_surfel(const T* H, const T* Dz, const T* c, T op, double px, double py, double near, Hit& h) {
+// One pair of a tile, gathered once per tile (contiguous, converted to double): the pixels of the tile
+// then read it from cache instead of chasing ids -> splat arrays.
+struct Surfel {
+  double H[9], Dz[3], c[2], op;
+  int64_t x0, x1, y0, y1, s;
+};
+
+inline bool eval_surfel(const Surfel& q, double px, double py, double near, Hit& h) {
   for (int j = 0; j < 3; ++j) {
-    h.k[j] = px * double(H[6 + j]) - double(H[j]);
-    h.l[j] = py * double(H[6 + j]) - double(H[3 + j]);
+    h.k[j] = px * q.H[6 + j] - q.H[j];
+    h.l[j] = py * q.H[6 + j] - q.H[3 + j];
   }
   h.p[0] = h.k[1] * h.l[2] - h.k[2] * h.l[1];
   h.p[1] = h.k[2] * h.l[0] - h.k[0] * h.l[2];
@@ -46,16 +52,16 @@ inline bool eval_surfel(const T* H, const T* Dz, const T* c, T op, double px, do
   h.u = h.p[0] / h.p[2];
   h.v = h.p[1] / h.p[2];
   h.rho3d = h.u * h.u + h.v * h.v;
-  h.dx = double(c[0]) - px;
-  h.dy = double(c[1]) - py;
+  h.dx = q.c[0] - px;
+  h.dy = q.c[1] - py;
   h.rho2d = 2.0 * (h.dx * h.dx + h.dy * h.dy);
   h.use3d = h.rho3d <= h.rho2d;
-  h.z = h.use3d ? h.u * double(Dz[0]) + h.v * double(Dz[1]) + double(Dz[2]) : double(Dz[2]);
+  h.z = h.use3d ? h.u * q.Dz[0] + h.v * q.Dz[1] + q.Dz[2] : q.Dz[2];
   if (h.z < near) return false;
   const double power = -0.5 * (h.use3d ? h.rho3d : h.rho2d);
   if (power > 0.0) return false;
   h.g = std::exp(power);
-  h.alpha = std::min(kMaxAlpha, double(op) * h.g);
+  h.alpha = std::min(kMaxAlpha, q.op * h.g);
   return h.alpha >= kMinAlpha;
 }
 
@@ -67,66 +73,92 @@ struct Ptrs {  // inputs
   T near;
 };
 
+// the tile's pairs [off[ct], off[ct+1]) as Surfels and features [n * K], bucketed by row (local indices)
+template <typename T>
+struct TileData {
+  std::vector<Surfel> sf;
+  std::vector<double> f;
+  std::vector<std::vector<arcsem::RowEntry>> rows;
+  void gather(const Ptrs<T>& in, int64_t start, int64_t end, int64_t y0, int64_t ny) {
+    const int64_t n = end - start;
+    sf.resize(n);
+    f.resize(n * in.K);
+    for (int64_t j = 0; j < n; ++j) {
+      const int64_t s = in.ids[start + j];
+      Surfel& q = sf[j];
+      for (int k = 0; k < 9; ++k) q.H[k] = double(in.H[9 * s + k]);
+      for (int k = 0; k < 3; ++k) q.Dz[k] = double(in.Dz[3 * s + k]);
+      q.c[0] = double(in.c[2 * s]);
+      q.c[1] = double(in.c[2 * s + 1]);
+      q.op = double(in.op[s]);
+      const int64_t* b = in.box + 4 * s;
+      q.x0 = b[0]; q.x1 = b[1]; q.y0 = b[2]; q.y1 = b[3]; q.s = s;
+      for (int64_t k = 0; k < in.K; ++k) f[j * in.K + k] = double(in.f[s * in.K + k]);
+    }
+    arcsem::bucket_rows_local(n, [&](int64_t j) { return &sf[j].x0; }, y0, ny, rows);
+  }
+};
+
 template <typename T>
 void forward_impl(const Grid& gr, const Ptrs<T>& in, T* out, T* tf, T* aout, T* dsum, T* med, T* dist, T* m1o,
                   T* m2o, T* mref, int32_t* last, int32_t* medi) {
-  at::parallel_for(0, gr.C * gr.tiles(), 1, [&](int64_t b, int64_t e) {
+  std::vector<TileData<T>> tds(at::get_num_threads());
+  arcsem::for_each_tile(gr.C * gr.tiles(), [&](int64_t ct) {
+    TileData<T>& td = tds[at::get_thread_num()];
     std::vector<double> acc(in.K);  // per-pixel sums and transmittance in double, whatever T is
-    std::vector<std::vector<int64_t>> rows;
     Hit h;
-    for (int64_t ct = b; ct < e; ++ct) {
-      const int64_t c = ct / gr.tiles(), x0 = gr.x0(ct), y0 = gr.y0(ct);
-      const T* mc = in.mc + 3 * c;
-      arcsem::bucket_rows(in.ids, in.box, in.off[ct], in.off[ct + 1], y0, gr.ny(ct), rows);
-      for (int64_t y = y0; y < y0 + gr.ny(ct); ++y) {
-        const auto& row = rows[y - y0];
-        for (int64_t x = x0; x < x0 + gr.nx(ct); ++x) {
-          const double px = x + 0.5, py = y + 0.5;
-          std::fill(acc.begin(), acc.end(), 0.0);
-          double Tr = 1, D = 0, M1 = 0, M2 = 0, dis = 0, m0 = 0;
-          T md = 0;
-          bool first = true;
-          int32_t lastc = -1, mi = -1;
-          for (const int64_t i : row) {
-            const int64_t s = in.ids[i];
-            if (arcsem::outside_x(in.box, s, x)) continue;
-            if (!eval_surfel(in.H + 9 * s, in.Dz + 3 * s, in.c + 2 * s, in.op[s], px, py, double(in.near), h)) continue;
-            const double next = Tr * (1.0 - h.alpha);
-            if (next < kMinT) break;
-            const double w = h.alpha * Tr;
-            const double m_abs = double(mc[0]) + double(mc[1]) * h.z + double(mc[2]) / h.z;
-            if (first) { m0 = m_abs; first = false; }
-            const double m = m_abs - m0;
-            dis += (m * m * (1.0 - Tr) + M2 - 2.0 * m * M1) * w;
-            D += h.z * w;
-            M1 += m * w;
-            M2 += m * m * w;
-            if (Tr > 0.5) { md = T(h.z); mi = int32_t(i); }
-            for (int64_t k = 0; k < in.K; ++k) acc[k] += w * in.f[s * in.K + k];
-            Tr = next;
-            lastc = int32_t(i);
-          }
-          const int64_t pix = (c * gr.H + y) * gr.W + x;
-          for (int64_t k = 0; k < in.K; ++k) out[pix * in.K + k] = T(acc[k]);
-          tf[pix] = T(Tr); aout[pix] = T(1.0 - Tr); dsum[pix] = T(D); med[pix] = md; dist[pix] = T(dis); m1o[pix] = T(M1); m2o[pix] = T(M2);
-          mref[pix] = T(m0);
-          last[pix] = lastc; medi[pix] = mi;
+    const int64_t c = ct / gr.tiles(), x0 = gr.x0(ct), y0 = gr.y0(ct), start = in.off[ct];
+    const T* mc = in.mc + 3 * c;
+    td.gather(in, start, in.off[ct + 1], y0, gr.ny(ct));
+    for (int64_t y = y0; y < y0 + gr.ny(ct); ++y) {
+      const auto& row = td.rows[y - y0];
+      for (int64_t x = x0; x < x0 + gr.nx(ct); ++x) {
+        const double px = x + 0.5, py = y + 0.5;
+        std::fill(acc.begin(), acc.end(), 0.0);
+        double Tr = 1, D = 0, M1 = 0, M2 = 0, dis = 0, m0 = 0;
+        T md = 0;
+        bool first = true;
+        int32_t lastc = -1, mi = -1;
+        for (const arcsem::RowEntry& e : row) {
+          if (x < e.x0 || x > e.x1) continue;
+          const int32_t j = e.j;
+          const Surfel& q = td.sf[j];
+          if (!eval_surfel(q, px, py, double(in.near), h)) continue;
+          const double next = Tr * (1.0 - h.alpha);
+          if (next < kMinT) break;
+          const double w = h.alpha * Tr;
+          const double m_abs = double(mc[0]) + double(mc[1]) * h.z + double(mc[2]) / h.z;
+          if (first) { m0 = m_abs; first = false; }
+          const double m = m_abs - m0;
+          dis += (m * m * (1.0 - Tr) + M2 - 2.0 * m * M1) * w;
+          D += h.z * w;
+          M1 += m * w;
+          M2 += m * m * w;
+          if (Tr > 0.5) { md = T(h.z); mi = int32_t(start + j); }
+          const double* fj = td.f.data() + j * in.K;
+          for (int64_t k = 0; k < in.K; ++k) acc[k] += w * fj[k];
+          Tr = next;
+          lastc = int32_t(start + j);
         }
+        const int64_t pix = (c * gr.H + y) * gr.W + x;
+        for (int64_t k = 0; k < in.K; ++k) out[pix * in.K + k] = T(acc[k]);
+        tf[pix] = T(Tr); aout[pix] = T(1.0 - Tr); dsum[pix] = T(D); med[pix] = md; dist[pix] = T(dis); m1o[pix] = T(M1); m2o[pix] = T(M2);
+        mref[pix] = T(m0);
+        last[pix] = lastc; medi[pix] = mi;
       }
     }
   });
 }
 
 // gradient of a scalar function of (u, v) back to the homography rows (adds into gH[9])
-template <typename T>
-inline void backprop_uv(const Hit& h, double gu, double gv, double px, double py, T* gH) {
+inline void backprop_uv(const Hit& h, double gu, double gv, double px, double py, double* gH) {
   const double gp[3] = {gu / h.p[2], gv / h.p[2], -(gu * h.u + gv * h.v) / h.p[2]};
   const double gk[3] = {h.l[1] * gp[2] - h.l[2] * gp[1], h.l[2] * gp[0] - h.l[0] * gp[2], h.l[0] * gp[1] - h.l[1] * gp[0]};
   const double gl[3] = {gp[1] * h.k[2] - gp[2] * h.k[1], gp[2] * h.k[0] - gp[0] * h.k[2], gp[0] * h.k[1] - gp[1] * h.k[0]};
   for (int j = 0; j < 3; ++j) {
-    gH[j] -= T(gk[j]);
-    gH[3 + j] -= T(gl[j]);
-    gH[6 + j] += T(px * gk[j] + py * gl[j]);
+    gH[j] -= gk[j];
+    gH[3 + j] -= gl[j];
+    gH[6 + j] += px * gk[j] + py * gl[j];
   }
 }
 
@@ -140,77 +172,87 @@ void backward_impl(const Grid& gr, const Ptrs<T>& in, const T* tf, const T* m1o,
                    const int32_t* medi, const T* g_out, const T* g_alpha, const T* g_dsum, const T* g_med,
                    const T* g_dist, int64_t M, T* gH, T* gDz, T* gc, T* gop, T* gf) {
   const int64_t D = Grads::f + in.K;
-  std::vector<std::vector<T>> bufs(at::get_num_threads());
-  at::parallel_for(0, gr.C * gr.tiles(), 1, [&](int64_t b, int64_t e) {
-    auto& buf = bufs[at::get_thread_num()];
-    if (buf.empty()) buf.assign(M * D, T(0));
+  const int nth = at::get_num_threads();
+  std::vector<std::vector<double>> bufs(nth);  // per-thread [M, D] sums (double)
+  std::vector<TileData<T>> tds(nth);
+  arcsem::for_each_tile(gr.C * gr.tiles(), [&](int64_t ct) {
+    const int tid = at::get_thread_num();
+    auto& buf = bufs[tid];
+    if (buf.empty()) buf.assign(M * D, 0.0);
+    TileData<T>& td = tds[tid];
     Hit h;
-    std::vector<std::vector<int64_t>> rows;
-    for (int64_t ct = b; ct < e; ++ct) {
-      const int64_t c = ct / gr.tiles(), x0 = gr.x0(ct), y0 = gr.y0(ct);
-      const T* mc = in.mc + 3 * c;
-      arcsem::bucket_rows(in.ids, in.box, in.off[ct], in.off[ct + 1], y0, gr.ny(ct), rows);
-      for (int64_t y = y0; y < y0 + gr.ny(ct); ++y) {
-        const auto& row = rows[y - y0];
-        for (int64_t x = x0; x < x0 + gr.nx(ct); ++x) {
-          const int64_t pix = (c * gr.H + y) * gr.W + x;
-          const double px = x + 0.5, py = y + 0.5;
-          const double Tf = tf[pix], Wt = 1.0 - Tf, M1t = m1o[pix], M2t = m2o[pix];
-          const T* go = g_out + pix * in.K;
-          const double ga = g_alpha[pix], gd = g_dsum[pix], gm = g_med[pix], gdis = g_dist[pix];
-          double Tr = Tf, S = 0;
-          // back to front from the last composited pair (row is in pair order)
-          for (auto it = std::upper_bound(row.begin(), row.end(), int64_t(last[pix])); it != row.begin();) {
-            const int64_t i = *--it;
-            const int64_t s = in.ids[i];
-            if (arcsem::outside_x(in.box, s, x)) continue;
-            if (!eval_surfel(in.H + 9 * s, in.Dz + 3 * s, in.c + 2 * s, in.op[s], px, py, double(in.near), h)) continue;
-            const double inv = 1.0 / (1.0 - h.alpha), Ti = Tr * inv, w = h.alpha * Ti;
-            const double m = double(mc[0]) + double(mc[1]) * h.z + double(mc[2]) / h.z - double(mref[pix]);
-            const double dm_dz = double(mc[1]) - double(mc[2]) / (double(h.z) * h.z);
-            T* gb = buf.data() + s * D;
-            // dL/dw_i: every output is a sum over w_i of a per-splat value
-            double gw = ga + gd * h.z + gdis * (m * m * Wt - 2.0 * m * M1t + M2t);
-            for (int64_t k = 0; k < in.K; ++k) {
-              gw += double(go[k]) * in.f[s * in.K + k];
-              gb[Grads::f + k] += T(w * go[k]);
-            }
-            const double gz = w * gd + gdis * 2.0 * w * (m * Wt - M1t) * dm_dz + (medi[pix] == i ? gm : 0.0);
-            const double dalpha = gw * Ti - S * inv;
-            S += gw * w;
-            Tr = Ti;
-            double dpow = 0;
-            if (double(in.op[s]) * h.g <= kMaxAlpha) {
-              gb[Grads::op] += T(dalpha * h.g);
-              dpow = dalpha * double(in.op[s]) * h.g;
-            }
-            const T* Dz = in.Dz + 3 * s;
-            if (h.use3d) {  // power = -0.5 (u^2 + v^2); z = u Dz.x + v Dz.y + Dz.z
-              gb[Grads::Dz] += T(gz * h.u);
-              gb[Grads::Dz + 1] += T(gz * h.v);
-              gb[Grads::Dz + 2] += T(gz);
-              backprop_uv(h, -dpow * h.u + gz * Dz[0], -dpow * h.v + gz * Dz[1], px, py, gb + Grads::H);
-            } else {  // power = -(dx^2 + dy^2) with d = centre - pixel; z = Dz.z
-              gb[Grads::Dz + 2] += T(gz);
-              gb[Grads::c] += T(dpow * -2.0 * h.dx);
-              gb[Grads::c + 1] += T(dpow * -2.0 * h.dy);
-            }
+    const int64_t c = ct / gr.tiles(), x0 = gr.x0(ct), y0 = gr.y0(ct), start = in.off[ct];
+    const T* mc = in.mc + 3 * c;
+    td.gather(in, start, in.off[ct + 1], y0, gr.ny(ct));
+    std::vector<double> lg(td.sf.size() * D, 0.0);  // this tile's gradients per local pair
+    for (int64_t y = y0; y < y0 + gr.ny(ct); ++y) {
+      const auto& row = td.rows[y - y0];
+      for (int64_t x = x0; x < x0 + gr.nx(ct); ++x) {
+        const int64_t pix = (c * gr.H + y) * gr.W + x;
+        const double px = x + 0.5, py = y + 0.5;
+        const double Tf = tf[pix], Wt = 1.0 - Tf, M1t = m1o[pix], M2t = m2o[pix];
+        const T* go = g_out + pix * in.K;
+        const double ga = g_alpha[pix], gd = g_dsum[pix], gm = g_med[pix], gdis = g_dist[pix];
+        const int64_t jmed = int64_t(medi[pix]) - start;
+        double Tr = Tf, S = 0;
+        // back to front from the last composited pair (row is in pair order)
+        for (auto it = arcsem::row_end(row, int64_t(last[pix]) - start); it != row.begin();) {
+          const arcsem::RowEntry& e = *--it;
+          if (x < e.x0 || x > e.x1) continue;
+          const int32_t j = e.j;
+          const Surfel& q = td.sf[j];
+          if (!eval_surfel(q, px, py, double(in.near), h)) continue;
+          const double inv = 1.0 / (1.0 - h.alpha), Ti = Tr * inv, w = h.alpha * Ti;
+          const double m = double(mc[0]) + double(mc[1]) * h.z + double(mc[2]) / h.z - double(mref[pix]);
+          const double dm_dz = double(mc[1]) - double(mc[2]) / (double(h.z) * h.z);
+          double* gb = lg.data() + j * D;
+          const double* fj = td.f.data() + j * in.K;
+          // dL/dw_i: every output is a sum over w_i of a per-splat value
+          double gw = ga + gd * h.z + gdis * (m * m * Wt - 2.0 * m * M1t + M2t);
+          for (int64_t k = 0; k < in.K; ++k) {
+            gw += double(go[k]) * fj[k];
+            gb[Grads::f + k] += w * go[k];
+          }
+          const double gz = w * gd + gdis * 2.0 * w * (m * Wt - M1t) * dm_dz + (jmed == j ? gm : 0.0);
+          const double dalpha = gw * Ti - S * inv;
+          S += gw * w;
+          Tr = Ti;
+          double dpow = 0;
+          if (q.op * h.g <= kMaxAlpha) {
+            gb[Grads::op] += dalpha * h.g;
+            dpow = dalpha * q.op * h.g;
+          }
+          if (h.use3d) {  // power = -0.5 (u^2 + v^2); z = u Dz.x + v Dz.y + Dz.z
+            gb[Grads::Dz] += gz * h.u;
+            gb[Grads::Dz + 1] += gz * h.v;
+            gb[Grads::Dz + 2] += gz;
+            backprop_uv(h, -dpow * h.u + gz * q.Dz[0], -dpow * h.v + gz * q.Dz[1], px, py, gb + Grads::H);
+          } else {  // power = -(dx^2 + dy^2) with d = centre - pixel; z = Dz.z
+            gb[Grads::Dz + 2] += gz;
+            gb[Grads::c] += dpow * -2.0 * h.dx;
+            gb[Grads::c + 1] += dpow * -2.0 * h.dy;
           }
         }
       }
     }
-  });
-  for (auto& buf : bufs) {
-    if (buf.empty()) continue;
-    for (int64_t s = 0; s < M; ++s) {
-      const T* gb = buf.data() + s * D;
-      for (int j = 0; j < 9; ++j) gH[9 * s + j] += gb[Grads::H + j];
-      for (int j = 0; j < 3; ++j) gDz[3 * s + j] += gb[Grads::Dz + j];
-      gc[2 * s] += gb[Grads::c];
-      gc[2 * s + 1] += gb[Grads::c + 1];
-      gop[s] += gb[Grads::op];
-      for (int64_t k = 0; k < in.K; ++k) gf[s * in.K + k] += gb[Grads::f + k];
+    for (size_t j = 0; j < td.sf.size(); ++j) {
+      double* dst = buf.data() + td.sf[j].s * D;
+      const double* src = lg.data() + j * D;
+      for (int64_t k = 0; k < D; ++k) dst[k] += src[k];
     }
+  });
+  std::vector<double> g(D);
+  for (int64_t s = 0; s < M; ++s) {
+    std::fill(g.begin(), g.end(), 0.0);
+    for (auto& buf : bufs)
+      if (!buf.empty())
+        for (int64_t k = 0; k < D; ++k) g[k] += buf[s * D + k];
+    for (int j = 0; j < 9; ++j) gH[9 * s + j] = T(g[Grads::H + j]);
+    for (int j = 0; j < 3; ++j) gDz[3 * s + j] = T(g[Grads::Dz + j]);
+    gc[2 * s] = T(g[Grads::c]);
+    gc[2 * s + 1] = T(g[Grads::c + 1]);
+    gop[s] = T(g[Grads::op]);
+    for (int64_t k = 0; k < in.K; ++k) gf[s * in.K + k] = T(g[Grads::f + k]);
   }
 }
 

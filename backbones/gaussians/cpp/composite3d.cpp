@@ -21,16 +21,44 @@ using arcsem::kMaxAlpha;
 using arcsem::kMinAlpha;
 using arcsem::kMinT;
 
-// evaluated in double whatever the storage type
+// One pair of a tile, gathered once per tile (contiguous, double): mean, conic, opacity, pixel box
+struct Splat2 {
+  double m[2], con[3], op;
+  int64_t x0, x1, y0, y1, s;
+};
+
 template <typename T>
-inline bool eval_splat(const T* m2, const T* con, T op, double px, double py, double& dx, double& dy, double& g,
-                       double& alpha) {
-  dx = px - double(m2[0]);
-  dy = py - double(m2[1]);
-  const double power = -0.5 * (double(con[0]) * dx * dx + double(con[2]) * dy * dy) - double(con[1]) * dx * dy;
+struct TileData {
+  std::vector<Splat2> sp;
+  std::vector<double> f;
+  std::vector<std::vector<arcsem::RowEntry>> rows;
+  void gather(const T* means2d, const T* conics, const T* opac, const T* feats, int64_t K, const int64_t* ids,
+              const int64_t* box, int64_t start, int64_t end, int64_t y0, int64_t ny) {
+    const int64_t n = end - start;
+    sp.resize(n);
+    f.resize(n * K);
+    for (int64_t j = 0; j < n; ++j) {
+      const int64_t s = ids[start + j];
+      Splat2& q = sp[j];
+      q.m[0] = means2d[2 * s]; q.m[1] = means2d[2 * s + 1];
+      for (int k = 0; k < 3; ++k) q.con[k] = conics[3 * s + k];
+      q.op = opac[s];
+      const int64_t* b = box + 4 * s;
+      q.x0 = b[0]; q.x1 = b[1]; q.y0 = b[2]; q.y1 = b[3]; q.s = s;
+      for (int64_t k = 0; k < K; ++k) f[j * K + k] = feats[s * K + k];
+    }
+    arcsem::bucket_rows_local(n, [&](int64_t j) { return &sp[j].x0; }, y0, ny, rows);
+  }
+};
+
+// evaluated in double whatever the storage type
+inline bool eval_splat(const Splat2& q, double px, double py, double& dx, double& dy, double& g, double& alpha) {
+  dx = px - q.m[0];
+  dy = py - q.m[1];
+  const double power = -0.5 * (q.con[0] * dx * dx + q.con[2] * dy * dy) - q.con[1] * dx * dy;
   if (power > 0.0) return false;
   g = std::exp(power);
-  alpha = std::min(kMaxAlpha, double(op) * g);
+  alpha = std::min(kMaxAlpha, q.op * g);
   return alpha >= kMinAlpha;
 }
 
@@ -38,37 +66,38 @@ template <typename T>
 void forward_impl(const Grid& gr, const T* means2d, const T* conics, const T* opac, const T* feats, int64_t K,
                   const int64_t* offsets, const int64_t* ids, const int64_t* box, T* out, T* t_final, T* alpha_out,
                   int32_t* last) {
-  at::parallel_for(0, gr.C * gr.tiles(), 1, [&](int64_t b, int64_t e) {
+  std::vector<TileData<T>> tds(at::get_num_threads());
+  arcsem::for_each_tile(gr.C * gr.tiles(), [&](int64_t ct) {
+    TileData<T>& td = tds[at::get_thread_num()];
     std::vector<double> acc(K);  // per-pixel sums and transmittance in double, whatever T is
-    std::vector<std::vector<int64_t>> rows;
-    for (int64_t ct = b; ct < e; ++ct) {
-      const int64_t c = ct / gr.tiles(), x0 = gr.x0(ct), y0 = gr.y0(ct);
-      arcsem::bucket_rows(ids, box, offsets[ct], offsets[ct + 1], y0, gr.ny(ct), rows);
-      for (int64_t y = y0; y < y0 + gr.ny(ct); ++y) {
-        const auto& row = rows[y - y0];
-        for (int64_t x = x0; x < x0 + gr.nx(ct); ++x) {
-          const double px = x + 0.5, py = y + 0.5;
-          std::fill(acc.begin(), acc.end(), 0.0);
-          double Tr = 1.0;
-          int32_t lastc = -1;
-          for (const int64_t i : row) {
-            const int64_t s = ids[i];
-            if (arcsem::outside_x(box, s, x)) continue;
-            double dx, dy, g, alpha;
-            if (!eval_splat(means2d + 2 * s, conics + 3 * s, opac[s], px, py, dx, dy, g, alpha)) continue;
-            const double next = Tr * (1.0 - alpha);
-            if (next < kMinT) break;
-            const double w = alpha * Tr;
-            for (int64_t k = 0; k < K; ++k) acc[k] += w * feats[s * K + k];
-            Tr = next;
-            lastc = int32_t(i);
-          }
-          const int64_t pix = (c * gr.H + y) * gr.W + x;
-          for (int64_t k = 0; k < K; ++k) out[pix * K + k] = T(acc[k]);
-          t_final[pix] = T(Tr);
-          alpha_out[pix] = T(1.0 - Tr);  // from the double transmittance: no cancellation for faint pixels
-          last[pix] = lastc;
+    const int64_t c = ct / gr.tiles(), x0 = gr.x0(ct), y0 = gr.y0(ct), start = offsets[ct];
+    td.gather(means2d, conics, opac, feats, K, ids, box, start, offsets[ct + 1], y0, gr.ny(ct));
+    for (int64_t y = y0; y < y0 + gr.ny(ct); ++y) {
+      const auto& row = td.rows[y - y0];
+      for (int64_t x = x0; x < x0 + gr.nx(ct); ++x) {
+        const double px = x + 0.5, py = y + 0.5;
+        std::fill(acc.begin(), acc.end(), 0.0);
+        double Tr = 1.0;
+        int32_t lastc = -1;
+        for (const arcsem::RowEntry& e : row) {
+          if (x < e.x0 || x > e.x1) continue;
+          const int32_t j = e.j;
+          const Splat2& q = td.sp[j];
+          double dx, dy, g, alpha;
+          if (!eval_splat(q, px, py, dx, dy, g, alpha)) continue;
+          const double next = Tr * (1.0 - alpha);
+          if (next < kMinT) break;
+          const double w = alpha * Tr;
+          const double* fj = td.f.data() + j * K;
+          for (int64_t k = 0; k < K; ++k) acc[k] += w * fj[k];
+          Tr = next;
+          lastc = int32_t(start + j);
         }
+        const int64_t pix = (c * gr.H + y) * gr.W + x;
+        for (int64_t k = 0; k < K; ++k) out[pix * K + k] = T(acc[k]);
+        t_final[pix] = T(Tr);
+        alpha_out[pix] = T(1.0 - Tr);  // from the double transmittance: no cancellation for faint pixels
+        last[pix] = lastc;
       }
     }
   });
@@ -79,71 +108,78 @@ void backward_impl(const Grid& gr, const T* means2d, const T* conics, const T* o
                    const int64_t* offsets, const int64_t* ids, const int64_t* box, const T* t_final, const int32_t* last,
                    const T* g_out, const T* g_alpha, T* g_means2d, T* g_conics, T* g_opac, T* g_feats,
                    int64_t M) {
-  const int nthreads = at::get_num_threads();
-  // per-thread buffers: [thread][M][2 + 3 + 1 + K]
-  const int64_t D = 6 + K;
-  std::vector<std::vector<T>> bufs(nthreads);
-  at::parallel_for(0, gr.C * gr.tiles(), 1, [&](int64_t b, int64_t e) {
-    auto& buf = bufs[at::get_thread_num()];
-    if (buf.empty()) buf.assign(M * D, T(0));
+  const int nth = at::get_num_threads();
+  const int64_t D = 6 + K;  // gradient row: mean (2), conic (3), opacity, features (K)
+  std::vector<std::vector<double>> bufs(nth);  // per-thread [M, D] sums (double)
+  std::vector<TileData<T>> tds(nth);
+  arcsem::for_each_tile(gr.C * gr.tiles(), [&](int64_t ct) {
+    const int tid = at::get_thread_num();
+    auto& buf = bufs[tid];
+    if (buf.empty()) buf.assign(M * D, 0.0);
+    TileData<T>& td = tds[tid];
     std::vector<double> S(K);
-    std::vector<std::vector<int64_t>> rows;
-    for (int64_t ct = b; ct < e; ++ct) {
-      const int64_t c = ct / gr.tiles(), x0 = gr.x0(ct), y0 = gr.y0(ct);
-      arcsem::bucket_rows(ids, box, offsets[ct], offsets[ct + 1], y0, gr.ny(ct), rows);
-      for (int64_t y = y0; y < y0 + gr.ny(ct); ++y) {
-        const auto& row = rows[y - y0];
-        for (int64_t x = x0; x < x0 + gr.nx(ct); ++x) {
-          const int64_t pix = (c * gr.H + y) * gr.W + x;
-          const double px = x + 0.5, py = y + 0.5;
-          const double Tf = t_final[pix];
-          const T* go = g_out + pix * K;
-          // alpha_out = 1 - T_final: dL/dalpha_i gets +g_alpha * T_final / (1 - alpha_i)
-          const double ga = g_alpha[pix];
-          std::fill(S.begin(), S.end(), 0.0);
-          double Tr = Tf;
-          // back to front from the last composited pair (row is in pair order)
-          for (auto it = std::upper_bound(row.begin(), row.end(), int64_t(last[pix])); it != row.begin();) {
-            const int64_t s = ids[*--it];
-            if (arcsem::outside_x(box, s, x)) continue;
-            double dx, dy, g, alpha;
-            if (!eval_splat(means2d + 2 * s, conics + 3 * s, opac[s], px, py, dx, dy, g, alpha)) continue;
-            const double inv = 1.0 / (1.0 - alpha);
-            const double Ti = Tr * inv;  // transmittance before splat i
-            const double w = alpha * Ti;
-            T* gb = buf.data() + s * D;
-            double dalpha = ga * Tf * inv;
-            for (int64_t k = 0; k < K; ++k) {
-              const double f = feats[s * K + k];
-              gb[6 + k] += T(w * go[k]);
-              dalpha += go[k] * (Ti * f - S[k] * inv);
-              S[k] += w * f;
-            }
-            Tr = Ti;
-            if (double(opac[s]) * g > kMaxAlpha) continue;  // clamped: no gradient through alpha
-            gb[5] += T(dalpha * g);                         // d alpha / d opacity
-            const double dpow = dalpha * double(opac[s]) * g;  // d alpha / d power
-            const T* con = conics + 3 * s;
-            gb[0] += T(dpow * (double(con[0]) * dx + double(con[1]) * dy));  // d power / d mean = -(d / d dx)
-            gb[1] += T(dpow * (double(con[1]) * dx + double(con[2]) * dy));
-            gb[2] += T(dpow * -0.5 * dx * dx);
-            gb[3] += T(dpow * (-dx * dy));
-            gb[4] += T(dpow * -0.5 * dy * dy);
+    const int64_t c = ct / gr.tiles(), x0 = gr.x0(ct), y0 = gr.y0(ct), start = offsets[ct];
+    td.gather(means2d, conics, opac, feats, K, ids, box, start, offsets[ct + 1], y0, gr.ny(ct));
+    std::vector<double> lg(td.sp.size() * D, 0.0);  // this tile's gradients per local pair
+    for (int64_t y = y0; y < y0 + gr.ny(ct); ++y) {
+      const auto& row = td.rows[y - y0];
+      for (int64_t x = x0; x < x0 + gr.nx(ct); ++x) {
+        const int64_t pix = (c * gr.H + y) * gr.W + x;
+        const double px = x + 0.5, py = y + 0.5;
+        const double Tf = t_final[pix];
+        const T* go = g_out + pix * K;
+        // alpha_out = 1 - T_final: dL/dalpha_i gets +g_alpha * T_final / (1 - alpha_i)
+        const double ga = g_alpha[pix];
+        std::fill(S.begin(), S.end(), 0.0);
+        double Tr = Tf;
+        // back to front from the last composited pair (row is in pair order)
+        for (auto it = arcsem::row_end(row, int64_t(last[pix]) - start); it != row.begin();) {
+          const arcsem::RowEntry& e = *--it;
+          if (x < e.x0 || x > e.x1) continue;
+          const int32_t j = e.j;
+          const Splat2& q = td.sp[j];
+          double dx, dy, g, alpha;
+          if (!eval_splat(q, px, py, dx, dy, g, alpha)) continue;
+          const double inv = 1.0 / (1.0 - alpha);
+          const double Ti = Tr * inv;  // transmittance before splat i
+          const double w = alpha * Ti;
+          double* gb = lg.data() + j * D;
+          const double* fj = td.f.data() + j * K;
+          double dalpha = ga * Tf * inv;
+          for (int64_t k = 0; k < K; ++k) {
+            gb[6 + k] += w * go[k];
+            dalpha += go[k] * (Ti * fj[k] - S[k] * inv);
+            S[k] += w * fj[k];
           }
+          Tr = Ti;
+          if (q.op * g > kMaxAlpha) continue;  // clamped: no gradient through alpha
+          gb[5] += dalpha * g;                 // d alpha / d opacity
+          const double dpow = dalpha * q.op * g;  // d alpha / d power
+          gb[0] += dpow * (q.con[0] * dx + q.con[1] * dy);  // d power / d mean = -(d / d dx)
+          gb[1] += dpow * (q.con[1] * dx + q.con[2] * dy);
+          gb[2] += dpow * -0.5 * dx * dx;
+          gb[3] += dpow * (-dx * dy);
+          gb[4] += dpow * -0.5 * dy * dy;
         }
       }
     }
-  });
-  for (auto& buf : bufs) {
-    if (buf.empty()) continue;
-    for (int64_t s = 0; s < M; ++s) {
-      const T* gb = buf.data() + s * D;
-      g_means2d[2 * s] += gb[0];
-      g_means2d[2 * s + 1] += gb[1];
-      for (int j = 0; j < 3; ++j) g_conics[3 * s + j] += gb[2 + j];
-      g_opac[s] += gb[5];
-      for (int64_t k = 0; k < K; ++k) g_feats[s * K + k] += gb[6 + k];
+    for (size_t j = 0; j < td.sp.size(); ++j) {
+      double* dst = buf.data() + td.sp[j].s * D;
+      const double* src = lg.data() + j * D;
+      for (int64_t k = 0; k < D; ++k) dst[k] += src[k];
     }
+  });
+  std::vector<double> g(D);
+  for (int64_t s = 0; s < M; ++s) {
+    std::fill(g.begin(), g.end(), 0.0);
+    for (auto& buf : bufs)
+      if (!buf.empty())
+        for (int64_t k = 0; k < D; ++k) g[k] += buf[s * D + k];
+    g_means2d[2 * s] = T(g[0]);
+    g_means2d[2 * s + 1] = T(g[1]);
+    for (int j = 0; j < 3; ++j) g_conics[3 * s + j] = T(g[2 + j]);
+    g_opac[s] = T(g[5]);
+    for (int64_t k = 0; k < K; ++k) g_feats[s * K + k] = T(g[6 + k]);
   }
 }
 

@@ -13,6 +13,8 @@
 
 namespace {
 
+constexpr int64_t kGrain = 1 << 16;  // per-splat loops: small inputs run on the calling thread (no fork/join stall)
+
 // raster_camera.quat_to_rotmat (row-major R[3 * i + j]) and its vector-Jacobian product
 inline void rotmat(const double q[4], double R[9], double qn[4], double& norm) {
   norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
@@ -108,7 +110,7 @@ std::vector<torch::Tensor> project2d_forward(torch::Tensor means, torch::Tensor 
   AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "project2d_forward", [&] {
     const scalar_t *m = means.data_ptr<scalar_t>(), *q = quats.data_ptr<scalar_t>(), *sc = scales.data_ptr<scalar_t>();
     scalar_t *H = Hm.data_ptr<scalar_t>(), *Z = Dz.data_ptr<scalar_t>(), *ct = ctr.data_ptr<scalar_t>(), *nr = nrm.data_ptr<scalar_t>();
-    at::parallel_for(0, N, 1024, [&](int64_t b, int64_t e) {
+    at::parallel_for(0, N, kGrain, [&](int64_t b, int64_t e) {
       for (int64_t n = b; n < e; ++n) {
         const Splat<scalar_t> sp(m + 3 * n, q + 4 * n, sc + 2 * n, 2);
         for (int64_t c = 0; c < C; ++c) {
@@ -142,7 +144,7 @@ std::vector<torch::Tensor> project2d_backward(torch::Tensor means, torch::Tensor
     const scalar_t *GH = gH.data_ptr<scalar_t>(), *GZ = gDz.data_ptr<scalar_t>(), *GC = gctr.data_ptr<scalar_t>(), *GN = gnrm.data_ptr<scalar_t>();
     scalar_t *om = gm.data_ptr<scalar_t>(), *oq = gq.data_ptr<scalar_t>(), *os = gs.data_ptr<scalar_t>();
     scalar_t* osh = gsh.data_ptr<scalar_t>();
-    at::parallel_for(0, N, 1024, [&](int64_t b, int64_t e) {
+    at::parallel_for(0, N, kGrain, [&](int64_t b, int64_t e) {
       for (int64_t n = b; n < e; ++n) {
         const Splat<scalar_t> sp(m + 3 * n, q + 4 * n, sc + 2 * n, 2);
         double gR[9] = {0}, gmean[3] = {0}, gscale[2] = {0};
@@ -197,7 +199,7 @@ std::vector<torch::Tensor> project3d_forward(torch::Tensor means, torch::Tensor 
     const scalar_t *m = means.data_ptr<scalar_t>(), *q = quats.data_ptr<scalar_t>(), *sc = scales.data_ptr<scalar_t>();
     scalar_t *om = m2.data_ptr<scalar_t>(), *od = dep.data_ptr<scalar_t>(), *oc = con.data_ptr<scalar_t>(),
              *ov = cov.data_ptr<scalar_t>();
-    at::parallel_for(0, N, 1024, [&](int64_t b, int64_t e) {
+    at::parallel_for(0, N, kGrain, [&](int64_t b, int64_t e) {
       for (int64_t n = b; n < e; ++n) {
         const Splat<scalar_t> sp(m + 3 * n, q + 4 * n, sc + 3 * n, 3);
         for (int64_t c = 0; c < C; ++c) {
@@ -232,7 +234,7 @@ std::vector<torch::Tensor> project3d_backward(torch::Tensor means, torch::Tensor
     const scalar_t *m = means.data_ptr<scalar_t>(), *q = quats.data_ptr<scalar_t>(), *sc = scales.data_ptr<scalar_t>();
     const scalar_t *G2 = gm2.data_ptr<scalar_t>(), *GD = gdep.data_ptr<scalar_t>(), *GC = gcon.data_ptr<scalar_t>();
     scalar_t *om = gm.data_ptr<scalar_t>(), *oq = gq.data_ptr<scalar_t>(), *os = gs.data_ptr<scalar_t>();
-    at::parallel_for(0, N, 1024, [&](int64_t b, int64_t e) {
+    at::parallel_for(0, N, kGrain, [&](int64_t b, int64_t e) {
       for (int64_t n = b; n < e; ++n) {
         const Splat<scalar_t> sp(m + 3 * n, q + 4 * n, sc + 3 * n, 3);
         double gR[9] = {0}, gmean[3] = {0}, gscale[3] = {0};

@@ -106,6 +106,26 @@ def test_fused_matches_torch_values_and_gradients(kind, model, dtype, tol):
     assert alpha.max() > 0.99, "the opaque stack should saturate some pixels (early termination)"
 
 
+@pytest.mark.parametrize("kind", ["gs2d", "gs3d"])
+def test_fused_unused_outputs_and_learned_background(kind):
+    """Only rgb in the loss (the other outputs get no gradient: the kernels read them as zero) and a
+    background that requires grad (composited outside the kernel): same values and gradients as torch."""
+    params, cams = scene(kind, torch.float64, "pinhole", seed=2)
+    g = torch.Generator().manual_seed(3)
+    cot = None
+    res = {}
+    for impl in ("torch", "cpp"):
+        ps = [p.clone().requires_grad_() for p in params]
+        bg = torch.tensor([0.3, 0.5, 0.7], dtype=torch.float64, requires_grad=True)
+        fn = render_2dgs if kind == "gs2d" else render_3dgs
+        out = fn(*ps, cams, background=bg, impl=impl)
+        cot = torch.rand(out["rgb"].shape, generator=g, dtype=torch.float64) if cot is None else cot
+        res[impl] = (out["rgb"].detach(), torch.autograd.grad((out["rgb"] * cot).sum(), [*ps, bg]))
+    assert_rel(res["cpp"][0], res["torch"][0], 1e-10, "rgb")
+    for a, b in zip(res["cpp"][1], res["torch"][1]):
+        assert_rel(a, b, 1e-10, f"{kind} gradient")
+
+
 @pytest.mark.parametrize("model", ["pinhole", "orthographic"])
 @pytest.mark.parametrize("kind", ["gs2d", "gs3d"])
 def test_fused_footprint_and_binning_equal_torch(kind, model):

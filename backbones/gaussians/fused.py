@@ -39,9 +39,10 @@ CFLAGS = ["-O3", "-fopenmp"]
 
 
 def build_name() -> str:
-    """Extension name with a hash of the sources, headers and flags: every change builds into its own
-    folder, so a stale build is never loaded and a running job's library is never overwritten."""
-    h = hashlib.sha1(" ".join(CFLAGS).encode())
+    """Extension name with a hash of the sources, headers, flags and source folder: every change (and every
+    checkout) builds into its own folder, so a stale build is never loaded and a running job's library is
+    never overwritten."""
+    h = hashlib.sha1(" ".join([*CFLAGS, str(CPP_DIR)]).encode())  # per checkout: ninja rebuilds on a path change
     for f in sorted([*SOURCES, *CPP_DIR.glob("*.h")]):
         h.update(f.name.encode() + f.read_bytes())
     return f"arcsem_fused_raster_{h.hexdigest()[:12]}"
@@ -84,92 +85,100 @@ def resolve_impl(impl: str) -> str:
     return "cpp" if ok else "torch"
 
 
+def _grad(g: Tensor | None) -> Tensor:
+    """An output gradient for the kernels: None (output unused) -> an empty tensor, read as zero."""
+    return _EMPTY if g is None else g.contiguous()
+
+
+_EMPTY = torch.empty(0)
+
+
 class _Composite3D(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, feats, offsets, ids, box, C, H, W, tile):
+    def forward(ctx, means2d, conics, opacities, colors, depth, offsets, ids, box, bg, C, H, W, tile):
         ext = load_extension()
-        out, t_final, alpha, last = ext.forward3d(means2d, conics, opacities, feats, offsets, ids, box, C, H, W, tile)
-        ctx.save_for_backward(means2d, conics, opacities, feats, offsets, ids, box, t_final, last)
+        rgb, alpha, dep, f, tf, last, wz = ext.forward3d(means2d, conics, opacities, colors, depth, offsets, ids, box,
+                                                          bg, C, H, W, tile)
+        ctx.save_for_backward(means2d, conics, opacities, f, offsets, ids, box, bg, tf, last, alpha, wz)
         ctx.dims = (C, H, W, tile)
-        ctx.mark_non_differentiable(last)
-        return out, alpha, last
+        ctx.set_materialize_grads(False)
+        return rgb, alpha, dep
 
     @staticmethod
-    def backward(ctx, g_out, g_alpha, _g_last):
-        means2d, conics, opacities, feats, offsets, ids, box, t_final, last = ctx.saved_tensors
-        grads = load_extension().backward3d(
-            means2d, conics, opacities, feats, offsets, ids, box, t_final, last,
-            g_out.contiguous(), g_alpha.contiguous(), *ctx.dims,
-        )
-        return (*grads, None, None, None, None, None, None, None)
+    def backward(ctx, g_rgb, g_alpha, g_depth):
+        means2d, conics, opacities, f, offsets, ids, box, bg, tf, last, alpha, wz = ctx.saved_tensors
+        grads = load_extension().backward3d(means2d, conics, opacities, f, offsets, ids, box, bg, tf, last, alpha, wz,
+                                            _grad(g_rgb), _grad(g_alpha), _grad(g_depth), *ctx.dims)
+        return (*grads, None, None, None, None, None, None, None, None)
 
 
-def _full_box(M: int, W: int, H: int, like: Tensor) -> Tensor:
-    return torch.tensor([0, W - 1, 0, H - 1], dtype=torch.long, device=like.device).expand(M, 4).contiguous()
+def _background(bg: Tensor | None, like: Tensor) -> Tensor:
+    if bg is None:
+        return like.new_empty(0)
+    if bg.requires_grad:
+        raise ValueError("fused rasteriser: the background is a constant (requires_grad background: use impl=torch)")
+    return bg.to(like).contiguous()
 
 
-def composite3d(means2d: Tensor, conics: Tensor, opacities: Tensor, feats: Tensor, offsets: Tensor, ids: Tensor,
-                C: int, H: int, W: int, tile: int = 16, box: Tensor | None = None) -> tuple[Tensor, Tensor]:
-    """Composite sorted 3-D Gaussians front to back.
+def composite3d(means2d: Tensor, conics: Tensor, opacities: Tensor, colors: Tensor, depth: Tensor, offsets: Tensor,
+                ids: Tensor, C: int, H: int, W: int, tile: int, box: Tensor,
+                background: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
+    """Composite sorted 3-D Gaussians front to back (the outputs of ``render_3dgs``).
 
     Args:
         means2d: ``[M, 2]`` pixel centres of the ``M = C*N`` (camera, splat) entries.
         conics: ``[M, 3]`` inverse 2-D covariance ``(a, b, c)``: power = -0.5(a dx^2 + c dy^2) - b dx dy.
-        opacities: ``[M]``; feats: ``[M, K]`` features composited with the weights (colour, depth, ...).
+        opacities: ``[M]``; colors ``[M, 3]``; depth ``[M]`` centre depth (composited into the depth map).
         offsets: ``[C*TY*TX + 1]`` int64 start of each (camera, tile) in ``ids``; ids: ``[P]`` int64 into M,
             sorted by depth within each tile.
         box: ``[M, 4]`` int64 inclusive pixel box ``(x0, x1, y0, y1)`` outside which the splat's alpha is
-            below 1/255 (pixels outside are skipped without evaluation); None = whole image.
+            below 1/255 (pixels outside are skipped without evaluation).
+        background: ``[3]`` constant composited as ``rgb + (1 - alpha) bg`` (None: none).
     Returns:
-        features ``[C, H, W, K]`` (no background) and alpha ``[C, H, W]``.
+        rgb ``[C, H, W, 3]``, alpha ``[C, H, W, 1]``, depth ``[C, H, W, 1]`` (``sum w z / alpha``, 0 where alpha = 0).
     """
-    box = _full_box(feats.shape[0], W, H, feats) if box is None else box
-    out, alpha, _ = _Composite3D.apply(
-        means2d.contiguous(), conics.contiguous(), opacities.contiguous(), feats.contiguous(),
-        offsets.contiguous(), ids.contiguous(), box.contiguous(), C, H, W, tile,
-    )
-    return out, alpha
+    c = lambda t: t.contiguous()
+    return _Composite3D.apply(c(means2d), c(conics), c(opacities), c(colors), c(depth), c(offsets), c(ids), c(box),
+                              _background(background, colors), C, H, W, tile)
 
 
 class _Composite2D(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, box, near, C, H, W, tile):
-        ext = load_extension()
-        out, tf, alpha, dsum, med, dist, m1, m2, mref, last, medi = ext.forward2d(
-            Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, box, near, C, H, W, tile)
-        ctx.save_for_backward(Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, box, tf, m1, m2, mref, last,
-                              medi)
+    def forward(ctx, Hm, Dz, centers, opacities, colors, normals, mcoef, offsets, ids, box, bg, near, C, H, W, tile):
+        rgb, normal, alpha, depth, med, dist, f, tf, m1, m2, mref, last, medi, dsum = load_extension().forward2d(
+            Hm, Dz, centers, opacities, colors, normals, mcoef, offsets, ids, box, bg, near, C, H, W, tile)
+        ctx.save_for_backward(Hm, Dz, centers, opacities, f, mcoef, offsets, ids, box, bg, tf, m1, m2, mref, last,
+                              medi, alpha, dsum)
         ctx.dims = (near, C, H, W, tile)
-        return out, alpha, dsum, med, dist
+        ctx.set_materialize_grads(False)
+        return rgb, normal, alpha, depth, med, dist
 
     @staticmethod
-    def backward(ctx, g_out, g_alpha, g_dsum, g_med, g_dist):
-        Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, box, tf, m1, m2, mref, last, medi = ctx.saved_tensors
-        grads = load_extension().backward2d(
-            Hm, Dz, centers, opacities, feats, mcoef, offsets, ids, box, *ctx.dims, tf, m1, m2, mref, last, medi,
-            *(g.contiguous() for g in (g_out, g_alpha, g_dsum, g_med, g_dist)))
-        return (*grads, None, None, None, None, None, None, None, None, None)
+    def backward(ctx, *g):
+        Hm, Dz, centers, opacities, f, mcoef, offsets, ids, box, bg, *saved = ctx.saved_tensors
+        grads = load_extension().backward2d(Hm, Dz, centers, opacities, f, mcoef, offsets, ids, box, bg, *ctx.dims,
+                                            *saved, *(_grad(x) for x in g))
+        return (*grads, None, None, None, None, None, None, None, None, None, None)
 
 
-def composite2d(Hm: Tensor, Dz: Tensor, centers: Tensor, opacities: Tensor, feats: Tensor, mcoef: Tensor,
-                offsets: Tensor, ids: Tensor, near: float, C: int, H: int, W: int, tile: int = 16,
-                box: Tensor | None = None):
+def composite2d(Hm: Tensor, Dz: Tensor, centers: Tensor, opacities: Tensor, colors: Tensor, normals: Tensor,
+                mcoef: Tensor, offsets: Tensor, ids: Tensor, near: float, C: int, H: int, W: int, tile: int, box: Tensor,
+                background: Tensor | None = None):
     """Composite sorted 2-D Gaussian surfels front to back (official 2DGS rules, see cpp/composite2d.cpp).
 
     Args:
         Hm: ``[M, 9]`` homography rows Tu, Tv, Tw per (camera, splat) entry; Dz: ``[M, 3]`` camera-z row;
-        centers: ``[M, 2]`` projected centres (low-pass filter); opacities ``[M]``; feats ``[M, K]``;
+        centers: ``[M, 2]`` projected centres (low-pass filter); opacities ``[M]``; colors, normals ``[M, 3]``;
         mcoef: ``[C, 3]`` normalised depth m = m0 + m1 z + m2 / z of the distortion term;
-        offsets, ids, box: tile ranges and pixel boxes as in :func:`composite3d`; near: minimum depth.
+        offsets, ids, box: tile ranges and pixel boxes as in :func:`composite3d`; near: minimum depth;
+        background: ``[3]`` constant or None.
     Returns:
-        features ``[C,H,W,K]``, alpha ``[C,H,W]``, depth sum ``sum w z`` ``[C,H,W]``, median depth ``[C,H,W]``,
-        distortion ``[C,H,W]``.
+        rgb ``[C,H,W,3]``, normal ``[C,H,W,3]`` (``sum w n``), alpha, depth (``sum w z / alpha``), median depth,
+        distortion ``[C,H,W,1]``.
     """
     c = lambda t: t.contiguous()
-    box = _full_box(feats.shape[0], W, H, feats) if box is None else box
-    return _Composite2D.apply(c(Hm), c(Dz), c(centers), c(opacities), c(feats), c(mcoef), c(offsets), c(ids),
-                              c(box), float(near), C, H, W, tile)
-
+    return _Composite2D.apply(c(Hm), c(Dz), c(centers), c(opacities), c(colors), c(normals), c(mcoef), c(offsets),
+                              c(ids), c(box), _background(background, colors), float(near), C, H, W, tile)
 
 
 class _Project2D(torch.autograd.Function):

@@ -199,20 +199,19 @@ def _render_2dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
     with torch.no_grad():
         leaf.copy_(centre2d.view(C, N, 2))
     opac = opacities.expand(C, N).reshape(C * N)
+    bg = None if background is not None and background.requires_grad else background  # else composited here
     radii, visible, _, eff, offsets, ids = fused.footprint_bin_2dgs(H9, Dz, opacities, C, near, W, Hh, tile)
-    feats = torch.cat([colors.expand(C, N, 3).reshape(C * N, 3), normals], -1)
     a = DIST_FAR / (DIST_FAR - DIST_NEAR)  # m = a (1 - near / z) = a - a near / z
     mcoef = means.new_tensor([a, 0.0, -a * DIST_NEAR]).expand(C, 3)
-    f, alpha, dsum, med, dist = fused.composite2d(H9, Dz, centre2d, opac, feats, mcoef, offsets, ids, float("-inf"),
-                                                  C, Hh, W, tile, eff)
-    alpha = alpha[..., None]
-    rgb = f[..., :3] if background is None else f[..., :3] + (1 - alpha) * background.to(f)
+    rgb, normal, alpha, depth, med, dist = fused.composite2d(
+        H9, Dz, centre2d, opac, colors.expand(C, N, 3).reshape(C * N, 3), normals, mcoef, offsets, ids,
+        float("-inf"), C, Hh, W, tile, eff, bg)
+    if background is not None and bg is None:
+        rgb = rgb + (1 - alpha) * background.to(rgb)
     return {
-        "rgb": rgb, "alpha": alpha, "depth": torch.where(alpha > 0, dsum[..., None] / alpha.clamp_min(1e-30), 0.0),
-        "median_depth": med[..., None], "normal": f[..., 3:6], "distortion": dist[..., None],
+        "rgb": rgb, "alpha": alpha, "depth": depth, "median_depth": med, "normal": normal, "distortion": dist,
         "radii": radii.view(C, N), "visible": visible.view(C, N), "means2d": leaf,
     }
-
 
 
 def _resolve(impl: str) -> str:

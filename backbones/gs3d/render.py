@@ -146,12 +146,13 @@ def _render_3dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
     with torch.no_grad():
         leaf.copy_(m2.view(C, N, 2))
     opac = opacities.expand(C, N).reshape(C * N)
+    bg = None if background is not None and background.requires_grad else background  # else composited here
     radii, visible, _, eff, offsets, ids = fused.footprint_bin_3dgs(m2, depth, cov, opacities, C, near, W, H, tile)
-    feats = torch.cat([colors.expand(C, N, 3).reshape(C * N, 3), depth[:, None]], -1)
-    f, alpha = fused.composite3d(m2, conics, opac, feats, offsets, ids, C, H, W, tile, eff)
-    alpha = alpha[..., None]
-    rgb = f[..., :3] if background is None else f[..., :3] + (1 - alpha) * background.to(f)
+    rgb, alpha, dmap = fused.composite3d(m2, conics, opac, colors.expand(C, N, 3).reshape(C * N, 3), depth, offsets,
+                                         ids, C, H, W, tile, eff, bg)
+    if background is not None and bg is None:
+        rgb = rgb + (1 - alpha) * background.to(rgb)
     return {
-        "rgb": rgb, "alpha": alpha, "depth": torch.where(alpha > 0, f[..., 3:4] / alpha.clamp_min(1e-30), 0.0),
+        "rgb": rgb, "alpha": alpha, "depth": dmap,
         "radii": radii.view(C, N), "visible": visible.view(C, N), "means2d": leaf,
     }

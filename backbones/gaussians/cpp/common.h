@@ -61,4 +61,71 @@ inline void for_each_tile(int64_t n, const F& f) {
   });
 }
 
+// [M, K1] and [M, K2] -> [M, K1 + K2] (a plain loop: no fork/join of an ATen op)
+template <typename T>
+inline void concat_rows(const T* a, int64_t K1, const T* b, int64_t K2, int64_t M, T* out) {
+  for (int64_t s = 0; s < M; ++s) {
+    std::copy(a + s * K1, a + (s + 1) * K1, out + s * (K1 + K2));
+    std::copy(b + s * K2, b + (s + 1) * K2, out + s * (K1 + K2) + K1);
+  }
+}
+
+}  // namespace arcsem
+
+#include <torch/extension.h>
+
+namespace arcsem {
+
+// columns [k0, k0 + n) of a contiguous [M, K] tensor as a new contiguous tensor (a plain loop)
+inline torch::Tensor split_cols(const torch::Tensor& x, int64_t k0, int64_t n) {
+  const int64_t M = x.size(0), K = x.size(1);
+  auto out = torch::empty({M, n}, x.options());
+  AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "split_cols", [&] {
+    const scalar_t* src = x.data_ptr<scalar_t>();
+    scalar_t* dst = out.data_ptr<scalar_t>();
+    for (int64_t s = 0; s < M; ++s) std::copy(src + s * K + k0, src + s * K + k0 + n, dst + s * n);
+  });
+  return out;
+}
+inline torch::Tensor split_cols(const torch::Tensor& x, int64_t n) { return split_cols(x, 0, n); }
+
+// Final per-pixel outputs, in T arithmetic as the PyTorch path: rgb = f[0:3] + (1 - alpha) bg (bg may be
+// null), extra = f[3:K], depth = where(alpha > 0, wz / max(alpha, 1e-30), 0) with wz at wz[p * wz_stride].
+template <typename T>
+inline void finish_outputs(int64_t P, int64_t K, const T* f, const T* alpha, const T* wz, int64_t wz_stride,
+                           const T* bg, T* rgb, T* extra, T* depth) {
+  for (int64_t p = 0; p < P; ++p) {
+    const T a = alpha[p];
+    for (int k = 0; k < 3; ++k) rgb[3 * p + k] = bg ? f[p * K + k] + (T(1) - a) * bg[k] : f[p * K + k];
+    for (int64_t k = 3; k < K; ++k) extra[p * (K - 3) + k - 3] = f[p * K + k];
+    depth[p] = a > T(0) ? wz[p * wz_stride] / std::max(a, T(1e-30)) : T(0);
+  }
+}
+
+// Gradients of finish_outputs back to (f, alpha, wz); null output gradients are zero. g_f [P, K] gets
+// g_rgb and g_extra, g_alpha and g_wz (at g_wz[p * g_wz_stride], may alias g_f) are overwritten.
+template <typename T>
+inline void finish_backward(int64_t P, int64_t K, const T* alpha, const T* wz, int64_t wz_stride, const T* bg,
+                            const T* g_rgb, const T* g_extra, const T* g_alpha_in, const T* g_depth, T* g_f,
+                            T* g_alpha, T* g_wz, int64_t g_wz_stride) {
+  for (int64_t p = 0; p < P; ++p) {
+    const T a = alpha[p];
+    T ga = g_alpha_in ? g_alpha_in[p] : T(0);
+    for (int k = 0; k < 3; ++k) {
+      const T g = g_rgb ? g_rgb[3 * p + k] : T(0);
+      g_f[p * K + k] = g;
+      if (bg) ga -= g * bg[k];
+    }
+    for (int64_t k = 3; k < K; ++k) g_f[p * K + k] = g_extra ? g_extra[p * (K - 3) + k - 3] : T(0);
+    T gw = 0;
+    if (g_depth && a > T(0)) {
+      const T ac = std::max(a, T(1e-30)), gd = g_depth[p];
+      gw = gd / ac;
+      if (a >= T(1e-30)) ga -= gd * wz[p * wz_stride] / (ac * ac);
+    }
+    g_alpha[p] = ga;
+    g_wz[p * g_wz_stride] = gw;
+  }
+}
+
 }  // namespace arcsem

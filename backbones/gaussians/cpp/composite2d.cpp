@@ -269,44 +269,68 @@ Ptrs<T> ptrs(const torch::Tensor& H, const torch::Tensor& Dz, const torch::Tenso
 
 }  // namespace
 
+// a gradient tensor's data, or null when autograd passed none (the output was not used)
+template <typename T>
+const T* grad_or_null(const torch::Tensor& g) { return g.defined() && g.numel() ? g.data_ptr<T>() : nullptr; }
+
+// colors [M, 3] and normals [M, 3] (features f = both), bg [3] or empty ->
+// rgb, normal [C, H, W, 3], alpha, depth, median depth, distortion [C, H, W, 1]; then, for the backward:
+// f, transmittance, m1, m2, mref, last, medi, sum w z
 std::vector<torch::Tensor> forward2d(torch::Tensor H, torch::Tensor Dz, torch::Tensor c, torch::Tensor op,
-                                     torch::Tensor f, torch::Tensor mc, torch::Tensor off, torch::Tensor ids,
-                                     torch::Tensor box, double near, int64_t C, int64_t Hh, int64_t W, int64_t tile) {
+                                     torch::Tensor colors, torch::Tensor normals, torch::Tensor mc, torch::Tensor off,
+                                     torch::Tensor ids, torch::Tensor box, torch::Tensor bg, double near, int64_t C,
+                                     int64_t Hh, int64_t W, int64_t tile) {
   const Grid gr = arcsem::make_grid(C, Hh, W, tile);
   TORCH_CHECK(off.numel() == C * gr.tiles() + 1, "composite2d: tile offsets must have C*tiles+1 entries");
-  auto o = f.options();
-  auto out = torch::empty({C, Hh, W, f.size(1)}, o);
-  auto tf = torch::empty({C, Hh, W}, o), alpha = torch::empty_like(tf), dsum = torch::empty_like(tf), med = torch::empty_like(tf),
-       dist = torch::empty_like(tf), m1 = torch::empty_like(tf), m2 = torch::empty_like(tf),
-       mref = torch::empty_like(tf);
+  TORCH_CHECK(colors.size(1) == 3 && colors.is_contiguous() && normals.is_contiguous(), "composite2d: colors [M, 3]");
+  const int64_t M = colors.size(0), K = 3 + normals.size(1), P = C * Hh * W;
+  auto o = colors.options();
+  auto f = torch::empty({M, K}, o), out = torch::empty({C, Hh, W, K}, o);
+  auto tf = torch::empty({C, Hh, W, 1}, o), alpha = torch::empty_like(tf), dsum = torch::empty_like(tf),
+       med = torch::empty_like(tf), dist = torch::empty_like(tf), m1 = torch::empty_like(tf), m2 = torch::empty_like(tf),
+       mref = torch::empty_like(tf), depth = torch::empty_like(tf);
+  auto rgb = torch::empty({C, Hh, W, 3}, o), extra = torch::empty({C, Hh, W, K - 3}, o);
   auto last = torch::empty({C, Hh, W}, o.dtype(torch::kInt32)), medi = torch::empty_like(last);
-  AT_DISPATCH_FLOATING_TYPES(f.scalar_type(), "forward2d", [&] {
+  AT_DISPATCH_FLOATING_TYPES(colors.scalar_type(), "forward2d", [&] {
+    arcsem::concat_rows(colors.data_ptr<scalar_t>(), 3, normals.data_ptr<scalar_t>(), K - 3, M, f.data_ptr<scalar_t>());
     forward_impl<scalar_t>(gr, ptrs<scalar_t>(H, Dz, c, op, f, mc, off, ids, box, near), out.data_ptr<scalar_t>(),
                            tf.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(), dsum.data_ptr<scalar_t>(), med.data_ptr<scalar_t>(),
                            dist.data_ptr<scalar_t>(), m1.data_ptr<scalar_t>(), m2.data_ptr<scalar_t>(),
                            mref.data_ptr<scalar_t>(), last.data_ptr<int32_t>(), medi.data_ptr<int32_t>());
+    arcsem::finish_outputs<scalar_t>(P, K, out.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(), dsum.data_ptr<scalar_t>(), 1,
+                                     grad_or_null<scalar_t>(bg), rgb.data_ptr<scalar_t>(), extra.data_ptr<scalar_t>(),
+                                     depth.data_ptr<scalar_t>());
   });
-  return {out, tf, alpha, dsum, med, dist, m1, m2, mref, last, medi};
+  return {rgb, extra, alpha, depth, med, dist, f, tf, m1, m2, mref, last, medi, dsum};
 }
 
+// -> g_H, g_Dz, g_centres, g_opacities, g_colors, g_normals (undefined / empty output gradients are zero)
 std::vector<torch::Tensor> backward2d(torch::Tensor H, torch::Tensor Dz, torch::Tensor c, torch::Tensor op,
                                       torch::Tensor f, torch::Tensor mc, torch::Tensor off, torch::Tensor ids,
-                                      torch::Tensor box, double near, int64_t C, int64_t Hh, int64_t W, int64_t tile,
-                                      torch::Tensor tf, torch::Tensor m1, torch::Tensor m2, torch::Tensor mref,
-                                      torch::Tensor last,
-                                      torch::Tensor medi, torch::Tensor g_out, torch::Tensor g_alpha,
-                                      torch::Tensor g_dsum, torch::Tensor g_med, torch::Tensor g_dist) {
+                                      torch::Tensor box, torch::Tensor bg, double near, int64_t C, int64_t Hh, int64_t W,
+                                      int64_t tile, torch::Tensor tf, torch::Tensor m1, torch::Tensor m2,
+                                      torch::Tensor mref, torch::Tensor last, torch::Tensor medi, torch::Tensor alpha,
+                                      torch::Tensor dsum, torch::Tensor g_rgb, torch::Tensor g_extra,
+                                      torch::Tensor g_alpha, torch::Tensor g_depth, torch::Tensor g_med,
+                                      torch::Tensor g_dist) {
   const Grid gr = arcsem::make_grid(C, Hh, W, tile);
-  auto gH = torch::zeros_like(H), gDz = torch::zeros_like(Dz), gc = torch::zeros_like(c),
-       gop = torch::zeros_like(op), gf = torch::zeros_like(f);
+  const int64_t M = f.size(0), K = f.size(1), P = C * Hh * W;
+  auto gH = torch::empty_like(H), gDz = torch::empty_like(Dz), gc = torch::empty_like(c), gop = torch::empty_like(op),
+       gf = torch::empty_like(f);
   AT_DISPATCH_FLOATING_TYPES(f.scalar_type(), "backward2d", [&] {
+    std::vector<scalar_t> go(P * K), ga(P), gd(P), zero(P, scalar_t(0));
+    arcsem::finish_backward<scalar_t>(P, K, alpha.data_ptr<scalar_t>(), dsum.data_ptr<scalar_t>(), 1,
+                                      grad_or_null<scalar_t>(bg), grad_or_null<scalar_t>(g_rgb),
+                                      grad_or_null<scalar_t>(g_extra), grad_or_null<scalar_t>(g_alpha),
+                                      grad_or_null<scalar_t>(g_depth), go.data(), ga.data(), gd.data(), 1);
+    const scalar_t* gm = grad_or_null<scalar_t>(g_med);
+    const scalar_t* gdi = grad_or_null<scalar_t>(g_dist);
     backward_impl<scalar_t>(gr, ptrs<scalar_t>(H, Dz, c, op, f, mc, off, ids, box, near), tf.data_ptr<scalar_t>(),
                             m1.data_ptr<scalar_t>(), m2.data_ptr<scalar_t>(), mref.data_ptr<scalar_t>(),
-                            last.data_ptr<int32_t>(),
-                            medi.data_ptr<int32_t>(), g_out.data_ptr<scalar_t>(), g_alpha.data_ptr<scalar_t>(),
-                            g_dsum.data_ptr<scalar_t>(), g_med.data_ptr<scalar_t>(), g_dist.data_ptr<scalar_t>(),
-                            f.size(0), gH.data_ptr<scalar_t>(), gDz.data_ptr<scalar_t>(), gc.data_ptr<scalar_t>(),
-                            gop.data_ptr<scalar_t>(), gf.data_ptr<scalar_t>());
+                            last.data_ptr<int32_t>(), medi.data_ptr<int32_t>(), go.data(), ga.data(), gd.data(),
+                            gm ? gm : zero.data(), gdi ? gdi : zero.data(), M, gH.data_ptr<scalar_t>(),
+                            gDz.data_ptr<scalar_t>(), gc.data_ptr<scalar_t>(), gop.data_ptr<scalar_t>(),
+                            gf.data_ptr<scalar_t>());
   });
-  return {gH, gDz, gc, gop, gf};
+  return {gH, gDz, gc, gop, arcsem::split_cols(gf, 3), arcsem::split_cols(gf, 3, K - 3)};
 }

@@ -190,43 +190,59 @@ void check(const torch::Tensor& t, const char* name, int64_t dim) {
 
 }  // namespace
 
+template <typename T>
+const T* grad_or_null(const torch::Tensor& g) { return g.defined() && g.numel() ? g.data_ptr<T>() : nullptr; }
+
+// colors [M, 3], depth [M] (features f = both), bg [3] or empty -> rgb [C, H, W, 3], alpha, depth [C, H, W, 1];
+// then, for the backward: f, transmittance, last, the sum w z
 std::vector<torch::Tensor> forward3d(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opac,
-                                     torch::Tensor feats, torch::Tensor offsets, torch::Tensor ids, torch::Tensor box,
-                                     int64_t C, int64_t H, int64_t W, int64_t tile) {
-  check(means2d, "means2d", 2); check(conics, "conics", 2); check(opac, "opacities", 1);
-  check(feats, "features", 2); check(offsets, "tile offsets", 1); check(ids, "ids", 1); check(box, "pixel boxes", 2);
+                                     torch::Tensor colors, torch::Tensor depth, torch::Tensor offsets, torch::Tensor ids,
+                                     torch::Tensor box, torch::Tensor bg, int64_t C, int64_t H, int64_t W, int64_t tile) {
+  check(means2d, "means2d", 2); check(conics, "conics", 2); check(opac, "opacities", 1); check(colors, "colors", 2);
+  check(depth, "depth", 1); check(offsets, "tile offsets", 1); check(ids, "ids", 1); check(box, "pixel boxes", 2);
   const Grid gr = arcsem::make_grid(C, H, W, tile);
   TORCH_CHECK(offsets.numel() == C * gr.tiles() + 1, "tile offsets must have C*tiles+1 entries");
-  const int64_t K = feats.size(1);
-  auto out = torch::empty({C, H, W, K}, feats.options());
-  auto tf = torch::empty({C, H, W}, feats.options()), alpha = torch::empty_like(tf);
-  auto last = torch::empty({C, H, W}, feats.options().dtype(torch::kInt32));
-  AT_DISPATCH_FLOATING_TYPES(feats.scalar_type(), "forward3d", [&] {
+  const int64_t M = colors.size(0), K = 4, P = C * H * W;
+  auto o = colors.options();
+  auto f = torch::empty({M, K}, o), out = torch::empty({C, H, W, K}, o);
+  auto tf = torch::empty({C, H, W, 1}, o), alpha = torch::empty_like(tf), dep = torch::empty_like(tf);
+  auto rgb = torch::empty({C, H, W, 3}, o), extra = torch::empty({C, H, W, 1}, o);
+  auto last = torch::empty({C, H, W}, o.dtype(torch::kInt32));
+  AT_DISPATCH_FLOATING_TYPES(colors.scalar_type(), "forward3d", [&] {
+    arcsem::concat_rows(colors.data_ptr<scalar_t>(), 3, depth.data_ptr<scalar_t>(), 1, M, f.data_ptr<scalar_t>());
     forward_impl<scalar_t>(gr, means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
-                           opac.data_ptr<scalar_t>(), feats.data_ptr<scalar_t>(), K,
+                           opac.data_ptr<scalar_t>(), f.data_ptr<scalar_t>(), K,
                            offsets.data_ptr<int64_t>(), ids.data_ptr<int64_t>(), box.data_ptr<int64_t>(), out.data_ptr<scalar_t>(),
                            tf.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(), last.data_ptr<int32_t>());
+    arcsem::finish_outputs<scalar_t>(P, K, out.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(), out.data_ptr<scalar_t>() + 3,
+                                     K, grad_or_null<scalar_t>(bg), rgb.data_ptr<scalar_t>(), extra.data_ptr<scalar_t>(),
+                                     dep.data_ptr<scalar_t>());
   });
-  return {out, tf, alpha, last};
+  return {rgb, alpha, dep, f, tf, last, extra};
 }
 
+// -> g_means2d, g_conics, g_opacities, g_colors, g_depth (undefined / empty output gradients are zero)
 std::vector<torch::Tensor> backward3d(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opac,
-                                      torch::Tensor feats, torch::Tensor offsets, torch::Tensor ids,
-                                      torch::Tensor box, torch::Tensor t_final, torch::Tensor last, torch::Tensor g_out,
-                                      torch::Tensor g_alpha, int64_t C, int64_t H, int64_t W, int64_t tile) {
+                                      torch::Tensor f, torch::Tensor offsets, torch::Tensor ids, torch::Tensor box,
+                                      torch::Tensor bg, torch::Tensor t_final, torch::Tensor last, torch::Tensor alpha,
+                                      torch::Tensor wz, torch::Tensor g_rgb, torch::Tensor g_alpha,
+                                      torch::Tensor g_depth, int64_t C, int64_t H, int64_t W, int64_t tile) {
   const Grid gr = arcsem::make_grid(C, H, W, tile);
-  const int64_t K = feats.size(1), M = feats.size(0);
-  auto gm = torch::zeros_like(means2d), gc = torch::zeros_like(conics), go = torch::zeros_like(opac),
-       gf = torch::zeros_like(feats);
-  g_out = g_out.contiguous();
-  g_alpha = g_alpha.contiguous();
-  AT_DISPATCH_FLOATING_TYPES(feats.scalar_type(), "backward3d", [&] {
+  const int64_t K = f.size(1), M = f.size(0), P = C * H * W;
+  auto gm = torch::empty_like(means2d), gc = torch::empty_like(conics), go = torch::empty_like(opac),
+       gf = torch::empty_like(f);
+  AT_DISPATCH_FLOATING_TYPES(f.scalar_type(), "backward3d", [&] {
+    std::vector<scalar_t> gout(P * K), ga(P);
+    arcsem::finish_backward<scalar_t>(P, K, alpha.data_ptr<scalar_t>(), wz.data_ptr<scalar_t>(), 1,
+                                      grad_or_null<scalar_t>(bg), grad_or_null<scalar_t>(g_rgb), nullptr,
+                                      grad_or_null<scalar_t>(g_alpha), grad_or_null<scalar_t>(g_depth), gout.data(),
+                                      ga.data(), gout.data() + 3, K);
     backward_impl<scalar_t>(gr, means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
-                            opac.data_ptr<scalar_t>(), feats.data_ptr<scalar_t>(), K,
+                            opac.data_ptr<scalar_t>(), f.data_ptr<scalar_t>(), K,
                             offsets.data_ptr<int64_t>(), ids.data_ptr<int64_t>(), box.data_ptr<int64_t>(), t_final.data_ptr<scalar_t>(),
-                            last.data_ptr<int32_t>(), g_out.data_ptr<scalar_t>(), g_alpha.data_ptr<scalar_t>(),
+                            last.data_ptr<int32_t>(), gout.data(), ga.data(),
                             gm.data_ptr<scalar_t>(), gc.data_ptr<scalar_t>(), go.data_ptr<scalar_t>(),
                             gf.data_ptr<scalar_t>(), M);
   });
-  return {gm, gc, go, gf};
+  return {gm, gc, go, arcsem::split_cols(gf, 3), arcsem::split_cols(gf, 3, 1).view({M})};
 }

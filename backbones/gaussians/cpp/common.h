@@ -61,6 +61,12 @@ inline void for_each_tile(int64_t n, const F& f) {
   });
 }
 
+inline void cross(const double* x, const double* y, double* out) {
+  out[0] = x[1] * y[2] - x[2] * y[1];
+  out[1] = x[2] * y[0] - x[0] * y[2];
+  out[2] = x[0] * y[1] - x[1] * y[0];
+}
+
 // [M, K1] and [M, K2] -> [M, K1 + K2] (a plain loop: no fork/join of an ATen op)
 template <typename T>
 inline void concat_rows(const T* a, int64_t K1, const T* b, int64_t K2, int64_t M, T* out) {

@@ -29,25 +29,20 @@ using arcsem::kMinT;
 
 // Per-pixel geometry is evaluated in double whatever the storage type (float32 accuracy of depth).
 struct Hit {
-  double k[3], l[3], p[3], u, v, dx, dy, rho3d, rho2d, z, g, alpha;
+  double p[3], u, v, dx, dy, rho3d, rho2d, z, g, alpha;
   bool use3d;
 };
 
 // One pair of a tile, gathered once per tile (contiguous, converted to double): the pixels of the tile
 // then read it from cache instead of chasing ids -> splat arrays.
 struct Surfel {
-  double H[9], Dz[3], c[2], op;
+  double H[9], A[9], Dz[3], c[2], op;  // A: adjugate columns a = Tv x Tw, b = Tw x Tu, c = Tu x Tv
   int64_t x0, x1, y0, y1, s;
 };
 
 inline bool eval_surfel(const Surfel& q, double px, double py, double near, Hit& h) {
-  for (int j = 0; j < 3; ++j) {
-    h.k[j] = px * q.H[6 + j] - q.H[j];
-    h.l[j] = py * q.H[6 + j] - q.H[3 + j];
-  }
-  h.p[0] = h.k[1] * h.l[2] - h.k[2] * h.l[1];
-  h.p[1] = h.k[2] * h.l[0] - h.k[0] * h.l[2];
-  h.p[2] = h.k[0] * h.l[1] - h.k[1] * h.l[0];
+  // p = k x l with k = px Tw - Tu, l = py Tw - Tv, expanded: p = px a + py b + c (bilinear in the pixel)
+  for (int j = 0; j < 3; ++j) h.p[j] = px * q.A[j] + py * q.A[3 + j] + q.A[6 + j];
   if (h.p[2] == 0.0) return false;
   h.u = h.p[0] / h.p[2];
   h.v = h.p[1] / h.p[2];
@@ -87,6 +82,9 @@ struct TileData {
       const int64_t s = in.ids[start + j];
       Surfel& q = sf[j];
       for (int k = 0; k < 9; ++k) q.H[k] = double(in.H[9 * s + k]);
+      arcsem::cross(q.H + 3, q.H + 6, q.A);      // a = Tv x Tw
+      arcsem::cross(q.H + 6, q.H, q.A + 3);      // b = Tw x Tu
+      arcsem::cross(q.H, q.H + 3, q.A + 6);      // c = Tu x Tv
       for (int k = 0; k < 3; ++k) q.Dz[k] = double(in.Dz[3 * s + k]);
       q.c[0] = double(in.c[2 * s]);
       q.c[1] = double(in.c[2 * s + 1]);
@@ -150,16 +148,28 @@ void forward_impl(const Grid& gr, const Ptrs<T>& in, T* out, T* tf, T* aout, T* 
   });
 }
 
-// gradient of a scalar function of (u, v) back to the homography rows (adds into gH[9])
-inline void backprop_uv(const Hit& h, double gu, double gv, double px, double py, double* gH) {
+// gradient of a scalar function of (u, v) back to the adjugate columns a, b, c (adds into gA[9])
+inline void backprop_uv(const Hit& h, double gu, double gv, double px, double py, double* gA) {
   const double gp[3] = {gu / h.p[2], gv / h.p[2], -(gu * h.u + gv * h.v) / h.p[2]};
-  const double gk[3] = {h.l[1] * gp[2] - h.l[2] * gp[1], h.l[2] * gp[0] - h.l[0] * gp[2], h.l[0] * gp[1] - h.l[1] * gp[0]};
-  const double gl[3] = {gp[1] * h.k[2] - gp[2] * h.k[1], gp[2] * h.k[0] - gp[0] * h.k[2], gp[0] * h.k[1] - gp[1] * h.k[0]};
   for (int j = 0; j < 3; ++j) {
-    gH[j] -= gk[j];
-    gH[3 + j] -= gl[j];
-    gH[6 + j] += px * gk[j] + py * gl[j];
+    gA[j] += px * gp[j];
+    gA[3 + j] += py * gp[j];
+    gA[6 + j] += gp[j];
   }
+}
+
+// a = Tv x Tw, b = Tw x Tu, c = Tu x Tv: gradients of (a, b, c) -> of the rows Tu, Tv, Tw (in place, gAH[9])
+inline void adjugate_to_rows(const double* H, double* gAH) {
+  const double *Tu = H, *Tv = H + 3, *Tw = H + 6, *ga = gAH, *gb = gAH + 3, *gc = gAH + 6;
+  double gH[9] = {0}, t[3];
+  auto add = [&](int row, const double* x, const double* y) {  // gH[row] += x cross y
+    arcsem::cross(x, y, t);
+    for (int j = 0; j < 3; ++j) gH[3 * row + j] += t[j];
+  };
+  add(1, Tw, ga); add(2, ga, Tv);  // g.(u x v): d/du = v x g, d/dv = g x u
+  add(2, Tu, gb); add(0, gb, Tw);
+  add(0, Tv, gc); add(1, gc, Tu);
+  std::copy(gH, gH + 9, gAH);
 }
 
 struct Grads {  // offsets in the per-entry gradient row
@@ -237,7 +247,8 @@ void backward_impl(const Grid& gr, const Ptrs<T>& in, const T* tf, const T* m1o,
     }
     for (size_t j = 0; j < td.sf.size(); ++j) {
       double* dst = buf.data() + td.sf[j].s * D;
-      const double* src = lg.data() + j * D;
+      double* src = lg.data() + j * D;
+      adjugate_to_rows(td.sf[j].H, src + Grads::H);
       for (int64_t k = 0; k < D; ++k) dst[k] += src[k];
     }
   });

@@ -1,4 +1,5 @@
-"""Fused C++ compositing kernels against the PyTorch rasteriser (the reference), 2DGS and 3DGS.
+"""Fused C++ rasteriser (projection + backward, footprints, tile binning, compositing) against the
+PyTorch path (the reference), 2DGS and 3DGS, pinhole and orthographic.
 
 Every output (colour, alpha, depth, median depth, normals, distortion) and the gradient w.r.t. every
 splat parameter must agree: float64 within 1e-10, float32 within 1e-5 (relative to the largest

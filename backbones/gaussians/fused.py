@@ -87,10 +87,7 @@ def resolve_impl(impl: str) -> str:
 
 def _grad(g: Tensor | None) -> Tensor:
     """An output gradient for the kernels: None (output unused) -> an empty tensor, read as zero."""
-    return _EMPTY if g is None else g.contiguous()
-
-
-_EMPTY = torch.empty(0)
+    return torch.empty(0) if g is None else g.contiguous()
 
 
 class _Composite3D(torch.autograd.Function):

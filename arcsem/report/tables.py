@@ -135,7 +135,9 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
            missing: list[MissingJob]) -> list[str]:
     notes = []
     if study == "grayscale_comparison":
-        notes.append("train views: the paper's protocol (ACT per training image); held-out: test views "
+        notes.append("train views: the paper's protocol (ACT per training image), scored against the "
+                     "noise-free images where the dataset has them (the built-in scene), which lack the "
+                     "views' brightness drift that ACT reproduces; held-out: test views "
                      "rendered with the mean ACT; depth err.: median |depth - GT| over held-out "
                      "views inside the mask (% of the specimen's diameter where the dataset states it, e.g. the "
                      "synthetic grain's 2 units, else of the bounding-box diagonal; and in scene units).")

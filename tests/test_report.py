@@ -353,8 +353,13 @@ def test_grid_reads_renders_of_a_shared_stage1_model(tmp_path):
     shared, run = tmp_path / "cache" / "abc", tmp_path / "r"
     _png(shared / "renders/test/a.png", 70)
     _png(shared / "renders/test/a_depth.png", 80)
+    (shared / "turntable.mp4").write_bytes(b"\x00\x00\x00\x18ftypmp42")
     run.mkdir()
     (run / "stage1").symlink_to(shared, target_is_directory=True)
     grids = study_grids("grayscale_comparison", {"2DGS": run}, tmp_path / "g")
     assert [t for t, _ in grids] == ["grayscale_comparison: renders (held-out views)",
                                      "grayscale_comparison: depth maps (held-out views)"]
+    from arcsem.report.html import copy_videos
+
+    videos = copy_videos("grayscale_comparison", {"2DGS": run}, tmp_path / "out")
+    assert [c for c, _ in videos] == ["2DGS: turntable"] and videos[0][1].is_file()

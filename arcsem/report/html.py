@@ -39,10 +39,13 @@ def render_table(t: Table) -> str:
 
 
 def copy_videos(study: str, runs: dict[str, Path], out: Path) -> list[tuple[str, Path]]:
-    """Copy every ``*.mp4`` of the runs into ``out/videos/<study>/``; returns ``[(caption, path)]``."""
+    """Copy every ``*.mp4`` of the runs (and of their shared stage-1 model, the ``stage1/`` link, which
+    ``rglob`` does not follow) into ``out/videos/<study>/``; returns ``[(caption, path)]``."""
     found = []
     for label, run in runs.items():
-        for mp4 in sorted(Path(run).rglob("*.mp4")):
+        shared = Path(run) / "stage1"
+        mp4s = sorted(Path(run).rglob("*.mp4")) + (sorted(shared.resolve().rglob("*.mp4")) if shared.is_symlink() else [])
+        for mp4 in mp4s:
             if out.resolve() in mp4.resolve().parents:  # the report's own copies (out inside a run)
                 continue
             safe = "".join(ch if ch.isalnum() else "_" for ch in label)

@@ -156,7 +156,7 @@ def test_nan_lpips_na_mean_std_and_features(ref_sweep, tmp_path):
     assert cells[2] == "n/a" and cells[5] == "n/a"  # LPIPS train / held-out
     assert lines["1"].count("missing") == 6
     assert "LPIPS: n/a: weights missing (missing: alexnet-owt-7be5be79.pth not in torch hub cache)" in md
-    assert "VGG weights (features): random." in md and "RANDOM weights" in md
+    assert "VGG weights (features): random." in md and "RANDOM weights in every run that uses them" in md
     assert md.count("missing job:") == 3  # five/seed=1 is done; two/seed=1, one/seed=0, one/seed=1 are not
     csv = pd.read_csv(out / "reference_count.csv")
     five = csv[csv["row"] == "five"].iloc[0]

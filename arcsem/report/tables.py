@@ -113,6 +113,12 @@ def _distinct(df: pd.DataFrame, suffix: str) -> list[str]:
     return sorted({str(v) for c in cols for v in df[c].dropna()})
 
 
+def _per_run(df: pd.DataFrame, suffix: str) -> pd.Series:
+    """The first non-null value per run among the columns named ``suffix`` or ``*.suffix``."""
+    cols = [c for c in df.columns if c == suffix or c.endswith("." + suffix)]
+    return df[cols].bfill(axis=1).iloc[:, 0] if cols else pd.Series([], dtype=object)
+
+
 def _lpips_notes(values: list[str], any_nan: bool) -> list[str]:
     """Notes on the LPIPS weights from the recorded ``lpips_weights`` values ("; "-joined lists allowed).
 
@@ -157,7 +163,10 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
     feats = _distinct(df, "features")
     if study != "grayscale_comparison" and (feats or study != "runs"):
         if "random" in feats:
-            notes.append("VGG features: RANDOM weights in some runs (ImageNet weights unavailable): TCM/CCM "
+            per_run = _per_run(df, "features")
+            n_random, n_used = int((per_run == "random").sum()), int(per_run.isin(["random", "imagenet"]).sum())
+            which = "every run that uses them" if n_random == n_used else f"{n_random} of the {n_used} runs that use them"
+            notes.append(f"VGG features: RANDOM weights in {which} (ImageNet weights unavailable): TCM/CCM "
                          "numbers are not the standard ones.")
         notes.append("VGG weights (features): " + (", ".join(feats) if feats else "not recorded") + ".")
     seeds = sorted({str(s) for s in df["seed"].dropna()}) if "seed" in df else []

@@ -343,3 +343,24 @@ def test_training_with_svox2_settings_fits_a_small_scene():
     with torch.no_grad():
         end = psnr()
     assert start < 25 and end > 32, (start, end)  # measured: 21.5 dB -> 38 dB
+
+
+def test_learned_background_fills_rays_that_miss_the_grid_and_is_trained():
+    """rgb = grid colour + (1 - alpha) sigmoid(logit); the colour is a stage-1 group, frozen in stage 2."""
+    scene = small_scene()
+    bb = make(scene, learn_background=True, background=[0.3, 0.3, 0.3])
+    with_ball(bb)
+    ref = make(scene, background=[0.3, 0.3, 0.3])
+    ref.load_state_dict({k: v for k, v in bb.state_dict().items() if k != "background_logit"})
+    out = bb.render(scene.train.cameras[:1])
+    with torch.no_grad():
+        expect = ref.render(scene.train.cameras[:1])  # the fixed background, composited by the renderer
+    torch.testing.assert_close(out["rgb"], expect["rgb"], atol=1e-5, rtol=0)
+    assert out["alpha"][0, 0, 0, 0] < 0.05 and abs(out["rgb"][0, 0, 0, 0].item() - 0.3) < 0.02
+    miss = (1 - out["alpha"]).sum()
+    out["rgb"].sum().backward()
+    sig = torch.sigmoid(bb.background_logit.detach())
+    torch.testing.assert_close(bb.background_logit.grad, (miss * sig * (1 - sig)).expand(3), rtol=1e-4, atol=1e-6)
+    assert set(bb.param_groups("geometry")) == {"density", "sh", "background"}
+    assert set(bb.param_groups("color")) == {"sh"}
+    assert bb.learning_rate("background", 123) == bb.cfg.lr_background

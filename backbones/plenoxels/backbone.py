@@ -61,7 +61,12 @@ class Plenoxels(Backbone):
         stop_thresh: float = 1e-4
         """Early stop: samples with transmittance below this are masked (svox2: 1e-4 ... 1e-7)."""
         background: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
-        """Background colour (SEM: black)."""
+        """Background colour (SEM: black); with ``learn_background`` its initial value."""
+        learn_background: bool = False
+        """Learn one background colour (group ``background``, stage 1 only): what rays leaving the grid's
+        box see. SEM views show the substrate far outside the specimen's box (our extension)."""
+        lr_background: float = 1e-2
+        """RMSProp rate of the background colour's logit."""
         batch_size: int = 5000
         """Rays per training step (svox2)."""
         optimizer: str = "rmsprop"
@@ -112,6 +117,8 @@ class Plenoxels(Backbone):
         m, k = int(index.numel()), (cfg.sh_degree + 1) ** 2
         self.density = nn.Parameter(torch.full((m,), float(cfg.init_sigma)))
         self.sh = nn.Parameter(torch.full((m, k, 3), float(cfg.init_sh)))
+        if cfg.learn_background:
+            self.background_logit = nn.Parameter(torch.logit(torch.tensor(cfg.background).float().clamp(0.01, 0.99)))
         self.__dict__["act"] = act  # owned (and checkpointed) by the trainer, not a submodule
         self.__dict__["_train_cams"] = scene.train.cameras if scene is not None else None
         self._cache: dict[str, Tensor] = {}
@@ -158,11 +165,15 @@ class Plenoxels(Backbone):
         c = self.cfg
         if "impl" not in kw:
             kw["impl"] = resolve_impl(c.renderer, self.bounds.device)
-        return render_grid(
+        learned = c.learn_background
+        out = render_grid(
             self.grid(), rays_o.to(self.bounds.dtype), rays_d.to(self.bounds.dtype), sh_degree=c.sh_degree,
-            step_size=c.step_size, stop_thresh=c.stop_thresh, background=torch.tensor(c.background),
-            act=self.act, image_ids=image_ids, **kw,
+            step_size=c.step_size, stop_thresh=c.stop_thresh,
+            background=torch.zeros(3) if learned else torch.tensor(c.background), act=self.act, image_ids=image_ids, **kw,
         )
+        if learned:  # composited here so that autograd reaches the colour: rgb + (1 - alpha) bg
+            out["rgb"] = out["rgb"] + (1.0 - out["alpha"]) * torch.sigmoid(self.background_logit).to(out["rgb"])
+        return out
 
     def render(self, cams, chunk: int | None = None, **kw: Any) -> dict:
         """Render cameras in chunks of rays -> ``rgb [C,H,W,3]``, ``alpha [C,H,W,1]``, ``depth [C,H,W,1]``, ``tv []``."""
@@ -196,16 +207,21 @@ class Plenoxels(Backbone):
 
     # ------------------------------------------------------------------ optimisation
     def param_groups(self, stage: str) -> dict[str, list[nn.Parameter]]:
-        """``geometry``: density and SH; ``color``: SH only."""
+        """``geometry``: density and SH (and ``background`` when learned); ``color``: SH only."""
         if stage == "geometry":
-            return {"density": [self.density], "sh": [self.sh]}
+            groups = {"density": [self.density], "sh": [self.sh]}
+            if self.cfg.learn_background:
+                groups["background"] = [self.background_logit]
+            return groups
         if stage == "color":
             return {"sh": [self.sh]}
         raise ConfigError(f"backbone 'plenoxels': unknown stage '{stage}' (geometry|color)")
 
     def learning_rate(self, group: str, step: int) -> float:
-        """svox2's exponential schedule for group ``density`` or ``sh`` at ``step``."""
+        """svox2's exponential schedule for group ``density`` or ``sh`` at ``step`` (``background``: constant)."""
         c = self.cfg
+        if group == "background":
+            return c.lr_background
         if group == "density":
             return expon_lr(step, c.lr_sigma, c.lr_sigma_final, c.lr_sigma_decay_steps, c.lr_sigma_delay_steps,
                             c.lr_sigma_delay_mult)

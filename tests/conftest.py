@@ -16,6 +16,16 @@ if "PYTEST_XDIST_WORKER" in __import__("os").environ:
     torch.set_num_threads(1)
 
 
+@pytest.fixture
+def one_thread():
+    """One torch thread for the test (tiny tensors: oversubscribed threads on the shared 2-core
+    machine made the trainer tests 20x slower); restores the previous count."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
 def ring_poses(n: int, radius: float = 4.0) -> np.ndarray:
     """``[n, 4, 4]`` world->camera (OpenCV axes) on an arc around the origin, looking at it."""
     from arcsem.cameras import look_at

@@ -61,6 +61,15 @@ inline void for_each_tile(int64_t n, const F& f) {
   });
 }
 
+// g[0, D) = splat s's gradient row summed over the per-thread buffers (threads that got no tile left
+// theirs empty). Buffers are [M, D] row-major doubles.
+inline void sum_thread_rows(const std::vector<std::vector<double>>& bufs, int64_t s, int64_t D, double* g) {
+  std::fill(g, g + D, 0.0);
+  for (const auto& buf : bufs)
+    if (!buf.empty())
+      for (int64_t k = 0; k < D; ++k) g[k] += buf[s * D + k];
+}
+
 inline void cross(const double* x, const double* y, double* out) {
   out[0] = x[1] * y[2] - x[2] * y[1];
   out[1] = x[2] * y[0] - x[0] * y[2];

@@ -254,10 +254,7 @@ void backward_impl(const Grid& gr, const Ptrs<T>& in, const T* tf, const T* m1o,
   });
   std::vector<double> g(D);
   for (int64_t s = 0; s < M; ++s) {
-    std::fill(g.begin(), g.end(), 0.0);
-    for (auto& buf : bufs)
-      if (!buf.empty())
-        for (int64_t k = 0; k < D; ++k) g[k] += buf[s * D + k];
+    arcsem::sum_thread_rows(bufs, s, D, g.data());
     for (int j = 0; j < 9; ++j) gH[9 * s + j] = T(g[Grads::H + j]);
     for (int j = 0; j < 3; ++j) gDz[3 * s + j] = T(g[Grads::Dz + j]);
     gc[2 * s] = T(g[Grads::c]);

@@ -171,10 +171,7 @@ void backward_impl(const Grid& gr, const T* means2d, const T* conics, const T* o
   });
   std::vector<double> g(D);
   for (int64_t s = 0; s < M; ++s) {
-    std::fill(g.begin(), g.end(), 0.0);
-    for (auto& buf : bufs)
-      if (!buf.empty())
-        for (int64_t k = 0; k < D; ++k) g[k] += buf[s * D + k];
+    arcsem::sum_thread_rows(bufs, s, D, g.data());
     g_means2d[2 * s] = T(g[0]);
     g_means2d[2 * s + 1] = T(g[1]);
     for (int j = 0; j < 3; ++j) g_conics[3 * s + j] = T(g[2 + j]);

@@ -8,13 +8,15 @@ from dataclasses import dataclass
 import pytest
 import torch
 from omegaconf import OmegaConf
-from test_trainer import _one_thread, tiny_scene  # noqa: F401  (fixture re-used)
+from trainer_util import TinyImage, tiny_scene  # noqa: F401  (registers _tiny_image)
 
 from arcsem.errors import TrainingError
 from arcsem.plugins import BACKBONES, Backbone
 from arcsem.train import load_stage1, run_stage1
 from arcsem.train.evaluate import depth_error, evaluate_split
 from arcsem.train.video import arc_path, quat_to_rotmat, rotmat_to_quat
+
+pytestmark = pytest.mark.usefixtures("one_thread")  # tiny tensors: one torch thread
 
 
 @BACKBONES.register("_oracle")

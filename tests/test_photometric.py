@@ -6,11 +6,12 @@ import pytest
 import torch
 from arcsem.losses.photometric import gaussian_window, ssim_map
 from skimage.metrics import structural_similarity
-from test_trainer import _one_thread  # noqa: F401  (autouse fixture: one torch thread)
 
 from arcsem.cameras import Cameras
 from arcsem.plugins import LOSSES, Batch
 from arcsem.train.losses import build_losses
+
+pytestmark = pytest.mark.usefixtures("one_thread")  # tiny tensors: one torch thread
 
 
 def _batch(images, masks=None):

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import pytest
 import torch
 from torch import nn
-from trainer_util import L1_DSSIM, loop, tiny_scene
+from trainer_util import L1_DSSIM, TinyImage, loop, tiny_scene
 
 from arcsem.act import ACT
 from arcsem.errors import ConfigError, TrainingError
@@ -22,47 +22,6 @@ from arcsem.train.optim import GroupSchedule, lr_at
 from arcsem.train.sampling import RaySampler, ViewSampler, resize_split
 
 pytestmark = pytest.mark.usefixtures("one_thread")
-
-
-@BACKBONES.register("_tiny_image")
-class TinyImage(Backbone):
-    """One learned ``[H,W,3]`` image for every camera; ``gain`` is a second parameter group."""
-
-    provides = frozenset({"rgb", "alpha", "depth"})
-
-    @dataclass
-    class Config:
-        lr_image: float = 0.05
-        lr_gain: float = 0.01
-
-    def __init__(self, cfg, scene=None, act=None):
-        super().__init__(cfg)
-        h, w = scene.train.cameras.height, scene.train.cameras.width
-        self.logits = nn.Parameter(0.1 * torch.randn(h, w, 3))
-        self.gain = nn.Parameter(torch.zeros(1))
-        self.act = act
-        self.register_buffer("hook_calls", torch.zeros(2, dtype=torch.long))
-
-    def render(self, cams, **kw):
-        C = len(cams)
-        rgb = torch.sigmoid(self.logits + self.gain)[None].expand(C, -1, -1, -1)
-        if self.act is not None:
-            rgb = self.act.apply(rgb.reshape(C, -1, 3), cams.image_ids).reshape(rgb.shape)
-        ones = torch.ones_like(rgb[..., :1])
-        return {"rgb": rgb, "alpha": ones, "depth": 2.0 * ones + 0.01 * self.logits[None, ..., :1]}
-
-    def param_groups(self, stage):
-        return {"image": [self.logits], "gain": [self.gain]} if stage == "geometry" else {"image": [self.logits]}
-
-    def pre_backward(self, step, out):
-        self.hook_calls[0] += 1
-
-    def post_backward(self, step, out, optimizers):
-        self.hook_calls[1] += 1
-        assert set(optimizers) >= {"image"}
-
-    def num_primitives(self):
-        return self.logits.shape[0] * self.logits.shape[1]
 
 
 @BACKBONES.register("_tiny_rays")

@@ -1,9 +1,14 @@
-"""Builders shared by the trainer tests: a tiny pinhole scene, loop settings, the 2DGS/3DGS loss mix."""
+"""Shared by the trainer and evaluation tests: a tiny pinhole scene, a tiny image backbone
+(``_tiny_image``), loop settings, the 2DGS/3DGS loss mix."""
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
+from torch import nn
 
 from arcsem.cameras import Cameras, look_at
+from arcsem.plugins import BACKBONES, Backbone
 from arcsem.scene import Scene, Split
 from arcsem.train.loop import LoopConfig
 
@@ -36,3 +41,44 @@ def loop(steps, **kw):
 
 
 L1_DSSIM = {"l1": {"weight": 0.8}, "dssim": {"weight": 0.2}}
+
+
+@BACKBONES.register("_tiny_image")
+class TinyImage(Backbone):
+    """One learned ``[H,W,3]`` image for every camera; ``gain`` is a second parameter group."""
+
+    provides = frozenset({"rgb", "alpha", "depth"})
+
+    @dataclass
+    class Config:
+        lr_image: float = 0.05
+        lr_gain: float = 0.01
+
+    def __init__(self, cfg, scene=None, act=None):
+        super().__init__(cfg)
+        h, w = scene.train.cameras.height, scene.train.cameras.width
+        self.logits = nn.Parameter(0.1 * torch.randn(h, w, 3))
+        self.gain = nn.Parameter(torch.zeros(1))
+        self.act = act
+        self.register_buffer("hook_calls", torch.zeros(2, dtype=torch.long))
+
+    def render(self, cams, **kw):
+        C = len(cams)
+        rgb = torch.sigmoid(self.logits + self.gain)[None].expand(C, -1, -1, -1)
+        if self.act is not None:
+            rgb = self.act.apply(rgb.reshape(C, -1, 3), cams.image_ids).reshape(rgb.shape)
+        ones = torch.ones_like(rgb[..., :1])
+        return {"rgb": rgb, "alpha": ones, "depth": 2.0 * ones + 0.01 * self.logits[None, ..., :1]}
+
+    def param_groups(self, stage):
+        return {"image": [self.logits], "gain": [self.gain]} if stage == "geometry" else {"image": [self.logits]}
+
+    def pre_backward(self, step, out):
+        self.hook_calls[0] += 1
+
+    def post_backward(self, step, out, optimizers):
+        self.hook_calls[1] += 1
+        assert set(optimizers) >= {"image"}
+
+    def num_primitives(self):
+        return self.logits.shape[0] * self.logits.shape[1]

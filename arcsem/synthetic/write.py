@@ -26,7 +26,7 @@ from .sheet import contact_sheet
 
 __all__ = ["GENERATOR_VERSION", "SceneParams", "generate_scene", "reference_sets"]
 
-GENERATOR_VERSION = 1  # bump when the output of the same parameters changes (invalidates caches)
+GENERATOR_VERSION = 2  # bump when the output of the same parameters changes (invalidates caches)
 FLIP = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV <-> OpenGL camera axes
 
 

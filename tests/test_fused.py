@@ -13,7 +13,7 @@ import warnings
 import pytest
 import torch
 from arcsem.backbones.gaussians.fused import load_extension, resolve_impl
-from arcsem.backbones.gs2d.render import render_2dgs
+from arcsem.backbones.gs2d.render import distortion_depth, render_2dgs
 from arcsem.backbones.gs3d.render import render_3dgs
 
 from arcsem.cameras import Cameras, look_at
@@ -105,6 +105,21 @@ def test_fused_matches_torch_values_and_gradients(kind, model, dtype, tol):
     alpha = outs["torch"]["alpha"].detach()
     assert (alpha[:, :, -8:] == 0).all(), "right-hand tiles should be empty"
     assert alpha.max() > 0.99, "the opaque stack should saturate some pixels (early termination)"
+
+
+@pytest.mark.parametrize("model", ["pinhole", "orthographic"])
+def test_fused_linear_distortion_depth_matches_torch(model):
+    """The kernel's m = c0 + c1 z + c2 / z with the ``linear`` coefficients (value and every gradient)."""
+    params, cams = scene("gs2d", torch.float64, model)
+    res = {}
+    for impl in ("torch", "cpp"):
+        ps = [p.clone().requires_grad_() for p in params]
+        out = render_2dgs(*ps, cams, impl=impl, dist_depth=distortion_depth("linear", 0.8))
+        res[impl] = out["distortion"].detach(), torch.autograd.grad(out["distortion"].sum(), ps[:4])
+    assert res["torch"][0].max() > 1e-4, "the scene should have overlapping splats"
+    assert_rel(res["cpp"][0], res["torch"][0], 1e-10, "distortion")
+    for name, a, b in zip(("means", "quats", "scales", "opacities"), res["cpp"][1], res["torch"][1]):
+        assert_rel(a, b, 1e-10, f"d distortion / d{name}")
 
 
 @pytest.mark.parametrize("kind", ["gs2d", "gs3d"])

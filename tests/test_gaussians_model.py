@@ -233,3 +233,27 @@ def test_scene_extent_is_the_camera_radius_capped_by_the_specimen(radius):
     ortho = Scene("t", Split(["a", "b", "c"], Cameras(w2c, cams.K, 8, 8, "orthographic"), img), scene.test,
                   scene.bounds)
     assert ortho.extent == pytest.approx(box, rel=1e-6)
+
+
+def test_gs2d_distortion_depth_is_linear_in_scene_units_by_default():
+    """The distortion's normalised depth is z / extent (the official NDC one is a config choice): the
+    backbone's distortion equals the rasteriser's with those coefficients, and a bad mode is refused."""
+    if not _renderer_available("gs2d"):
+        pytest.skip("backbones/gs2d/render.py not there yet")
+    from arcsem.backbones.gs2d.render import distortion_depth, render_2dgs
+
+    from arcsem.errors import ConfigError
+
+    scene = scene_of("pinhole")
+    cams = scene.train.cameras[:1]
+    outs = {}
+    for mode in ("linear", "ndc"):
+        bb = build("gs2d", scene, fake=False, distortion_depth=mode)
+        m = bb.model
+        want = render_2dgs(m.means, m.quats, m.scales, m.opacities, m.colors(cams), cams, tile=bb.cfg.tile,
+                           impl=bb.cfg.rasterizer, dist_depth=distortion_depth(mode, float(scene.extent)))["distortion"]
+        outs[mode] = bb.render(cams)["distortion"].detach()
+        torch.testing.assert_close(outs[mode], want.detach())
+    assert outs["linear"].max() > 100 * outs["ndc"].max()  # at z ~ 4, NDC's slope is 0.0125 per unit
+    with pytest.raises(ConfigError, match="distortion_depth"):
+        build("gs2d", scene, distortion_depth="metric")

@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
+from arcsem.errors import ConfigError
 from arcsem.plugins import BACKBONES, RenderOutput
 
 from ..gaussians.base import GaussianBackbone, GaussianConfig
@@ -26,8 +27,23 @@ class GS2DBackbone(GaussianBackbone):
         """2DGS defaults (official repository)."""
 
         prune_opacity: float = 0.05  # official 2DGS opacity_cull
+        # normalised depth of the distortion loss: "linear" m = z / extent (any camera distance,
+        # orthographic too) or "ndc", the official mapping, which is ~flat at SEM camera distances
+        distortion_depth: str = "linear"
+
+    def __init__(self, cfg: Config, scene=None, act=None, **runtime):
+        super().__init__(cfg, scene=scene, act=act, **runtime)
+        self._dist_depth()  # a bad mode fails at construction, not at the first render
+
+    def _dist_depth(self) -> tuple[float, float, float]:
+        from .render import distortion_depth
+
+        try:
+            return distortion_depth(self.cfg.distortion_depth, float(self.extent))
+        except ValueError as e:
+            raise ConfigError(f"backbone.{e}") from None
 
     def _rasterize(self, means, quats, scales, opacities, colors, cams, **kw) -> RenderOutput:
         from .render import render_2dgs  # the rasteriser module (imported when first used)
 
-        return render_2dgs(means, quats, scales, opacities, colors, cams, **kw)
+        return render_2dgs(means, quats, scales, opacities, colors, cams, dist_depth=self._dist_depth(), **kw)

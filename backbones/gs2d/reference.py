@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import torch
 from arcsem.backbones.gaussians.raster import MAX_ALPHA, MIN_ALPHA, MIN_T
-from arcsem.backbones.gs2d.render import DIST_FAR, DIST_NEAR, footprint_2dgs, splat_homographies
+from arcsem.backbones.gs2d.render import distortion_depth, footprint_2dgs, splat_homographies
 from torch import Tensor
 
 from arcsem.cameras import Cameras
@@ -35,7 +35,7 @@ def _tile_mask(rects: Tensor, W: int, H: int, tile: int) -> Tensor:
     return (tx >= rects[:, 0]) & (tx < rects[:, 1]) & (ty >= rects[:, 2]) & (ty < rects[:, 3])
 
 
-def _one_camera(means, quats, scales, opac, colors, cam: Cameras, rects, radius, tile):
+def _one_camera(means, quats, scales, opac, colors, cam: Cameras, rects, radius, tile, dist_depth=None):
     N = means.shape[0]
     eye = torch.eye(3, dtype=means.dtype)
     tu = rotate_by_quat(quats, eye[0]) * scales[:, :1]
@@ -54,7 +54,8 @@ def _one_camera(means, quats, scales, opac, colors, cam: Cameras, rects, radius,
     rho2d = 2 * ((pix - c2d) ** 2).sum(-1)
     alpha = (opac * torch.exp(-0.5 * torch.minimum(rho3d, rho2d))).clamp(max=MAX_ALPHA)
     z = torch.where(rho3d <= rho2d, uvs[..., 2], cz.expand(P, N))
-    m = DIST_FAR / (DIST_FAR - DIST_NEAR) * (1 - DIST_NEAR / z)
+    c0, c1, c2 = dist_depth or distortion_depth("ndc")
+    m = c0 + c1 * z + c2 / z
     mask = _tile_mask(rects, cam.width, cam.height, tile) & (radius > 0)
     return _composite_loop(alpha, mask, z, m, colors, n, torch.argsort(cz[0], stable=True))
 
@@ -88,7 +89,7 @@ def _composite_loop(alpha, mask, z, m, colors, n, order):
 
 def render_2dgs_dense(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
                       cams: Cameras, *, background: Tensor | None = None, tile: int = 16,
-                      near: float = 0.01) -> dict[str, Tensor]:
+                      near: float = 0.01, dist_depth: tuple[float, float, float] | None = None) -> dict[str, Tensor]:
     """Same inputs and image outputs as :func:`arcsem.backbones.gs2d.render.render_2dgs`."""
     cams = cams.to(dtype=means.dtype)
     C, N, H, W = len(cams), means.shape[0], cams.height, cams.width
@@ -96,7 +97,7 @@ def render_2dgs_dense(means: Tensor, quats: Tensor, scales: Tensor, opacities: T
         Hm, _ = splat_homographies(means, quats, scales, cams)
         radius, rects, _, _ = footprint_2dgs(Hm, opacities, cams, tile, near)
     colors = colors.expand(C, N, 3) if colors.ndim == 2 else colors
-    outs = [_one_camera(means, quats, scales, opacities, colors[c], cams[c], rects[c], radius[c], tile)
+    outs = [_one_camera(means, quats, scales, opacities, colors[c], cams[c], rects[c], radius[c], tile, dist_depth)
             for c in range(C)]
     rgb, acc, depth, med, nrm, dist = (torch.stack([o[i] for o in outs]) for i in range(6))
     if background is not None:

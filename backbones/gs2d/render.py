@@ -25,9 +25,28 @@ from torch import Tensor
 
 from arcsem.cameras import Cameras
 
-__all__ = ["DIST_FAR", "DIST_NEAR", "FILTER_RADIUS", "footprint_2dgs", "render_2dgs", "splat_homographies"]
+__all__ = ["DIST_FAR", "DIST_NEAR", "FILTER_RADIUS", "distortion_depth", "footprint_2dgs", "render_2dgs",
+           "splat_homographies"]
 
 DIST_NEAR, DIST_FAR = 0.2, 100.0  # normalised depth m = far/(far-near) (1 - near/z) (official 2DGS)
+
+
+def distortion_depth(mode: str = "ndc", length: float = 1.0) -> tuple[float, float, float]:
+    """Coefficients ``(c0, c1, c2)`` of the distortion term's normalised depth ``m = c0 + c1 z + c2 / z``.
+
+    ``ndc``: the official 2DGS mapping ``far/(far-near) (1 - near/z)`` (near 0.2, far 100). Its slope
+    ``0.2/z^2`` vanishes for SEM's near-orthographic cameras (z ~ 70 scene units: 4e-5 per unit), so
+    the loss cannot act; ``linear``: ``m = z / length`` (e.g. the scene extent), the same at any
+    camera distance and for orthographic cameras.
+    """
+    if mode == "ndc":
+        a = DIST_FAR / (DIST_FAR - DIST_NEAR)
+        return (a, 0.0, -a * DIST_NEAR)
+    if mode == "linear":
+        if not length > 0:
+            raise ValueError(f"distortion_depth: length must be > 0, got {length}")
+        return (0.0, 1.0 / length, 0.0)
+    raise ValueError(f"distortion_depth: mode must be 'ndc' or 'linear', got '{mode}'")
 FILTER_RADIUS = 3.0 / math.sqrt(2.0)  # 3 sigma of the low-pass filter rho2d = 2 |d|^2, in pixels
 
 
@@ -106,7 +125,7 @@ def _splat_table(Hm: Tensor, centre2d: Tensor, opac: Tensor, feats: Tensor) -> T
     return torch.cat([*adj, centre2d, opac[:, None], Tz, feats], -1).t().contiguous()
 
 
-def _shade_2dgs(table: Tensor):
+def _shade_2dgs(table: Tensor, mcoef: tuple[float, float, float]):
     """Shader for :func:`rasterize`: per-pixel ``[rgb(3), normal(3), alpha, sum w z, distortion, median]``."""
     geo = table[:12].contiguous()
 
@@ -131,9 +150,10 @@ def _shade_2dgs(table: Tensor):
         G = torch.index_select(table, 1, splat).unbind(0)
         alpha, use3d, q0, q1, qz = evaluate(G, xy)
         tz0, tz1, tz2 = G[12:15]
+        c0, c1, c2 = mcoef
         z = torch.where(use3d, (q0 * tz0 + q1 * tz1) / qz + tz2, tz2)
         w, T = composite_kept(alpha, segs)
-        m = DIST_FAR / (DIST_FAR - DIST_NEAR) * (1 - DIST_NEAR / z)
+        m = c0 + c1 * z + c2 / z
         # the distortion sum_ij w_i w_j (m_i - m_j)^2 is invariant to shifting m per pixel: shifting by
         # the pixel's first m avoids the cancellation of m^2 A + M2 - 2 m M1 (float32 error 1e-3 -> 1e-6)
         m = m - torch.index_select(m.detach(), 0, segs.start)
@@ -150,7 +170,8 @@ def _shade_2dgs(table: Tensor):
 
 def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
                 cams: Cameras, *, background: Tensor | None = None, tile: int = 16,
-                chunk_tiles: int | None = None, near: float = 0.01, impl: str = "torch") -> dict[str, Tensor]:
+                chunk_tiles: int | None = None, near: float = 0.01, impl: str = "torch",
+                dist_depth: tuple[float, float, float] | None = None) -> dict[str, Tensor]:
     """Render 2-D Gaussian splats.
 
     Args:
@@ -159,6 +180,8 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
         orthographic); background ``[3]`` composited as ``rgb + (1 - alpha) bg``; splats whose centre
         depth is ``<= near`` are culled.
         impl: ``torch`` (this module, the reference), ``cpp`` (fused kernels) or ``auto``.
+        dist_depth: ``(c0, c1, c2)`` of the distortion's normalised depth (:func:`distortion_depth`;
+        default the official NDC mapping).
     Returns:
         rgb ``[C, H, W, 3]``, alpha, depth (``sum w z / alpha``), median_depth, distortion ``[C, H, W, 1]``,
         normal ``[C, H, W, 3]`` (world, ``sum w n``), radii ``[C, N]`` long, visible ``[C, N]`` bool,
@@ -168,8 +191,9 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     impl = _resolve(impl)
     C, N, Hh, W = len(cams), means.shape[0], cams.height, cams.width
     cams = cams.to(dtype=means.dtype)
+    mcoef = tuple(float(c) for c in (dist_depth or distortion_depth("ndc")))
     if impl == "cpp":
-        return _render_2dgs_fused(means, quats, scales, opacities, colors, cams, background, tile, near)
+        return _render_2dgs_fused(means, quats, scales, opacities, colors, cams, background, tile, near, mcoef)
     Hm, R = splat_homographies(means, quats, scales, cams)
     radius, rects, eff, depth = footprint_2dgs(Hm, opacities, cams, tile, near)
     b = bin_tiles(rects, depth, W, Hh, tile)
@@ -180,13 +204,14 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     # translating a splat's image by (dx, dy) pixels: Tu += dx Tw, Tv += dy Tw (dx, dy = 0 in value)
     Hm = torch.cat([Hm[..., :2, :] + shift[..., None] * Hm[..., 2:3, :], Hm[..., 2:, :]], -2)
     centre2d = (Hm[..., :2, 2] / Hm[..., 2, 2:3]).reshape(C * N, 2)
-    alpha_fn, shade = _shade_2dgs(_splat_table(Hm.reshape(C * N, 4, 3), centre2d, opacities.repeat(C), feats))
+    alpha_fn, shade = _shade_2dgs(_splat_table(Hm.reshape(C * N, 4, 3), centre2d, opacities.repeat(C), feats), mcoef)
     out = rasterize(b, eff.reshape(C * N, 4), alpha_fn, shade, 10, means.dtype, chunk_tiles).reshape(C, Hh, W, 10)
     return {**_outputs(out, background, radius, rects), "means2d": means2d}
 
 
 def _render_2dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
-                       cams: Cameras, background: Tensor | None, tile: int, near: float) -> dict[str, Tensor]:
+                       cams: Cameras, background: Tensor | None, tile: int, near: float,
+                       mcoef: tuple[float, float, float]) -> dict[str, Tensor]:
     """:func:`render_2dgs` on the fused C++ kernels: projection, footprint + binning and compositing are one
     call each (few PyTorch ops: on a shared machine every multi-threaded op can cost a scheduler slice)."""
     from arcsem.backbones.gaussians import fused
@@ -201,10 +226,9 @@ def _render_2dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
     opac = opacities.expand(C, N).reshape(C * N)
     bg = None if background is not None and background.requires_grad else background  # else composited here
     radii, visible, _, eff, offsets, ids = fused.footprint_bin_2dgs(H9, Dz, opacities, C, near, W, Hh, tile)
-    a = DIST_FAR / (DIST_FAR - DIST_NEAR)  # m = a (1 - near / z) = a - a near / z
-    mcoef = means.new_tensor([a, 0.0, -a * DIST_NEAR]).expand(C, 3)
     rgb, normal, alpha, depth, med, dist = fused.composite2d(
-        H9, Dz, centre2d, opac, colors.expand(C, N, 3).reshape(C * N, 3), normals, mcoef, offsets, ids,
+        H9, Dz, centre2d, opac, colors.expand(C, N, 3).reshape(C * N, 3), normals, means.new_tensor(mcoef).expand(C, 3),
+        offsets, ids,
         float("-inf"), C, Hh, W, tile, eff, bg)
     if background is not None and bg is None:
         rgb = rgb + (1 - alpha) * background.to(rgb)

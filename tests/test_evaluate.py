@@ -45,6 +45,25 @@ class Oracle(Backbone):
         return {"dummy": [self.dummy]}
 
 
+def test_clean_targets_are_scored_with_the_mean_act_observed_ones_with_the_views_own():
+    """A noise-free image has no exposure drift: against it a training view is rendered with the mean
+    ACT (image id -1); against the observed image, with its own (the paper's protocol)."""
+    import dataclasses
+
+    scene = tiny_scene()
+    bb = BACKBONES.build({"name": "_oracle"}, scene=scene)
+    seen = []
+    render = bb.render
+    bb.render = lambda cams, **kw: (seen.append(cams.image_ids.tolist()), render(cams, **kw))[1]
+    split = scene.train
+    assert split.clean is not None and split.cameras.image_ids.tolist() == list(range(len(split)))
+    evaluate_split(bb, split, split_name="train", with_lpips=False)
+    assert seen == [[-1]] * len(split)
+    seen.clear()
+    evaluate_split(bb, dataclasses.replace(split, clean=None), split_name="train", with_lpips=False)
+    assert seen == [[i] for i in range(len(split))]
+
+
 def test_depth_error_inside_gt_mask():
     gt = torch.tensor([[0.0, 2.0], [2.0, 3.0]])
     pred = torch.tensor([[9.0, 2.5], [1.0, 3.0]])
@@ -137,3 +156,14 @@ def test_run_stage1_end_to_end_resume_and_reload(tmp_path):
     torch.testing.assert_close(img, (W[0] * ref + b[0]).clamp(0, 1))
     with pytest.raises(TrainingError, match="train.steps"):
         run_stage1(_cfg(tmp_path, steps=40), scene, tmp_path)
+
+
+def test_periodic_evaluation_reports_psnr_ssim_and_depth_error(tmp_path):
+    scene = tiny_scene()
+    cfg = _cfg(tmp_path, steps=30, eval_every=10,
+               eval={"lpips": False, "renders": False, "video": False, "periodic_views": 1})
+    out = run_stage1(cfg, scene, tmp_path)["stage1"]
+    assert [e["step"] for e in out["periodic"]] == [10, 20]  # the final step has the full evaluation
+    for e in out["periodic"]:
+        assert set(e) == {"step", "test_psnr", "test_ssim", "test_depth_mae_pct"}
+        assert math.isfinite(e["test_psnr"]) and e["test_depth_mae_pct"] >= 0

@@ -129,7 +129,7 @@ def _periodic_eval(backbone, scene: Scene, ec: EvalConfig):
     def fn(step: int) -> dict:
         _, summary, _ = evaluate_split(backbone, split, split_name=name, length_scale=scene.scale[0], with_lpips=False,
                                        max_views=ec.periodic_views)
-        return {f"{name}_{k}": summary[k] for k in ("psnr", "ssim") if k in summary}
+        return {f"{name}_{k}": summary[k] for k in ("psnr", "ssim", "depth_mae_pct") if k in summary}
     return fn
 
 

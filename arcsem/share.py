@@ -2,7 +2,8 @@
 
 Several stage-2 jobs of a sweep (the ablations, the reference counts) need the same stage-1 model.
 Each asks :func:`stage1_dir` for the folder keyed by a hash of the stage-1-relevant config
-(``dataset``, ``backbone``, ``act``, ``train``, ``seed`` and the package version), takes
+(``dataset``, ``backbone``, ``act``, ``train``, ``seed``, the package version and, for the built-in
+scene, its generator version), takes
 :func:`stage1_lock` on it, trains only if the folder holds no finished model, and marks it done.
 Parallel jobs (joblib, submitit) block on the lock instead of training twice::
 
@@ -86,6 +87,10 @@ def stage1_key(cfg: Mapping) -> str:
     if isinstance(part["train"], dict):
         part["train"] = {k: v for k, v in part["train"].items() if k not in TRAIN_IGNORED}
     part["arcsem_version"] = __version__
+    if isinstance(part["dataset"], dict) and part["dataset"].get("kind") == "synthetic":
+        from arcsem.synthetic.write import GENERATOR_VERSION  # a regenerated scene needs a new model
+
+        part["synthetic_generator"] = GENERATOR_VERSION
     text = json.dumps(part, sort_keys=True, default=str, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 

@@ -43,6 +43,17 @@ def test_key_depends_on_stage1_config_only():
         assert stage1_key(_cfg(**change)) != k, change
 
 
+def test_key_of_the_builtin_scene_follows_its_generator_version(monkeypatch):
+    """A regenerated built-in scene (new GENERATOR_VERSION) must not reuse models of the old one."""
+    import arcsem.synthetic.write as write
+
+    synthetic, other = _cfg(**{"dataset.kind": "synthetic"}), _cfg(**{"dataset.kind": "transforms"})
+    before = stage1_key(synthetic), stage1_key(other)
+    monkeypatch.setattr(write, "GENERATOR_VERSION", write.GENERATOR_VERSION + 1)
+    assert stage1_key(synthetic) != before[0]
+    assert stage1_key(other) == before[1]
+
+
 def test_dir_root_and_description(tmp_path, monkeypatch):
     monkeypatch.setenv("ARCSEM_CACHE", str(tmp_path / "env"))
     assert cache_root(_cfg()) == tmp_path / "env"

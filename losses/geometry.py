@@ -1,8 +1,8 @@
 """2DGS geometry regularisers as loss plugins (Huang et al. 2024; METHOD.md).
 
-* ``normal_consistency``: ``1 - n_rendered . n_surface``, with ``n_surface`` the normal of the
-  rendered expected depth unprojected to world points (central differences, cross product),
-  weighted by the detached alpha. Default weight 0.05 from step 7000.
+* ``normal_consistency``: ``1 - (sum w n) . (n_surface alpha)`` (2DGS), with ``n_surface`` the normal
+  of the rendered depth unprojected to world points (central differences, cross product) and
+  ``alpha`` detached. Default weight 0.05 from step 7000.
 * ``distortion``: mean of the per-pixel distortion ``sum_i w_i (m_i^2 A + M2 - 2 m_i M1)``.
   Default weight 0 (1000 for object scans in the 2DGS paper's DTU runs) from step 3000.
 """
@@ -35,17 +35,40 @@ def depth_normals(depth: Tensor, cams: Cameras) -> Tensor:
 
 @LOSSES.register("normal_consistency")
 class NormalConsistency(Loss):
+    """``1 - n_rendered . n_surface``, weighted by the detached alpha, averaged over pixels with a depth normal.
+
+    ``official: true`` is the 2DGS form ``1 - (sum w n) . (n_surface alpha)``: the rendered normal is
+    not normalised, so splats along a ray that disagree (``|sum w n| < alpha``) or leave the pixel
+    partly transparent are penalised too. ``official: false`` normalises the rendered normal first.
+    ``depth``: the depth map whose normals are the target, ``expected`` or ``median`` (2DGS uses
+    the median for bounded objects: its ``depth_ratio 1``).
+    """
+
     requires = frozenset({"normal", "depth", "alpha"})
 
     @dataclass
     class Config:
         weight: float = 0.05
         start_step: int = 7000
+        official: bool = True
+        depth: str = "expected"
+
+    def __init__(self, cfg: Config):
+        super().__init__(cfg)
+        if cfg.depth not in ("expected", "median"):
+            from arcsem.errors import ConfigError
+
+            raise ConfigError(f"losses.normal_consistency.depth must be 'expected' or 'median', got '{cfg.depth}'")
+        self.requires = self.requires | ({"median_depth"} if cfg.depth == "median" else set())
 
     def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
-        surf = depth_normals(out["depth"], batch.cameras)
-        n = F.normalize(out["normal"], dim=-1)
-        err = (1.0 - (n * surf).sum(-1, keepdim=True)) * out["alpha"].detach()
+        depth = out["median_depth"] if self.cfg.depth == "median" else out["depth"]
+        surf = depth_normals(depth, batch.cameras)
+        alpha = out["alpha"].detach()
+        if self.cfg.official:
+            err = 1.0 - (out["normal"] * surf).sum(-1, keepdim=True) * alpha
+        else:
+            err = (1.0 - (F.normalize(out["normal"], dim=-1) * surf).sum(-1, keepdim=True)) * alpha
         valid = (surf.abs().sum(-1, keepdim=True) > 0).to(err.dtype)
         return (err * valid).sum() / valid.sum().clamp_min(1.0)
 

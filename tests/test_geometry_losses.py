@@ -35,17 +35,28 @@ def test_depth_normals_of_a_plane_pinhole_and_ortho():
 
 def test_normal_consistency_hand_values():
     cls = LOSSES.get("normal_consistency")
-    loss = cls(validate_config(cls.Config, {}, where="nc"))
     c = cams("pinhole")
     depth, n = plane_depth(c, 0.0)
     alpha = torch.full_like(depth, 0.5)
     batch = Batch(cameras=c, images=torch.zeros(1, 20, 24, 3), indices=torch.tensor([0]))
+    tilted = torch.tensor([0.0, 3 ** 0.5 / 2, -0.5], dtype=torch.float64)  # 60 deg from the plane's normal
+    # normalised form: (1 - n . n_surf) alpha
+    loss = cls(validate_config(cls.Config, {"official": False}, where="nc"))
     same = {"depth": depth, "alpha": alpha, "normal": n.expand(1, 20, 24, 3)}
     assert loss(same, batch, 0).item() < 1e-12  # agreeing normals cost nothing
-    # normals tilted by 60 deg: 1 - cos 60 = 0.5, times alpha 0.5 = 0.25
-    tilted = torch.tensor([0.0, 3 ** 0.5 / 2, -0.5], dtype=torch.float64)
     val = loss({**same, "normal": tilted.expand(1, 20, 24, 3)}, batch, 0).item()
-    assert abs(val - 0.25) < 1e-9
+    assert abs(val - 0.25) < 1e-9  # (1 - cos 60) * 0.5
+    # 2DGS form: 1 - (sum w n) . n_surf alpha, with sum w n of length alpha for agreeing splats
+    loss = cls(validate_config(cls.Config, {}, where="nc"))
+    assert abs(loss({**same, "normal": 0.5 * n.expand(1, 20, 24, 3)}, batch, 0).item() - 0.75) < 1e-9
+    assert abs(loss({**same, "normal": 0.5 * tilted.expand(1, 20, 24, 3)}, batch, 0).item() - 0.875) < 1e-9
+    opaque = {**same, "alpha": torch.ones_like(alpha)}
+    assert loss(opaque, batch, 0).item() < 1e-12
+    # median: the target normals come from median_depth (here the plane; the expected depth is garbage)
+    med = cls(validate_config(cls.Config, {"depth": "median"}, where="nc"))
+    assert "median_depth" in med.requires
+    bumpy = {**opaque, "depth": depth + torch.rand_like(depth), "median_depth": depth}
+    assert med(bumpy, batch, 0).item() < 1e-12 and loss(bumpy, batch, 0).item() > 0.01
 
 
 def test_distortion_is_mean_and_defaults_are_the_papers():

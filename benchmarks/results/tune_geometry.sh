@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# The geometry-regulariser runs behind the quick preset's distortion and normal-consistency settings
+# (table "Geometry regularisers" in benchmarks/results/README.md): 2DGS + ACT, quick preset, built-in
+# scene, seed 0, one stage-1 run per line, two at a time with one thread each (a 2-core machine).
+#
+#   benchmarks/results/tune_geometry.sh [OUT_DIR]        # default multirun/tune_geometry
+#
+# Each run writes OUT_DIR/<name>/metrics.json (stage1.test.psnr, stage1.depth.test_mae_pct, ...).
+set -uo pipefail
+cd "$(dirname "$0")/../.."
+BIN=${BIN:-.venv/bin}
+OUT=${1:-multirun/tune_geometry}
+G=train.per_backbone.gs2d.losses
+NORMALISED="$G.normal_consistency.official=false $G.normal_consistency.depth=expected"
+declare -A RUNS=(
+  [none]="$G.distortion.weight=0 $NORMALISED"
+  [dist10]="$G.distortion.weight=10 $NORMALISED"
+  [dist30]="$G.distortion.weight=30 $NORMALISED"
+  [dist100]="$G.distortion.weight=100 $NORMALISED"
+  [dist100_from750]="$G.distortion.weight=100 $G.distortion.start_step=750 $NORMALISED"
+  [dist1000]="$G.distortion.weight=1000 $NORMALISED"
+  [dist10_nc0.2]="$G.distortion.weight=10 $G.normal_consistency.weight=0.2 $NORMALISED"
+  [dist10_official]="$G.distortion.weight=10 $G.normal_consistency.official=true $G.normal_consistency.depth=expected"
+  [dist10_official_median]="$G.distortion.weight=10 $G.normal_consistency.official=true $G.normal_consistency.depth=median"
+)
+run() {
+  $BIN/arcsem stage=gray threads=1 train.eval.video=false train.progress=false train.eval_every=500 \
+    ${RUNS[$1]} hydra.run.dir="$OUT/$1" > "$OUT/$1.log" 2>&1 || echo "run $1 failed: see $OUT/$1.log"
+}
+mkdir -p "$OUT"
+names=("${!RUNS[@]}")
+for ((i = 0; i < ${#names[@]}; i += 2)); do
+  run "${names[i]}" &
+  [[ -n "${names[i+1]:-}" ]] && run "${names[i+1]}" &
+  wait
+done
+for n in "${names[@]}"; do
+  $BIN/python -c "import json, sys; s = json.load(open(sys.argv[1]))['stage1']; \
+print(f\"{sys.argv[2]:24s} held-out {s['test']['psnr']:.2f} dB, mask {s['test']['psnr_masked']:.2f} dB, \
+depth {s['depth']['test_mae_pct']:.2f} %, {s['num_primitives']} Gaussians\")" "$OUT/$n/metrics.json" "$n" 2>/dev/null \
+    || echo "$n: no metrics"
+done

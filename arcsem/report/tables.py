@@ -141,10 +141,10 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
            missing: list[MissingJob]) -> list[str]:
     notes = []
     if study == "grayscale_comparison":
-        notes.append("train views: the paper's protocol (ACT per training image), scored against the "
-                     "noise-free images where the dataset has them (the built-in scene), which lack the "
-                     "views' brightness drift that ACT reproduces; held-out: test views "
-                     "rendered with the mean ACT; depth err.: median |depth - GT| over held-out "
+        notes.append("train views: the paper's protocol (each view's own ACT, scored against the observed "
+                     "image), except where the dataset has noise-free images (the built-in scene): those "
+                     "lack the views' exposure drift, so every view is scored against them with the mean "
+                     "ACT; held-out: test views rendered with the mean ACT; depth err.: median |depth - GT| over held-out "
                      "views inside the mask (% of the specimen's diameter where the dataset states it, e.g. the "
                      "synthetic grain's 2 units, else of the bounding-box diagonal; and in scene units).")
         notes.append("paper Table 1: ArCSEM's published numbers on real SEM data (32 views, 3072x2048); "

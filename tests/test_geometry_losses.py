@@ -1,9 +1,11 @@
 """Geometry losses: depth normals of an analytic plane, hand-computed consistency values."""
 from __future__ import annotations
 
+import pytest
 import torch
 
 from arcsem.cameras import Cameras, look_at
+from arcsem.errors import ConfigError
 from arcsem.plugins import LOSSES, Batch
 from arcsem.registry import validate_config
 
@@ -57,6 +59,8 @@ def test_normal_consistency_hand_values():
     assert "median_depth" in med.requires
     bumpy = {**opaque, "depth": depth + torch.rand_like(depth), "median_depth": depth}
     assert med(bumpy, batch, 0).item() < 1e-12 and loss(bumpy, batch, 0).item() > 0.01
+    with pytest.raises(ConfigError, match="normal_consistency.depth"):
+        cls(validate_config(cls.Config, {"depth": "mean"}, where="nc"))
 
 
 def test_distortion_is_mean_and_defaults_are_the_papers():

@@ -18,7 +18,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
 
 import torch
@@ -28,6 +27,7 @@ from omegaconf import OmegaConf
 from arcsem.data import load_scene
 from arcsem.errors import ArcsemError
 from arcsem.train.checkpoint import load_checkpoint
+from arcsem.train.evaluate import render_view
 from arcsem.train.stage1 import load_stage1, prepare_scene, train_config
 
 
@@ -64,22 +64,19 @@ def main() -> None:
     count = dict.fromkeys(sse, 0)
     errs, cos = [], []
     for i in range(len(split)):
-        cams = split.cameras[i : i + 1]
-        cams = dataclasses.replace(cams, image_ids=torch.full_like(cams.image_ids, -1))  # clean image: mean ACT
-        with torch.no_grad():
-            out = backbone.render(cams)
-        err2 = ((out["rgb"][0].clamp(0, 1) - split.clean[i]) ** 2).mean(-1)
+        out = render_view(backbone, split, i)  # against the clean image: the mean ACT
+        err2 = ((out["rgb"].clamp(0, 1) - split.clean[i]) ** 2).mean(-1)
         mask = split.masks[i].reshape(err2.shape).bool()
         regions = dict(zip(sse, bands(mask)))
         for name, r in regions.items():
             sse[name] += float(err2[r].sum())
             count[name] += int(r.sum())
-        depth = out.get("median_depth", out["depth"])[0, ..., 0]
+        depth = out.get("median_depth", out["depth"])[..., 0]
         gt = split.depths[i]
         valid = regions["interior"] & (gt > 0)
         errs.append((depth - gt)[valid].double())
         n = split.normals[i].double()
-        cos.append((-(n * cams.forward[0].double()).sum(-1))[valid])
+        cos.append((-(n * split.cameras[i : i + 1].forward[0].double()).sum(-1))[valid])
     total_sse, total_n = sum(sse.values()), sum(count.values())
     print(f"{args.split} views: {len(split)}; image PSNR {psnr_of(total_sse / total_n):.2f} dB")
     for name in sse:

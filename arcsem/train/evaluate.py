@@ -29,7 +29,8 @@ from torch import nn
 
 from ..scene import Split
 
-__all__ = ["depth_error", "depth_image", "evaluate_split", "mean_metrics", "to_uint8", "write_views_csv"]
+__all__ = ["depth_error", "depth_image", "evaluate_split", "mean_metrics", "render_view", "to_uint8",
+           "write_views_csv"]
 
 METRICS = ("psnr", "ssim", "lpips")
 
@@ -63,7 +64,9 @@ def depth_error(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None)
     return (pred[valid].double() - gt[valid].double()).abs()
 
 
-def _render_view(backbone: nn.Module, split: Split, i: int) -> dict[str, torch.Tensor]:
+def render_view(backbone: nn.Module, split: Split, i: int) -> dict[str, torch.Tensor]:
+    """Image outputs (``[H, W, k]`` each) of view ``i`` as it is scored: with the mean ACT against a
+    noise-free image, else with the view's own ACT (see the module docstring)."""
     cams = split.cameras[i : i + 1]
     if split.clean is not None:  # scored against a drift-free image: the mean ACT (see the module docstring)
         cams = dataclasses.replace(cams, image_ids=torch.full_like(cams.image_ids, -1))
@@ -102,7 +105,7 @@ def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test
         render_dir.mkdir(parents=True, exist_ok=True)
     rows, errors, weights = [], [], set()
     for i in (int(v) for v in views):
-        out = _render_view(backbone, split, i)
+        out = render_view(backbone, split, i)
         pred, mask = out["rgb"].clamp(0, 1), None if split.masks is None else split.masks[i]
         row = {"split": split_name, "name": split.names[i], **_image_row(pred, target[i], mask, with_lpips)}
         weights.add(row.pop("lpips_weights", "skipped"))

@@ -9,11 +9,16 @@ depth and normals (the built-in scene), over the held-out views:
 * the median depth error (the rendered ``median_depth`` or ``depth``, inside the eroded mask) in
   scene units and in % of ``scene.scale``, its signed median (positive = behind the surface), and
   the same restricted to pixels facing the camera (``cos(tilt) > c``, tilt between the ground-truth
-  normal and the viewing direction).
+  normal and the viewing direction);
+* with ``--surfels`` (a Gaussian model of the built-in synthetic scene, whose exact surface is known):
+  where the splats that draw the specimen sit. Each splat is weighted by its total blending weight
+  over the specimen's pixels in these views; reported are weighted quantiles of the signed distance
+  of its centre to the true surface (negative: inside) and, for 2DGS, of the angle between its normal
+  and the surface normal there.
 
 Usage::
 
-    .venv/bin/python benchmarks/error_breakdown.py RUN_DIR [--split test|train]
+    .venv/bin/python benchmarks/error_breakdown.py RUN_DIR [--split test|train] [--surfels]
 """
 from __future__ import annotations
 
@@ -49,6 +54,7 @@ def main() -> None:
     ap.add_argument("run_dir")
     ap.add_argument("--split", default="test", choices=("test", "train"))
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--surfels", action="store_true", help="where the splats sit (built-in synthetic scene only)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     ckpt = f"{args.run_dir}/checkpoints/last.pt"
@@ -93,6 +99,51 @@ def main() -> None:
         m = float(e[k].abs().median()) if k.any() else math.nan
         print(f"  cos(tilt) > {lo}: {100 * float(k.double().mean()):4.1f} % of those pixels, "
               f"median |error| {m:.4f} = {100 * m / scale:.2f} %")
+    if args.surfels:
+        surfels(backbone, split, cfg, scale, scene.scale[1])
+
+
+def weighted_quantiles(x: torch.Tensor, w: torch.Tensor, qs=(0.1, 0.25, 0.5, 0.75, 0.9)) -> list[float]:
+    """Quantiles of ``x [N]`` under non-negative weights ``w [N]``."""
+    order = torch.argsort(x)
+    cw = torch.cumsum(w[order], 0)
+    at = torch.searchsorted(cw, torch.tensor(qs, dtype=cw.dtype) * cw[-1]).clamp(max=len(x) - 1)
+    return [float(v) for v in x[order][at]]
+
+
+def surfels(backbone, split, cfg, scale: float, scale_name: str) -> None:
+    """Weighted distance of the splat centres to the true surface, and surfel normal error (2DGS)."""
+    from arcsem.synthetic.sdf import make_grain
+    from arcsem.synthetic.trace import sdf_gradient
+
+    if cfg.dataset.kind != "synthetic" or not hasattr(backbone, "model"):
+        raise ArcsemError("--surfels needs a Gaussian model of the built-in synthetic scene")
+    grain = make_grain(int(cfg.dataset.seed), int(cfg.dataset.get("n_spines", 30))).to(torch.float64)
+    m = backbone.model
+    weight = torch.zeros(len(m.means), dtype=torch.float64)
+    params = [p.detach() for p in (m.means, m.quats, m.scales, m.opacities)]
+    for i in range(len(split)):
+        cams = split.cameras[i : i + 1]
+        ones = torch.ones(len(m.means), 3, dtype=params[0].dtype, requires_grad=True)
+        out = backbone._rasterize(*params, ones, cams, tile=backbone.cfg.tile, impl=backbone.cfg.rasterizer)
+        mask = split.masks[i].reshape(out["rgb"].shape[1:3]).to(out["rgb"].dtype)
+        (grad,) = torch.autograd.grad((out["rgb"][0, ..., 0] * mask).sum(), ones)
+        weight += grad[:, 0].double()  # d(sum of rendered values)/d(colour) = the splat's blending weight
+    with torch.no_grad():
+        centre = m.means.detach().double()
+        dist = grain.sdf(centre)
+    q = weighted_quantiles(dist, weight)
+    print(f"splat centres, distance to the surface (weighted by blending weight on the specimen; 10/25/50/75/90 %): "
+          + " ".join(f"{100 * v / scale:+.2f}" for v in q) + f" % of {scale_name}")
+    if m.scales.shape[1] == 2:
+        from arcsem.backbones.gaussians.raster_camera import quat_to_rotmat
+
+        with torch.no_grad():
+            n = quat_to_rotmat(m.quats.detach().double())[:, :, 2]
+            true_n, _ = sdf_gradient(grain.sdf, centre)
+            angle = torch.rad2deg(torch.acos((n * true_n).sum(-1).abs().clamp(max=1.0)))
+        q = weighted_quantiles(angle, weight, (0.25, 0.5, 0.75, 0.9))
+        print("surfel normal vs surface normal (weighted; 25/50/75/90 %): " + " ".join(f"{v:.1f}" for v in q) + " deg")
 
 
 if __name__ == "__main__":

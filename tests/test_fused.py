@@ -122,6 +122,23 @@ def test_fused_linear_distortion_depth_matches_torch(model):
         assert_rel(a, b, 1e-10, f"d distortion / d{name}")
 
 
+def test_fused_lowpass_sigma_matches_torch():
+    """A non-default low-pass sigma: footprints, every output and every gradient of the kernel equal torch."""
+    params, cams = scene("gs2d", torch.float64, "pinhole", seed=4)
+    params[2] = params[2] * 0.05  # small splats: the 2-D filter draws many pixels
+    res = {}
+    for impl in ("torch", "cpp"):
+        ps = [p.clone().requires_grad_() for p in params]
+        out = render_2dgs(*ps, cams, impl=impl, lowpass_sigma=0.35)
+        loss = sum((out[k] * (i + 1)).sum() for i, k in enumerate(OUTPUTS["gs2d"]))
+        res[impl] = {k: out[k].detach() for k in OUTPUTS["gs2d"]}, torch.autograd.grad(loss, ps[:4]), out["radii"]
+    assert torch.equal(res["cpp"][2], res["torch"][2])
+    for k in OUTPUTS["gs2d"]:
+        assert_rel(res["cpp"][0][k], res["torch"][0][k], 1e-10, k)
+    for name, a, b in zip(("means", "quats", "scales", "opacities"), res["cpp"][1], res["torch"][1]):
+        assert_rel(a, b, 1e-10, f"d/d{name}")
+
+
 @pytest.mark.parametrize("kind", ["gs2d", "gs3d"])
 def test_fused_unused_outputs_and_learned_background(kind):
     """Only rgb in the loss (the other outputs get no gradient: the kernels read them as zero) and a
@@ -159,9 +176,10 @@ def test_fused_footprint_and_binning_equal_torch(kind, model):
     C, N, W, H, tile, near = 2, 3000, 72, 40, 16, 0.01
     if kind == "gs2d":
         Hm, _ = splat_homographies(s.means, s.quats, s.scales[:, :2], cams)
-        radius, rects, eff, depth = footprint_2dgs(Hm, s.opacities, cams, tile, near)
+        sigma = 0.4 if model == "orthographic" else 0.7071  # a non-default low-pass filter radius too
+        radius, rects, eff, depth = footprint_2dgs(Hm, s.opacities, cams, tile, near, sigma)
         got = fused.footprint_bin_2dgs(Hm[..., :3, :].reshape(C * N, 9), Hm[..., 3, :].reshape(C * N, 3),
-                                       s.opacities, C, near, W, H, tile)
+                                       s.opacities, C, near, W, H, tile, sigma)
     else:
         m2, depth, cov2d = project_gaussians(s.means, s.quats, s.scales, cams)
         radius, rects, eff, _ = footprint_3dgs(m2, depth, cov2d, s.opacities, cams, tile, near)

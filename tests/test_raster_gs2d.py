@@ -28,10 +28,10 @@ def rel_err(a, b):
     return ((a - b).abs().max() / b.abs().max().clamp_min(1e-12)).item()
 
 
-def compare(s, cams, tile, chunk_tiles=None, background=None, dist_depth=None):
+def compare(s, cams, tile, chunk_tiles=None, background=None, dist_depth=None, **kw):
     pa, pb = s.params(2), s.params(2)
-    a = render_2dgs(*pa, cams, tile=tile, chunk_tiles=chunk_tiles, background=background, dist_depth=dist_depth)
-    b = render_2dgs_dense(*pb, cams, tile=tile, background=background, dist_depth=dist_depth)
+    a = render_2dgs(*pa, cams, tile=tile, chunk_tiles=chunk_tiles, background=background, dist_depth=dist_depth, **kw)
+    b = render_2dgs_dense(*pb, cams, tile=tile, background=background, dist_depth=dist_depth, **kw)
     g = torch.Generator().manual_seed(1)
     loss_a = loss_b = 0.0
     for k in OUTS:
@@ -55,6 +55,40 @@ def test_matches_dense_reference(ortho, tile, mode):
     assert b["alpha"].max() > 0.999  # some pixels are early-terminated (T would fall below 1e-4)
     assert (b["alpha"] == 0).any()  # and some pixels see nothing
     assert a["visible"].sum() >= 15 and (a["radii"][a["visible"]] > 0).all()
+
+
+@pytest.mark.parametrize("sigma", [0.3, 1.5])
+def test_lowpass_sigma_matches_dense_reference(sigma):
+    """A low-pass filter narrower and wider than the official 1/sqrt(2) px: values and gradients (the centre
+    gradient of the 2-D fallback scales with 1/sigma^2) match the dense reference; tiny splats are drawn."""
+    s = hard_scene(seed=4)
+    s.scales[10:] = 0.004  # sub-pixel splats: drawn by the 2-D filter alone
+    a, _ = compare(s, orbit_cameras(2, 20, 16), 8, lowpass_sigma=sigma)
+    assert a["alpha"].max() > 0.5
+
+
+def test_lowpass_sigma_is_the_screen_sigma_of_a_tiny_splat():
+    """A splat far below a pixel is drawn as ``o exp(-d^2 / (2 sigma^2))`` of the distance ``d`` (pixels) from
+    its projected centre, down to the 1/255 alpha cut-off within its 3-sigma footprint: it grows with sigma."""
+    cams = orbit_cameras(1, 41, 41, focal=40.0)
+    f64 = dict(dtype=torch.float64)
+    centre = torch.tensor([[0.013, -0.021, 0.0]], **f64)  # off the pixel grid
+    c2d, _ = cams.project(centre)
+    ys, xs = torch.meshgrid(torch.arange(41, **f64) + 0.5, torch.arange(41, **f64) + 0.5, indexing="ij")
+    d2 = (xs - c2d[0, 0, 0]) ** 2 + (ys - c2d[0, 0, 1]) ** 2
+    drawn = []
+    for sigma in (0.35, 0.7071, 1.4):
+        with torch.no_grad():
+            out = render_2dgs(centre, torch.tensor([[1.0, 0.0, 0.0, 0.0]], **f64), torch.full((1, 2), 1e-6, **f64),
+                              torch.tensor([0.8], **f64), torch.ones(1, 3, **f64), cams, tile=8, lowpass_sigma=sigma)
+        a = out["alpha"][0, ..., 0]
+        want = 0.8 * torch.exp(-0.5 * d2 / sigma**2)
+        want = torch.where(want >= 1 / 255, want, torch.zeros_like(want))
+        inside = d2 <= (3 * sigma) ** 2  # the footprint radius is 3 sigma (official): beyond it a tile may cut
+        torch.testing.assert_close(a[inside], want[inside], rtol=1e-9, atol=1e-12)
+        assert ((a[~inside] == 0) | ((a[~inside] - want[~inside]).abs() < 1e-12)).all()
+        drawn.append(int((a > 0).sum()))
+    assert drawn[0] < drawn[1] < drawn[2], drawn
 
 
 def test_tile_grid_edges_and_straddling():

@@ -141,12 +141,13 @@ def composite3d(means2d: Tensor, conics: Tensor, opacities: Tensor, colors: Tens
 
 class _Composite2D(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, Hm, Dz, centers, opacities, colors, normals, mcoef, offsets, ids, box, bg, near, C, H, W, tile):
+    def forward(ctx, Hm, Dz, centers, opacities, colors, normals, mcoef, offsets, ids, box, bg, near, inv2, C, H, W,
+                tile):
         rgb, normal, alpha, depth, med, dist, f, tf, m1, m2, mref, last, medi, dsum = load_extension().forward2d(
-            Hm, Dz, centers, opacities, colors, normals, mcoef, offsets, ids, box, bg, near, C, H, W, tile)
+            Hm, Dz, centers, opacities, colors, normals, mcoef, offsets, ids, box, bg, near, inv2, C, H, W, tile)
         ctx.save_for_backward(Hm, Dz, centers, opacities, f, mcoef, offsets, ids, box, bg, tf, m1, m2, mref, last,
                               medi, alpha, dsum)
-        ctx.dims = (near, C, H, W, tile)
+        ctx.dims = (near, inv2, C, H, W, tile)
         ctx.set_materialize_grads(False)
         return rgb, normal, alpha, depth, med, dist
 
@@ -155,12 +156,12 @@ class _Composite2D(torch.autograd.Function):
         Hm, Dz, centers, opacities, f, mcoef, offsets, ids, box, bg, *saved = ctx.saved_tensors
         grads = load_extension().backward2d(Hm, Dz, centers, opacities, f, mcoef, offsets, ids, box, bg, *ctx.dims,
                                             *saved, *(_grad(x) for x in g))
-        return (*grads, None, None, None, None, None, None, None, None, None, None)
+        return (*grads, None, None, None, None, None, None, None, None, None, None, None)
 
 
 def composite2d(Hm: Tensor, Dz: Tensor, centers: Tensor, opacities: Tensor, colors: Tensor, normals: Tensor,
                 mcoef: Tensor, offsets: Tensor, ids: Tensor, near: float, C: int, H: int, W: int, tile: int, box: Tensor,
-                background: Tensor | None = None):
+                background: Tensor | None = None, lowpass_sigma: float = 2**-0.5):
     """Composite sorted 2-D Gaussian surfels front to back (official 2DGS rules, see cpp/composite2d.cpp).
 
     Args:
@@ -168,14 +169,16 @@ def composite2d(Hm: Tensor, Dz: Tensor, centers: Tensor, opacities: Tensor, colo
         centers: ``[M, 2]`` projected centres (low-pass filter); opacities ``[M]``; colors, normals ``[M, 3]``;
         mcoef: ``[C, 3]`` normalised depth m = m0 + m1 z + m2 / z of the distortion term;
         offsets, ids, box: tile ranges and pixel boxes as in :func:`composite3d`; near: minimum depth;
-        background: ``[3]`` constant or None.
+        background: ``[3]`` constant or None; lowpass_sigma: sigma (pixels) of the screen-space low-pass filter
+        (``rho2d = |pixel - centre|^2 / sigma^2``; official ``1/sqrt(2)``).
     Returns:
         rgb ``[C,H,W,3]``, normal ``[C,H,W,3]`` (``sum w n``), alpha, depth (``sum w z / alpha``), median depth,
         distortion ``[C,H,W,1]``.
     """
     c = lambda t: t.contiguous()
     return _Composite2D.apply(c(Hm), c(Dz), c(centers), c(opacities), c(colors), c(normals), c(mcoef), c(offsets),
-                              c(ids), c(box), _background(background, colors), float(near), C, H, W, tile)
+                              c(ids), c(box), _background(background, colors), float(near),
+                              1.0 / float(lowpass_sigma) ** 2, C, H, W, tile)
 
 
 class _Project2D(torch.autograd.Function):
@@ -235,11 +238,12 @@ def project_3dgs(means: Tensor, quats: Tensor, scales: Tensor, leaf: Tensor, P: 
 
 
 @torch.no_grad()
-def footprint_bin_2dgs(H: Tensor, Dz: Tensor, opacities: Tensor, C: int, near: float, W: int, Hh: int, tile: int):
+def footprint_bin_2dgs(H: Tensor, Dz: Tensor, opacities: Tensor, C: int, near: float, W: int, Hh: int, tile: int,
+                       lowpass_sigma: float = 2**-0.5):
     """``footprint_2dgs`` + ``bin_tiles`` fused: radii ``[C*N]`` (0 where not visible), visible ``[C*N]``,
     rects ``[C*N, 4]``, effective pixel boxes ``[C*N, 4]``, tile offsets ``[C*TY*TX + 1]``, sorted ids ``[P]``."""
     return load_extension().footprint_bin2d(H.contiguous(), Dz.contiguous(), opacities.contiguous(), C, float(near),
-                                            W, Hh, tile)
+                                            W, Hh, tile, float(lowpass_sigma))
 
 
 @torch.no_grad()

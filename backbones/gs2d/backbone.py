@@ -30,10 +30,17 @@ class GS2DBackbone(GaussianBackbone):
         # normalised depth of the distortion loss: "linear" m = z / extent (any camera distance,
         # orthographic too) or "ndc", the official mapping, which is ~flat at SEM camera distances
         distortion_depth: str = "linear"
+        # sigma (pixels) of the screen-space low-pass filter: a surfel is drawn at least as a 2-D Gaussian of
+        # this sigma around its projected centre (official 1/sqrt(2) = 0.707). It widens every silhouette by
+        # about a sigma, and a fit to sharp silhouettes pays for that by shrinking the surface: at low
+        # resolution a pixel is ~1 % of the specimen (benchmarks/results/README.md, "Surfels behind the surface")
+        lowpass_sigma: float = 0.7071067811865476
 
     def __init__(self, cfg: Config, scene=None, act=None, **runtime):
         super().__init__(cfg, scene=scene, act=act, **runtime)
         self._dist_depth()  # a bad mode fails at construction, not at the first render
+        if not self.cfg.lowpass_sigma > 0:
+            raise ConfigError(f"backbone.lowpass_sigma must be > 0 (pixels), got {self.cfg.lowpass_sigma}")
 
     def _dist_depth(self) -> tuple[float, float, float]:
         from .render import distortion_depth
@@ -46,4 +53,5 @@ class GS2DBackbone(GaussianBackbone):
     def _rasterize(self, means, quats, scales, opacities, colors, cams, **kw) -> RenderOutput:
         from .render import render_2dgs  # the rasteriser module (imported when first used)
 
-        return render_2dgs(means, quats, scales, opacities, colors, cams, dist_depth=self._dist_depth(), **kw)
+        return render_2dgs(means, quats, scales, opacities, colors, cams, dist_depth=self._dist_depth(),
+                           lowpass_sigma=float(self.cfg.lowpass_sigma), **kw)

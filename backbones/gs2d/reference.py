@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import torch
 from arcsem.backbones.gaussians.raster import MAX_ALPHA, MIN_ALPHA, MIN_T
-from arcsem.backbones.gs2d.render import distortion_depth, footprint_2dgs, splat_homographies
+from arcsem.backbones.gs2d.render import LOWPASS_SIGMA, distortion_depth, footprint_2dgs, splat_homographies
 from torch import Tensor
 
 from arcsem.cameras import Cameras
@@ -35,7 +35,8 @@ def _tile_mask(rects: Tensor, W: int, H: int, tile: int) -> Tensor:
     return (tx >= rects[:, 0]) & (tx < rects[:, 1]) & (ty >= rects[:, 2]) & (ty < rects[:, 3])
 
 
-def _one_camera(means, quats, scales, opac, colors, cam: Cameras, rects, radius, tile, dist_depth=None):
+def _one_camera(means, quats, scales, opac, colors, cam: Cameras, rects, radius, tile, dist_depth=None,
+                lowpass_sigma=LOWPASS_SIGMA):
     N = means.shape[0]
     eye = torch.eye(3, dtype=means.dtype)
     tu = rotate_by_quat(quats, eye[0]) * scales[:, :1]
@@ -51,7 +52,7 @@ def _one_camera(means, quats, scales, opac, colors, cam: Cameras, rects, radius,
     rho3d = uvs[..., 0] ** 2 + uvs[..., 1] ** 2
     c2d, cz = cam.project(means)
     pix = cam.pixel_grid(means.dtype).reshape(-1, 1, 2)
-    rho2d = 2 * ((pix - c2d) ** 2).sum(-1)
+    rho2d = ((pix - c2d) ** 2).sum(-1) / lowpass_sigma**2
     alpha = (opac * torch.exp(-0.5 * torch.minimum(rho3d, rho2d))).clamp(max=MAX_ALPHA)
     z = torch.where(rho3d <= rho2d, uvs[..., 2], cz.expand(P, N))
     c0, c1, c2 = dist_depth or distortion_depth("ndc")
@@ -89,15 +90,17 @@ def _composite_loop(alpha, mask, z, m, colors, n, order):
 
 def render_2dgs_dense(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
                       cams: Cameras, *, background: Tensor | None = None, tile: int = 16,
-                      near: float = 0.01, dist_depth: tuple[float, float, float] | None = None) -> dict[str, Tensor]:
+                      near: float = 0.01, dist_depth: tuple[float, float, float] | None = None,
+                      lowpass_sigma: float = LOWPASS_SIGMA) -> dict[str, Tensor]:
     """Same inputs and image outputs as :func:`arcsem.backbones.gs2d.render.render_2dgs`."""
     cams = cams.to(dtype=means.dtype)
     C, N, H, W = len(cams), means.shape[0], cams.height, cams.width
     with torch.no_grad():
         Hm, _ = splat_homographies(means, quats, scales, cams)
-        radius, rects, _, _ = footprint_2dgs(Hm, opacities, cams, tile, near)
+        radius, rects, _, _ = footprint_2dgs(Hm, opacities, cams, tile, near, lowpass_sigma)
     colors = colors.expand(C, N, 3) if colors.ndim == 2 else colors
-    outs = [_one_camera(means, quats, scales, opacities, colors[c], cams[c], rects[c], radius[c], tile, dist_depth)
+    outs = [_one_camera(means, quats, scales, opacities, colors[c], cams[c], rects[c], radius[c], tile, dist_depth,
+                       lowpass_sigma)
             for c in range(C)]
     rgb, acc, depth, med, nrm, dist = (torch.stack([o[i] for o in outs]) for i in range(6))
     if background is not None:

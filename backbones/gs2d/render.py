@@ -25,7 +25,7 @@ from torch import Tensor
 
 from arcsem.cameras import Cameras
 
-__all__ = ["DIST_FAR", "DIST_NEAR", "FILTER_RADIUS", "distortion_depth", "footprint_2dgs", "render_2dgs",
+__all__ = ["DIST_FAR", "DIST_NEAR", "LOWPASS_SIGMA", "distortion_depth", "footprint_2dgs", "render_2dgs",
            "splat_homographies"]
 
 DIST_NEAR, DIST_FAR = 0.2, 100.0  # normalised depth m = far/(far-near) (1 - near/z) (official 2DGS)
@@ -47,7 +47,9 @@ def distortion_depth(mode: str = "ndc", length: float = 1.0) -> tuple[float, flo
             raise ValueError(f"distortion_depth: length must be > 0, got {length}")
         return (0.0, 1.0 / length, 0.0)
     raise ValueError(f"distortion_depth: mode must be 'ndc' or 'linear', got '{mode}'")
-FILTER_RADIUS = 3.0 / math.sqrt(2.0)  # 3 sigma of the low-pass filter rho2d = 2 |d|^2, in pixels
+# Screen-space low-pass filter (2DGS): a splat is drawn at least as the 2-D Gaussian of this sigma (pixels)
+# around its projected centre, rho = min(rho3d, |pixel - centre|^2 / sigma^2). Official: rho2d = 2 |d|^2.
+LOWPASS_SIGMA = 1.0 / math.sqrt(2.0)
 
 
 def splat_homographies(means: Tensor, quats: Tensor, scales: Tensor, cams: Cameras) -> tuple[Tensor, Tensor]:
@@ -80,11 +82,12 @@ def _conic_box(T: Tensor, cut2: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     return c, e2.clamp_min(1e-4).sqrt(), valid
 
 
-def footprint_2dgs(H: Tensor, opacities: Tensor, cams: Cameras, tile: int, near: float):
+def footprint_2dgs(H: Tensor, opacities: Tensor, cams: Cameras, tile: int, near: float,
+                   lowpass_sigma: float = LOWPASS_SIGMA):
     """Screen footprint of 2-D splats (no gradient).
 
-    Args: H ``[C, N, 4, 3]`` homographies; opacities ``[N]``.
-    Returns: radii ``[C, N]`` long (3 sigma, official: ``ceil(max(extent, 3/sqrt(2)))``), rects
+    Args: H ``[C, N, 4, 3]`` homographies; opacities ``[N]``; lowpass_sigma: the low-pass filter's sigma (px).
+    Returns: radii ``[C, N]`` long (3 sigma, official: ``ceil(max(extent, 3 lowpass_sigma))``), rects
     ``[C, N, 4]`` tile rectangles, effective pixel boxes ``[C, N, 4]`` long, centre depth ``[C, N]``.
     """
     T = H.detach().double()
@@ -92,13 +95,13 @@ def footprint_2dgs(H: Tensor, opacities: Tensor, cams: Cameras, tile: int, near:
     centre2d = T[..., :2, 2] / T[..., 2, 2:3]
     c3, e3, ok3 = _conic_box(T[..., :3, :], torch.full_like(depth, 9.0))
     ok = ok3 & (depth > near) & torch.isfinite(e3).all(-1)
-    radius = torch.maximum(e3.amax(-1), torch.full_like(depth, FILTER_RADIUS)).ceil()
+    radius = torch.maximum(e3.amax(-1), torch.full_like(depth, 3.0 * lowpass_sigma)).ceil()
     radius = torch.where(ok, radius.clamp(max=1e7), torch.zeros_like(radius)).long()
     rects = tile_rects(c3, radius, cams.width, cams.height, tile)
     # effective box: union of the low-pass circle and the ellipse with the opacity cutoff
     cut2 = effective_cutoff2(opacities).expand_as(depth)
     ce, ee, oke = _conic_box(T[..., :3, :], cut2.clamp_min(1e-6))
-    r2d = (cut2.clamp_min(0) / 2).sqrt()[..., None]
+    r2d = cut2.clamp_min(0).sqrt()[..., None] * lowpass_sigma
     inf = torch.full_like(ce, float("inf"))
     lo = torch.minimum(torch.where(oke[..., None], ce - ee, -inf), centre2d - r2d) - 0.01
     hi = torch.maximum(torch.where(oke[..., None], ce + ee, inf), centre2d + r2d) + 0.01
@@ -125,8 +128,9 @@ def _splat_table(Hm: Tensor, centre2d: Tensor, opac: Tensor, feats: Tensor) -> T
     return torch.cat([*adj, centre2d, opac[:, None], Tz, feats], -1).t().contiguous()
 
 
-def _shade_2dgs(table: Tensor, mcoef: tuple[float, float, float]):
+def _shade_2dgs(table: Tensor, mcoef: tuple[float, float, float], lowpass_sigma: float = LOWPASS_SIGMA):
     """Shader for :func:`rasterize`: per-pixel ``[rgb(3), normal(3), alpha, sum w z, distortion, median]``."""
+    inv2 = 1.0 / lowpass_sigma**2
     geo = table[:12].contiguous()
 
     def evaluate(G: tuple[Tensor, ...], xy: Tensor):
@@ -138,7 +142,7 @@ def _shade_2dgs(table: Tensor, mcoef: tuple[float, float, float]):
         qz = torch.where(q2.abs() < 1e-12, torch.full_like(q2, 1e-12), q2)
         rho3d = (q0 * q0 + q1 * q1) / (qz * qz)
         dx, dy = x - cx, y - cy
-        rho2d = 2.0 * (dx * dx + dy * dy)
+        rho2d = inv2 * (dx * dx + dy * dy)
         use3d = rho3d <= rho2d
         alpha = op * torch.exp(-0.5 * torch.where(use3d, rho3d, rho2d))
         return alpha, use3d, q0, q1, qz
@@ -171,7 +175,8 @@ def _shade_2dgs(table: Tensor, mcoef: tuple[float, float, float]):
 def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
                 cams: Cameras, *, background: Tensor | None = None, tile: int = 16,
                 chunk_tiles: int | None = None, near: float = 0.01, impl: str = "torch",
-                dist_depth: tuple[float, float, float] | None = None) -> dict[str, Tensor]:
+                dist_depth: tuple[float, float, float] | None = None,
+                lowpass_sigma: float = LOWPASS_SIGMA) -> dict[str, Tensor]:
     """Render 2-D Gaussian splats.
 
     Args:
@@ -182,6 +187,9 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
         impl: ``torch`` (this module, the reference), ``cpp`` (fused kernels) or ``auto``.
         dist_depth: ``(c0, c1, c2)`` of the distortion's normalised depth (:func:`distortion_depth`;
         default the official NDC mapping).
+        lowpass_sigma: sigma (pixels) of the screen-space low-pass filter (official ``1/sqrt(2)``). It
+        widens every silhouette by about one sigma, which a fit to sharp silhouettes pays for by
+        shrinking the surface (see the gs2d backbone's ``lowpass_sigma``).
     Returns:
         rgb ``[C, H, W, 3]``, alpha, depth (``sum w z / alpha``), median_depth, distortion ``[C, H, W, 1]``,
         normal ``[C, H, W, 3]`` (world, ``sum w n``), radii ``[C, N]`` long, visible ``[C, N]`` bool,
@@ -193,9 +201,10 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     cams = cams.to(dtype=means.dtype)
     mcoef = tuple(float(c) for c in (dist_depth or distortion_depth("ndc")))
     if impl == "cpp":
-        return _render_2dgs_fused(means, quats, scales, opacities, colors, cams, background, tile, near, mcoef)
+        return _render_2dgs_fused(means, quats, scales, opacities, colors, cams, background, tile, near, mcoef,
+                                  lowpass_sigma)
     Hm, R = splat_homographies(means, quats, scales, cams)
-    radius, rects, eff, depth = footprint_2dgs(Hm, opacities, cams, tile, near)
+    radius, rects, eff, depth = footprint_2dgs(Hm, opacities, cams, tile, near, lowpass_sigma)
     b = bin_tiles(rects, depth, W, Hh, tile)
     normals = camera_facing_normals(R[:, :, 2], means, cams)
     colors = colors.expand(C, N, 3) if colors.ndim == 2 else colors
@@ -204,14 +213,15 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     # translating a splat's image by (dx, dy) pixels: Tu += dx Tw, Tv += dy Tw (dx, dy = 0 in value)
     Hm = torch.cat([Hm[..., :2, :] + shift[..., None] * Hm[..., 2:3, :], Hm[..., 2:, :]], -2)
     centre2d = (Hm[..., :2, 2] / Hm[..., 2, 2:3]).reshape(C * N, 2)
-    alpha_fn, shade = _shade_2dgs(_splat_table(Hm.reshape(C * N, 4, 3), centre2d, opacities.repeat(C), feats), mcoef)
+    alpha_fn, shade = _shade_2dgs(_splat_table(Hm.reshape(C * N, 4, 3), centre2d, opacities.repeat(C), feats), mcoef,
+                                  lowpass_sigma)
     out = rasterize(b, eff.reshape(C * N, 4), alpha_fn, shade, 10, means.dtype, chunk_tiles).reshape(C, Hh, W, 10)
     return {**_outputs(out, background, radius, rects), "means2d": means2d}
 
 
 def _render_2dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
                        cams: Cameras, background: Tensor | None, tile: int, near: float,
-                       mcoef: tuple[float, float, float]) -> dict[str, Tensor]:
+                       mcoef: tuple[float, float, float], lowpass_sigma: float) -> dict[str, Tensor]:
     """:func:`render_2dgs` on the fused C++ kernels: projection, footprint + binning and compositing are one
     call each (few PyTorch ops: on a shared machine every multi-threaded op can cost a scheduler slice)."""
     from arcsem.backbones.gaussians import fused
@@ -225,11 +235,12 @@ def _render_2dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
         leaf.copy_(centre2d.view(C, N, 2))
     opac = opacities.expand(C, N).reshape(C * N)
     bg = None if background is not None and background.requires_grad else background  # else composited here
-    radii, visible, _, eff, offsets, ids = fused.footprint_bin_2dgs(H9, Dz, opacities, C, near, W, Hh, tile)
+    radii, visible, _, eff, offsets, ids = fused.footprint_bin_2dgs(H9, Dz, opacities, C, near, W, Hh, tile,
+                                                                             lowpass_sigma)
     rgb, normal, alpha, depth, med, dist = fused.composite2d(
         H9, Dz, centre2d, opac, colors.expand(C, N, 3).reshape(C * N, 3), normals, means.new_tensor(mcoef).expand(C, 3),
         offsets, ids,
-        float("-inf"), C, Hh, W, tile, eff, bg)
+        float("-inf"), C, Hh, W, tile, eff, bg, lowpass_sigma)
     if background is not None and bg is None:
         rgb = rgb + (1 - alpha) * background.to(rgb)
     return {

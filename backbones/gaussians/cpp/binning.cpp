@@ -17,8 +17,6 @@ namespace {
 
 constexpr int64_t kGrain = 1 << 16;  // per-splat loops: small inputs run on the calling thread (no fork/join stall)
 
-const double kFilterRadius = 3.0 / std::sqrt(2.0);  // 3 / sqrt(2): 2DGS low-pass filter, 3 sigma
-
 inline double cutoff2(double op) {  // raster.effective_cutoff2
   const double c2 = 2.0 * std::log(255.0 * std::max(op, 1e-30));
   return c2 * (1 + 1e-4) + 1e-4;
@@ -78,7 +76,8 @@ inline bool conic_box(const double* T, double cut2, double c[2], double e[2]) {
 }
 
 template <typename T>
-void footprint2d_impl(const T* Hm, const T* Dz, const T* op, int64_t M, int64_t N, double near, const Screen& sc, int64_t* radius,
+void footprint2d_impl(const T* Hm, const T* Dz, const T* op, int64_t M, int64_t N, double near, double sigma, const Screen& sc,
+                      int64_t* radius,
                       int64_t* rects, int64_t* eff, double* depth) {
   at::parallel_for(0, M, kGrain, [&](int64_t b, int64_t e) {
     for (int64_t s = b; s < e; ++s) {
@@ -89,13 +88,13 @@ void footprint2d_impl(const T* Hm, const T* Dz, const T* op, int64_t M, int64_t 
       double c3[2], e3[2];
       const bool ok3 = conic_box(Td, 9.0, c3, e3);
       const bool ok = ok3 && z > near && std::isfinite(e3[0]) && std::isfinite(e3[1]);
-      const double r = std::ceil(std::max(std::max(e3[0], e3[1]), kFilterRadius));
+      const double r = std::ceil(std::max(std::max(e3[0], e3[1]), 3.0 * sigma));
       radius[s] = ok ? int64_t(std::min(r, 1e7)) : 0;
       tile_rect(sc, c3[0], c3[1], radius[s], rects + 4 * s);
       const double cut2 = cutoff2(double(op[s % N]));
       double ce[2], ee[2];
       const bool oke = conic_box(Td, std::max(cut2, 1e-6), ce, ee);
-      const double r2d = std::sqrt(std::max(cut2, 0.0) / 2), inf = std::numeric_limits<double>::infinity();
+      const double r2d = std::sqrt(std::max(cut2, 0.0)) * sigma, inf = std::numeric_limits<double>::infinity();
       const double lo[2] = {std::min(oke ? ce[0] - ee[0] : -inf, cx - r2d) - 0.01,
                             std::min(oke ? ce[1] - ee[1] : -inf, cy - r2d) - 0.01};
       const double hi[2] = {std::max(oke ? ce[0] + ee[0] : inf, cx + r2d) + 0.01,
@@ -181,19 +180,20 @@ void check(const torch::Tensor& t, const char* name) {
 
 }  // namespace
 
-// Hm [M, 9] rows Tu, Tv, Tw and Dz [M, 3] row Tz (detached), opacities [N] -> radii [M] (0 where not visible), visible [M],
+// Hm [M, 9] rows Tu, Tv, Tw and Dz [M, 3] row Tz (detached), opacities [N], sigma of the low-pass filter (px) -> radii [M] (0 where not visible), visible [M],
 // rects [M, 4], eff [M, 4], offsets, ids
 std::vector<torch::Tensor> footprint_bin2d(torch::Tensor Hm, torch::Tensor Dz, torch::Tensor op, int64_t C, double near, int64_t W,
-                                           int64_t H, int64_t tile) {
+                                           int64_t H, int64_t tile, double sigma) {
   check(Hm, "homographies"); check(Dz, "depth rows"); check(op, "opacities");
   const int64_t M = Hm.size(0), N = op.numel();
   TORCH_CHECK(M == C * N && Hm.size(1) == 9 && Dz.size(1) == 3, "footprint_bin2d: Hm, Dz must be [C*N, 9], [C*N, 3]");
+  TORCH_CHECK(sigma > 0, "footprint_bin2d: the low-pass sigma must be > 0");
   const Screen sc = screen(W, H, tile);
   auto lo = Hm.options().dtype(torch::kLong);
   auto radius = torch::empty({M}, lo), rects = torch::empty({M, 4}, lo), eff = torch::empty({M, 4}, lo);
   auto depth = torch::empty({M}, Hm.options().dtype(torch::kDouble));
   AT_DISPATCH_FLOATING_TYPES(Hm.scalar_type(), "footprint2d", [&] {
-    footprint2d_impl<scalar_t>(Hm.data_ptr<scalar_t>(), Dz.data_ptr<scalar_t>(), op.data_ptr<scalar_t>(), M, N, near, sc,
+    footprint2d_impl<scalar_t>(Hm.data_ptr<scalar_t>(), Dz.data_ptr<scalar_t>(), op.data_ptr<scalar_t>(), M, N, near, sigma, sc,
                                radius.data_ptr<int64_t>(), rects.data_ptr<int64_t>(), eff.data_ptr<int64_t>(),
                                depth.data_ptr<double>());
   });

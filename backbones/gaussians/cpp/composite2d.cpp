@@ -5,7 +5,7 @@
 //           k = x Tw - Tu, l = y Tw - Tv, p = k x l, (u, v) = (p.x / p.z, p.y / p.z)
 //   Dz[s] : 3 values, camera-z row of the splat: depth at (u, v) = u Dz.x + v Dz.y + Dz.z
 //           (for a pinhole camera Dz = Tw; an orthographic camera has constant w, hence the extra row)
-//   c[s]  : projected centre (pixels), for the low-pass rho2d = 2 |pixel - c|^2
+//   c[s]  : projected centre (pixels), for the low-pass rho2d = lp |pixel - c|^2 (lp = 1 / sigma^2; official 2)
 //   opacity, features (colour, normal, ...)
 // Per camera, the normalised depth of the distortion loss is m = m0 + m1 z + m2 / z.
 // Rules (official 2DGS): rho = min(rho3d, rho2d); depth = hit depth if rho3d <= rho2d else centre depth;
@@ -40,7 +40,7 @@ struct Surfel {
   int64_t x0, x1, y0, y1, s;
 };
 
-inline bool eval_surfel(const Surfel& q, double px, double py, double near, Hit& h) {
+inline bool eval_surfel(const Surfel& q, double px, double py, double near, double lp, Hit& h) {
   // p = k x l with k = px Tw - Tu, l = py Tw - Tv, expanded: p = px a + py b + c (bilinear in the pixel)
   for (int j = 0; j < 3; ++j) h.p[j] = px * q.A[j] + py * q.A[3 + j] + q.A[6 + j];
   if (h.p[2] == 0.0) return false;
@@ -49,7 +49,7 @@ inline bool eval_surfel(const Surfel& q, double px, double py, double near, Hit&
   h.rho3d = h.u * h.u + h.v * h.v;
   h.dx = q.c[0] - px;
   h.dy = q.c[1] - py;
-  h.rho2d = 2.0 * (h.dx * h.dx + h.dy * h.dy);
+  h.rho2d = lp * (h.dx * h.dx + h.dy * h.dy);
   h.use3d = h.rho3d <= h.rho2d;
   h.z = h.use3d ? h.u * q.Dz[0] + h.v * q.Dz[1] + q.Dz[2] : q.Dz[2];
   if (h.z < near) return false;
@@ -66,6 +66,7 @@ struct Ptrs {  // inputs
   const int64_t *off, *ids, *box;
   int64_t K;
   T near;
+  double lp;  // low-pass filter 1 / sigma^2 (pixels^-2)
 };
 
 // the tile's pairs [off[ct], off[ct+1]) as Surfels and features [n * K], bucketed by row (local indices)
@@ -121,7 +122,7 @@ void forward_impl(const Grid& gr, const Ptrs<T>& in, T* out, T* tf, T* aout, T* 
           if (x < e.x0 || x > e.x1) continue;
           const int32_t j = e.j;
           const Surfel& q = td.sf[j];
-          if (!eval_surfel(q, px, py, double(in.near), h)) continue;
+          if (!eval_surfel(q, px, py, double(in.near), in.lp, h)) continue;
           const double next = Tr * (1.0 - h.alpha);
           if (next < kMinT) break;
           const double w = h.alpha * Tr;
@@ -211,7 +212,7 @@ void backward_impl(const Grid& gr, const Ptrs<T>& in, const T* tf, const T* m1o,
           if (x < e.x0 || x > e.x1) continue;
           const int32_t j = e.j;
           const Surfel& q = td.sf[j];
-          if (!eval_surfel(q, px, py, double(in.near), h)) continue;
+          if (!eval_surfel(q, px, py, double(in.near), in.lp, h)) continue;
           const double inv = 1.0 / (1.0 - h.alpha), Ti = Tr * inv, w = h.alpha * Ti;
           const double m = double(mc[0]) + double(mc[1]) * h.z + double(mc[2]) / h.z - double(mref[pix]);
           const double dm_dz = double(mc[1]) - double(mc[2]) / (double(h.z) * h.z);
@@ -237,10 +238,10 @@ void backward_impl(const Grid& gr, const Ptrs<T>& in, const T* tf, const T* m1o,
             gb[Grads::Dz + 1] += gz * h.v;
             gb[Grads::Dz + 2] += gz;
             backprop_uv(h, -dpow * h.u + gz * q.Dz[0], -dpow * h.v + gz * q.Dz[1], px, py, gb + Grads::H);
-          } else {  // power = -(dx^2 + dy^2) with d = centre - pixel; z = Dz.z
+          } else {  // power = -lp (dx^2 + dy^2) / 2 with d = centre - pixel; z = Dz.z
             gb[Grads::Dz + 2] += gz;
-            gb[Grads::c] += dpow * -2.0 * h.dx;
-            gb[Grads::c + 1] += dpow * -2.0 * h.dy;
+            gb[Grads::c] += dpow * -in.lp * h.dx;
+            gb[Grads::c + 1] += dpow * -in.lp * h.dy;
           }
         }
       }
@@ -267,12 +268,12 @@ void backward_impl(const Grid& gr, const Ptrs<T>& in, const T* tf, const T* m1o,
 template <typename T>
 Ptrs<T> ptrs(const torch::Tensor& H, const torch::Tensor& Dz, const torch::Tensor& c, const torch::Tensor& op,
              const torch::Tensor& f, const torch::Tensor& mc, const torch::Tensor& off, const torch::Tensor& ids,
-             const torch::Tensor& box, double near) {
+             const torch::Tensor& box, double near, double lp) {
   for (auto* t : {&H, &Dz, &c, &op, &f, &mc, &off, &ids, &box})
     TORCH_CHECK(t->is_contiguous() && t->device().is_cpu(), "composite2d: inputs must be contiguous CPU tensors");
   return Ptrs<T>{H.data_ptr<T>(), Dz.data_ptr<T>(), c.data_ptr<T>(), op.data_ptr<T>(), f.data_ptr<T>(),
                  mc.data_ptr<T>(), off.data_ptr<int64_t>(), ids.data_ptr<int64_t>(), box.data_ptr<int64_t>(), f.size(1),
-                 T(near)};
+                 T(near), lp};
 }
 
 }  // namespace
@@ -286,8 +287,8 @@ const T* grad_or_null(const torch::Tensor& g) { return g.defined() && g.numel() 
 // f, transmittance, m1, m2, mref, last, medi, sum w z
 std::vector<torch::Tensor> forward2d(torch::Tensor H, torch::Tensor Dz, torch::Tensor c, torch::Tensor op,
                                      torch::Tensor colors, torch::Tensor normals, torch::Tensor mc, torch::Tensor off,
-                                     torch::Tensor ids, torch::Tensor box, torch::Tensor bg, double near, int64_t C,
-                                     int64_t Hh, int64_t W, int64_t tile) {
+                                     torch::Tensor ids, torch::Tensor box, torch::Tensor bg, double near, double lp,
+                                     int64_t C, int64_t Hh, int64_t W, int64_t tile) {
   const Grid gr = arcsem::make_grid(C, Hh, W, tile);
   TORCH_CHECK(off.numel() == C * gr.tiles() + 1, "composite2d: tile offsets must have C*tiles+1 entries");
   TORCH_CHECK(colors.size(1) == 3 && colors.is_contiguous() && normals.is_contiguous(), "composite2d: colors [M, 3]");
@@ -301,7 +302,7 @@ std::vector<torch::Tensor> forward2d(torch::Tensor H, torch::Tensor Dz, torch::T
   auto last = torch::empty({C, Hh, W}, o.dtype(torch::kInt32)), medi = torch::empty_like(last);
   AT_DISPATCH_FLOATING_TYPES(colors.scalar_type(), "forward2d", [&] {
     arcsem::concat_rows(colors.data_ptr<scalar_t>(), 3, normals.data_ptr<scalar_t>(), K - 3, M, f.data_ptr<scalar_t>());
-    forward_impl<scalar_t>(gr, ptrs<scalar_t>(H, Dz, c, op, f, mc, off, ids, box, near), out.data_ptr<scalar_t>(),
+    forward_impl<scalar_t>(gr, ptrs<scalar_t>(H, Dz, c, op, f, mc, off, ids, box, near, lp), out.data_ptr<scalar_t>(),
                            tf.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(), dsum.data_ptr<scalar_t>(), med.data_ptr<scalar_t>(),
                            dist.data_ptr<scalar_t>(), m1.data_ptr<scalar_t>(), m2.data_ptr<scalar_t>(),
                            mref.data_ptr<scalar_t>(), last.data_ptr<int32_t>(), medi.data_ptr<int32_t>());
@@ -315,8 +316,8 @@ std::vector<torch::Tensor> forward2d(torch::Tensor H, torch::Tensor Dz, torch::T
 // -> g_H, g_Dz, g_centres, g_opacities, g_colors, g_normals (undefined / empty output gradients are zero)
 std::vector<torch::Tensor> backward2d(torch::Tensor H, torch::Tensor Dz, torch::Tensor c, torch::Tensor op,
                                       torch::Tensor f, torch::Tensor mc, torch::Tensor off, torch::Tensor ids,
-                                      torch::Tensor box, torch::Tensor bg, double near, int64_t C, int64_t Hh, int64_t W,
-                                      int64_t tile, torch::Tensor tf, torch::Tensor m1, torch::Tensor m2,
+                                      torch::Tensor box, torch::Tensor bg, double near, double lp, int64_t C, int64_t Hh,
+                                      int64_t W, int64_t tile, torch::Tensor tf, torch::Tensor m1, torch::Tensor m2,
                                       torch::Tensor mref, torch::Tensor last, torch::Tensor medi, torch::Tensor alpha,
                                       torch::Tensor dsum, torch::Tensor g_rgb, torch::Tensor g_extra,
                                       torch::Tensor g_alpha, torch::Tensor g_depth, torch::Tensor g_med,
@@ -333,7 +334,7 @@ std::vector<torch::Tensor> backward2d(torch::Tensor H, torch::Tensor Dz, torch::
                                       grad_or_null<scalar_t>(g_depth), go.data(), ga.data(), gd.data(), 1);
     const scalar_t* gm = grad_or_null<scalar_t>(g_med);
     const scalar_t* gdi = grad_or_null<scalar_t>(g_dist);
-    backward_impl<scalar_t>(gr, ptrs<scalar_t>(H, Dz, c, op, f, mc, off, ids, box, near), tf.data_ptr<scalar_t>(),
+    backward_impl<scalar_t>(gr, ptrs<scalar_t>(H, Dz, c, op, f, mc, off, ids, box, near, lp), tf.data_ptr<scalar_t>(),
                             m1.data_ptr<scalar_t>(), m2.data_ptr<scalar_t>(), mref.data_ptr<scalar_t>(),
                             last.data_ptr<int32_t>(), medi.data_ptr<int32_t>(), go.data(), ga.data(), gd.data(),
                             gm ? gm : zero.data(), gdi ? gdi : zero.data(), M, gH.data_ptr<scalar_t>(),

@@ -5,10 +5,11 @@
 using T_ = torch::Tensor;
 std::vector<T_> forward3d(T_, T_, T_, T_, T_, T_, T_, T_, T_, int64_t, int64_t, int64_t, int64_t);
 std::vector<T_> backward3d(T_, T_, T_, T_, T_, T_, T_, T_, T_, T_, T_, T_, T_, T_, T_, int64_t, int64_t, int64_t, int64_t);
-std::vector<T_> forward2d(T_, T_, T_, T_, T_, T_, T_, T_, T_, T_, T_, double, int64_t, int64_t, int64_t, int64_t);
-std::vector<T_> backward2d(T_, T_, T_, T_, T_, T_, T_, T_, T_, T_, double, int64_t, int64_t, int64_t, int64_t, T_, T_,
+std::vector<T_> forward2d(T_, T_, T_, T_, T_, T_, T_, T_, T_, T_, T_, double, double, int64_t, int64_t, int64_t, int64_t);
+std::vector<T_> backward2d(T_, T_, T_, T_, T_, T_, T_, T_, T_, T_, double, double, int64_t, int64_t, int64_t, int64_t, T_, T_,
                            T_, T_, T_, T_, T_, T_, T_, T_, T_, T_, T_, T_);
-std::vector<torch::Tensor> footprint_bin2d(torch::Tensor, torch::Tensor, torch::Tensor, int64_t, double, int64_t, int64_t, int64_t);
+std::vector<torch::Tensor> footprint_bin2d(torch::Tensor, torch::Tensor, torch::Tensor, int64_t, double, int64_t, int64_t, int64_t,
+                                           double);
 std::vector<torch::Tensor> footprint_bin3d(torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor, int64_t, double,
                                            int64_t, int64_t, int64_t);
 std::vector<torch::Tensor> project2d_forward(torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor,

@@ -23,9 +23,11 @@ declare -A RUNS=(
   [dist10_official]="$G.distortion.weight=10 $G.normal_consistency.official=true $G.normal_consistency.depth=expected"
   [dist10_official_median]="$G.distortion.weight=10 $G.normal_consistency.official=true $G.normal_consistency.depth=median"
 )
+# measured before the preset's low-pass filter changed (tune_lowpass.sh): the official sigma, explicitly
+SIGMA=++train.per_backbone.gs2d.backbone.lowpass_sigma=0.7071067811865476
 run() {
   $BIN/arcsem stage=gray threads=1 train.eval.video=false train.progress=false train.eval_every=500 \
-    ${RUNS[$1]} hydra.run.dir="$OUT/$1" > "$OUT/$1.log" 2>&1 || echo "run $1 failed: see $OUT/$1.log"
+    $SIGMA ${RUNS[$1]} hydra.run.dir="$OUT/$1" > "$OUT/$1.log" 2>&1 || echo "run $1 failed: see $OUT/$1.log"
 }
 mkdir -p "$OUT"
 names=("${!RUNS[@]}")

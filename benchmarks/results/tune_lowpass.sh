@@ -1,0 +1,43 @@
+#!/usr/bin/env bash
+# The low-pass-filter runs behind the quick preset's backbone.lowpass_sigma (table "Surfels inside the
+# surface: the low-pass filter" in benchmarks/results/README.md): 2DGS + ACT, quick preset, built-in
+# scene, seed 0, one stage-1 run per line, two at a time with one thread each (a 2-core machine).
+# Every run sets its sigma explicitly, so the table does not depend on the preset's current value.
+#
+#   benchmarks/results/tune_lowpass.sh [OUT_DIR]        # default multirun/tune_lowpass
+#
+# Each run writes OUT_DIR/<name>/metrics.json; `benchmarks/error_breakdown.py OUT_DIR/<name> --surfels`
+# says where its surfels sit.
+set -uo pipefail
+cd "$(dirname "$0")/../.."
+BIN=${BIN:-.venv/bin}
+OUT=${1:-multirun/tune_lowpass}
+B=++train.per_backbone.gs2d.backbone.lowpass_sigma
+G=train.per_backbone.gs2d.losses
+declare -A RUNS=(
+  [sigma0.707]="$B=0.7071067811865476"
+  [sigma0.5]="$B=0.5"
+  [sigma0.354]="$B=0.35355339059327373"
+  [sigma0.289]="$B=0.28867513459481287"
+  [sigma0.354_dist30]="$B=0.35355339059327373 $G.distortion.weight=30"
+  [sigma0.5_dist30]="$B=0.5 $G.distortion.weight=30"
+  [sigma0.354_nc0.1]="$B=0.35355339059327373 $G.normal_consistency.weight=0.1"
+  [sigma0.354_nc0.2]="$B=0.35355339059327373 $G.normal_consistency.weight=0.2"
+)
+run() {
+  $BIN/arcsem stage=gray threads=1 train.eval.video=false train.progress=false train.eval_every=500 \
+    ${RUNS[$1]} hydra.run.dir="$OUT/$1" > "$OUT/$1.log" 2>&1 || echo "run $1 failed: see $OUT/$1.log"
+}
+mkdir -p "$OUT"
+names=("${!RUNS[@]}")
+for ((i = 0; i < ${#names[@]}; i += 2)); do
+  run "${names[i]}" &
+  [[ -n "${names[i+1]:-}" ]] && run "${names[i+1]}" &
+  wait
+done
+for n in "${names[@]}"; do
+  $BIN/python -c "import json, sys; s = json.load(open(sys.argv[1]))['stage1']; \
+print(f\"{sys.argv[2]:20s} held-out {s['test']['psnr']:.2f} dB, SSIM {s['test']['ssim']:.3f}, \
+depth {s['depth']['test_mae_pct']:.2f} %, {s['num_primitives']} Gaussians\")" "$OUT/$n/metrics.json" "$n" 2>/dev/null \
+    || echo "$n: no metrics"
+done

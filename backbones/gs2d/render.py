@@ -8,7 +8,6 @@ orthographic camera ``Tw = (0, 0, 1)``, so the same code applies.
 """
 from __future__ import annotations
 
-import math
 
 import torch
 from arcsem.backbones.gaussians.raster import (
@@ -49,7 +48,7 @@ def distortion_depth(mode: str = "ndc", length: float = 1.0) -> tuple[float, flo
     raise ValueError(f"distortion_depth: mode must be 'ndc' or 'linear', got '{mode}'")
 # Screen-space low-pass filter (2DGS): a splat is drawn at least as the 2-D Gaussian of this sigma (pixels)
 # around its projected centre, rho = min(rho3d, |pixel - centre|^2 / sigma^2). Official: rho2d = 2 |d|^2.
-LOWPASS_SIGMA = 1.0 / math.sqrt(2.0)
+LOWPASS_SIGMA = 2**-0.5  # = the gs2d Config default 0.7071067811865476
 
 
 def splat_homographies(means: Tensor, quats: Tensor, scales: Tensor, cams: Cameras) -> tuple[Tensor, Tensor]:

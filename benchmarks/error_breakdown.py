@@ -85,10 +85,10 @@ def main() -> None:
         cos.append((-(n * split.cameras[i : i + 1].forward[0].double()).sum(-1))[valid])
     total_sse, total_n = sum(sse.values()), sum(count.values())
     print(f"{args.split} views: {len(split)}; image PSNR {psnr_of(total_sse / total_n):.2f} dB")
-    for name in sse:
-        mse = sse[name] / max(count[name], 1)
+    for name, err in sse.items():
+        mse = err / max(count[name], 1)
         print(f"  {name:9s} {100 * count[name] / total_n:5.1f} % of pixels, PSNR {psnr_of(mse):6.2f} dB, "
-              f"{100 * sse[name] / total_sse:5.1f} % of the squared error")
+              f"{100 * err / total_sse:5.1f} % of the squared error")
     e, c = torch.cat(errs), torch.cat(cos)
     scale = float(scene.scale[0])
     med = float(e.abs().median())
@@ -133,7 +133,7 @@ def surfels(backbone, split, cfg, scale: float, scale_name: str) -> None:
         centre = m.means.detach().double()
         dist = grain.sdf(centre)
     q = weighted_quantiles(dist, weight)
-    print(f"splat centres, distance to the surface (weighted by blending weight on the specimen; 10/25/50/75/90 %): "
+    print("splat centres, distance to the surface (weighted by blending weight on the specimen; 10/25/50/75/90 %): "
           + " ".join(f"{100 * v / scale:+.2f}" for v in q) + f" % of {scale_name}")
     if m.scales.shape[1] == 2:
         from arcsem.backbones.gaussians.raster_camera import quat_to_rotmat

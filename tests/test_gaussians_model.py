@@ -275,7 +275,7 @@ def test_gs2d_lowpass_sigma_reaches_the_rasteriser():
     with torch.no_grad():
         m.log_scales.fill_(math.log(1e-3))  # sub-pixel splats: drawn by the filter
         got = bb.render(cams)["alpha"]
-        kw = dict(tile=bb.cfg.tile, impl=bb.cfg.rasterizer, dist_depth=distortion_depth("linear", float(scene.extent)))
+        kw = {"tile": bb.cfg.tile, "impl": bb.cfg.rasterizer, "dist_depth": distortion_depth("linear", float(scene.extent))}
         want = render_2dgs(m.means, m.quats, m.scales, m.opacities, m.colors(cams), cams, lowpass_sigma=0.3, **kw)["alpha"]
         official = render_2dgs(m.means, m.quats, m.scales, m.opacities, m.colors(cams), cams,
                                lowpass_sigma=LOWPASS_SIGMA, **kw)["alpha"]

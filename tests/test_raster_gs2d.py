@@ -71,7 +71,7 @@ def test_lowpass_sigma_is_the_screen_sigma_of_a_tiny_splat():
     """A splat far below a pixel is drawn as ``o exp(-d^2 / (2 sigma^2))`` of the distance ``d`` (pixels) from
     its projected centre, down to the 1/255 alpha cut-off within its 3-sigma footprint: it grows with sigma."""
     cams = orbit_cameras(1, 41, 41, focal=40.0)
-    f64 = dict(dtype=torch.float64)
+    f64 = {"dtype": torch.float64}
     centre = torch.tensor([[0.013, -0.021, 0.0]], **f64)  # off the pixel grid
     c2d, _ = cams.project(centre)
     ys, xs = torch.meshgrid(torch.arange(41, **f64) + 0.5, torch.arange(41, **f64) + 0.5, indexing="ij")

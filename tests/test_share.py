@@ -45,7 +45,7 @@ def test_key_depends_on_stage1_config_only():
 
 def test_key_of_the_builtin_scene_follows_its_generator_version(monkeypatch):
     """A regenerated built-in scene (new GENERATOR_VERSION) must not reuse models of the old one."""
-    import arcsem.synthetic.write as write
+    from arcsem.synthetic import write
 
     synthetic, other = _cfg(**{"dataset.kind": "synthetic"}), _cfg(**{"dataset.kind": "transforms"})
     before = stage1_key(synthetic), stage1_key(other)

@@ -8,7 +8,6 @@ orthographic camera ``Tw = (0, 0, 1)``, so the same code applies.
 """
 from __future__ import annotations
 
-
 import torch
 from arcsem.backbones.gaussians.raster import (
     Segments,

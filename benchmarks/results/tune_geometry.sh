@@ -24,21 +24,6 @@ declare -A RUNS=(
   [dist10_official_median]="$G.distortion.weight=10 $G.normal_consistency.official=true $G.normal_consistency.depth=median"
 )
 # measured before the preset's low-pass filter changed (tune_lowpass.sh): the official sigma, explicitly
-SIGMA=++train.per_backbone.gs2d.backbone.lowpass_sigma=0.7071067811865476
-run() {
-  $BIN/arcsem stage=gray threads=1 train.eval.video=false train.progress=false train.eval_every=500 \
-    $SIGMA ${RUNS[$1]} hydra.run.dir="$OUT/$1" > "$OUT/$1.log" 2>&1 || echo "run $1 failed: see $OUT/$1.log"
-}
-mkdir -p "$OUT"
-names=("${!RUNS[@]}")
-for ((i = 0; i < ${#names[@]}; i += 2)); do
-  run "${names[i]}" &
-  [[ -n "${names[i+1]:-}" ]] && run "${names[i+1]}" &
-  wait
-done
-for n in "${names[@]}"; do
-  $BIN/python -c "import json, sys; s = json.load(open(sys.argv[1]))['stage1']; \
-print(f\"{sys.argv[2]:24s} held-out {s['test']['psnr']:.2f} dB, mask {s['test']['psnr_masked']:.2f} dB, \
-depth {s['depth']['test_mae_pct']:.2f} %, {s['num_primitives']} Gaussians\")" "$OUT/$n/metrics.json" "$n" 2>/dev/null \
-    || echo "$n: no metrics"
-done
+COMMON=++train.per_backbone.gs2d.backbone.lowpass_sigma=0.7071067811865476
+source "benchmarks/results/tune_runs.sh"
+tune_runs

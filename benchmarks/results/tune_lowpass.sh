@@ -24,20 +24,5 @@ declare -A RUNS=(
   [sigma0.354_nc0.1]="$B=0.35355339059327373 $G.normal_consistency.weight=0.1"
   [sigma0.354_nc0.2]="$B=0.35355339059327373 $G.normal_consistency.weight=0.2"
 )
-run() {
-  $BIN/arcsem stage=gray threads=1 train.eval.video=false train.progress=false train.eval_every=500 \
-    ${RUNS[$1]} hydra.run.dir="$OUT/$1" > "$OUT/$1.log" 2>&1 || echo "run $1 failed: see $OUT/$1.log"
-}
-mkdir -p "$OUT"
-names=("${!RUNS[@]}")
-for ((i = 0; i < ${#names[@]}; i += 2)); do
-  run "${names[i]}" &
-  [[ -n "${names[i+1]:-}" ]] && run "${names[i+1]}" &
-  wait
-done
-for n in "${names[@]}"; do
-  $BIN/python -c "import json, sys; s = json.load(open(sys.argv[1]))['stage1']; \
-print(f\"{sys.argv[2]:20s} held-out {s['test']['psnr']:.2f} dB, SSIM {s['test']['ssim']:.3f}, \
-depth {s['depth']['test_mae_pct']:.2f} %, {s['num_primitives']} Gaussians\")" "$OUT/$n/metrics.json" "$n" 2>/dev/null \
-    || echo "$n: no metrics"
-done
+source "benchmarks/results/tune_runs.sh"
+tune_runs

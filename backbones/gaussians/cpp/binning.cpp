@@ -76,9 +76,8 @@ inline bool conic_box(const double* T, double cut2, double c[2], double e[2]) {
 }
 
 template <typename T>
-void footprint2d_impl(const T* Hm, const T* Dz, const T* op, int64_t M, int64_t N, double near, double sigma, const Screen& sc,
-                      int64_t* radius,
-                      int64_t* rects, int64_t* eff, double* depth) {
+void footprint2d_impl(const T* Hm, const T* Dz, const T* op, int64_t M, int64_t N, double near, double sigma,
+                      const Screen& sc, int64_t* radius, int64_t* rects, int64_t* eff, double* depth) {
   at::parallel_for(0, M, kGrain, [&](int64_t b, int64_t e) {
     for (int64_t s = b; s < e; ++s) {
       double Td[12];
@@ -180,8 +179,8 @@ void check(const torch::Tensor& t, const char* name) {
 
 }  // namespace
 
-// Hm [M, 9] rows Tu, Tv, Tw and Dz [M, 3] row Tz (detached), opacities [N], sigma of the low-pass filter (px) -> radii [M] (0 where not visible), visible [M],
-// rects [M, 4], eff [M, 4], offsets, ids
+// Hm [M, 9] rows Tu, Tv, Tw and Dz [M, 3] row Tz (detached), opacities [N], sigma of the low-pass filter (px)
+// -> radii [M] (0 where not visible), visible [M], rects [M, 4], eff [M, 4], offsets, ids
 std::vector<torch::Tensor> footprint_bin2d(torch::Tensor Hm, torch::Tensor Dz, torch::Tensor op, int64_t C, double near, int64_t W,
                                            int64_t H, int64_t tile, double sigma) {
   check(Hm, "homographies"); check(Dz, "depth rows"); check(op, "opacities");

@@ -1,6 +1,6 @@
 """``arcsem-make-scene``: write the built-in synthetic SEM scene anywhere (default: the cache).
 
-Example: ``arcsem-make-scene --out scenes/grain --seed 0 --width 192 --height 128 --camera pinhole``
+Example: ``arcsem-make-scene --out scenes/grain --seed 0 --width 288 --height 192 --camera pinhole``
 """
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="arcsem-make-scene", description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=None, help="scene folder (default: the cache, reused if complete)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--width", type=int, default=192)
-    ap.add_argument("--height", type=int, default=128)
+    ap.add_argument("--width", type=int, default=288)
+    ap.add_argument("--height", type=int, default=192)
     ap.add_argument("--camera", choices=("pinhole", "orthographic"), default="pinhole")
     ap.add_argument("--n-horizontal", type=int, default=20, help="views on the horizontal arc")
     ap.add_argument("--n-vertical", type=int, default=12, help="views on the vertical arc")

@@ -35,8 +35,8 @@ class SceneParams:
     """Everything the scene depends on (hashed for the cache folder)."""
 
     seed: int = 0
-    width: int = 192
-    height: int = 128
+    width: int = 288
+    height: int = 192
     camera: str = "pinhole"       # "pinhole" (near-orthographic, the paper's) | "orthographic"
     n_horizontal: int = 20
     n_vertical: int = 12

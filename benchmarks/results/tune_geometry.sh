@@ -23,7 +23,7 @@ declare -A RUNS=(
   [dist10_official]="$G.distortion.weight=10 $G.normal_consistency.official=true $G.normal_consistency.depth=expected"
   [dist10_official_median]="$G.distortion.weight=10 $G.normal_consistency.official=true $G.normal_consistency.depth=median"
 )
-# measured before the preset's low-pass filter changed (tune_lowpass.sh): the official sigma, explicitly
-COMMON=++train.per_backbone.gs2d.backbone.lowpass_sigma=0.7071067811865476
 source "benchmarks/results/tune_runs.sh"
+# measured before the preset's low-pass filter, size and normal consistency changed: pinned explicitly
+COMMON="$PRESET_192 ++train.per_backbone.gs2d.backbone.lowpass_sigma=0.7071067811865476"
 tune_runs

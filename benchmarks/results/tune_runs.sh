@@ -2,7 +2,11 @@
 # thread each (a 2-core machine), then one summary line per run from its metrics.json.
 #
 # The caller sets BIN, OUT, RUNS (an associative array: run name -> Hydra overrides) and optionally COMMON
-# (overrides for every run), then calls `tune_runs`.
+# (overrides for every run), then calls `tune_runs`. ONLY="name1 name2" (environment) runs a subset.
+
+# The quick preset's scene size and normal-consistency weight before 2026-11-22 (192 px, 0.05; now 288 px,
+# 0.1): the tables measured with them pin them here, so that they do not follow the preset.
+PRESET_192="dataset.width=192 dataset.height=128 train.width=192 train.per_backbone.gs2d.losses.normal_consistency.weight=0.05"
 
 tune_run() {
   $BIN/arcsem stage=gray threads=1 train.eval.video=false train.progress=false train.eval_every=500 \
@@ -11,7 +15,7 @@ tune_run() {
 
 tune_runs() {
   mkdir -p "$OUT"
-  local names=("${!RUNS[@]}") i n
+  local names=(${ONLY:-"${!RUNS[@]}"}) i n
   for ((i = 0; i < ${#names[@]}; i += 2)); do
     tune_run "${names[i]}" &
     [[ -n "${names[i+1]:-}" ]] && tune_run "${names[i+1]}" &

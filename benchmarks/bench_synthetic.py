@@ -1,6 +1,6 @@
-"""Time generating the built-in synthetic scene (default 192x128, 40 views) with arcsem.synthetic.
+"""Time generating the built-in synthetic scene (default size: SceneParams, 288x192; 40 views) with arcsem.synthetic.
 
-Usage: .venv/bin/python benchmarks/bench_synthetic.py [--repeats 3] [--width 192 --height 128]
+Usage: .venv/bin/python benchmarks/bench_synthetic.py [--repeats 3] [--width 288 --height 192]
 Prints every run, the median, and the ratio to a run without anti-aliasing (supersample=1).
 Requirement (issue 3): the default scene in under 60 s on the 2-core development machine.
 """
@@ -12,7 +12,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from arcsem.synthetic import generate_scene
+from arcsem.synthetic import SceneParams, generate_scene
 
 
 def time_once(**params) -> float:
@@ -25,8 +25,8 @@ def time_once(**params) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--width", type=int, default=192)
-    ap.add_argument("--height", type=int, default=128)
+    ap.add_argument("--width", type=int, default=SceneParams.width)
+    ap.add_argument("--height", type=int, default=SceneParams.height)
     ap.add_argument("--camera", default="pinhole")
     ap.add_argument("--no-compare", action="store_true", help="skip the supersample=1 comparison")
     args = ap.parse_args()

@@ -12,17 +12,19 @@ __all__ = ["build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from ..synthetic import SceneParams as P  # the defaults are the built-in scene's
+
     ap = argparse.ArgumentParser(prog="arcsem-make-scene", description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=None, help="scene folder (default: the cache, reused if complete)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--width", type=int, default=288)
-    ap.add_argument("--height", type=int, default=192)
-    ap.add_argument("--camera", choices=("pinhole", "orthographic"), default="pinhole")
-    ap.add_argument("--n-horizontal", type=int, default=20, help="views on the horizontal arc")
-    ap.add_argument("--n-vertical", type=int, default=12, help="views on the vertical arc")
+    ap.add_argument("--seed", type=int, default=P.seed)
+    ap.add_argument("--width", type=int, default=P.width)
+    ap.add_argument("--height", type=int, default=P.height)
+    ap.add_argument("--camera", choices=("pinhole", "orthographic"), default=P.camera)
+    ap.add_argument("--n-horizontal", type=int, default=P.n_horizontal, help="views on the horizontal arc")
+    ap.add_argument("--n-vertical", type=int, default=P.n_vertical, help="views on the vertical arc")
     ap.add_argument("--no-substrate", action="store_true", help="render the grain without the substrate plane")
-    ap.add_argument("--supersample", type=int, default=2, help="s x s samples on silhouette pixels (1 = off)")
-    ap.add_argument("--noise", type=float, default=0.03, help="Gaussian scan noise of the training images")
+    ap.add_argument("--supersample", type=int, default=P.supersample, help="s x s samples on silhouette pixels (1 = off)")
+    ap.add_argument("--noise", type=float, default=P.noise, help="Gaussian scan noise of the training images")
     ap.add_argument("--force", action="store_true", help="with --out: regenerate even if the folder is complete")
     ap.add_argument("--debug", action="store_true", help="show tracebacks")
     return ap

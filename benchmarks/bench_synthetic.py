@@ -27,7 +27,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--width", type=int, default=SceneParams.width)
     ap.add_argument("--height", type=int, default=SceneParams.height)
-    ap.add_argument("--camera", default="pinhole")
+    ap.add_argument("--camera", default=SceneParams.camera)
     ap.add_argument("--no-compare", action="store_true", help="skip the supersample=1 comparison")
     args = ap.parse_args()
     base = {"width": args.width, "height": args.height, "camera": args.camera}

@@ -289,6 +289,31 @@ def test_drift_is_affine_and_noise_is_added():
     assert 0.01 < np.std(noisy - out) < 0.05
 
 
+def test_true_exposures_are_the_drift_in_the_training_images(scene):
+    """``true_exposures`` recomputes each training image's (contrast, brightness): a least-squares fit of
+    observed = a * clean + b over unclipped pixels recovers them (scan noise limits the fit to ~0.02 in contrast)."""
+    from arcsem.synthetic.write import SceneParams, true_exposures
+
+    meta = json.loads(scene.read_text())
+    params = {k: v for k, v in meta["synthetic"].items() if k in SceneParams.__dataclass_fields__}
+    truth = true_exposures(SceneParams(**params))
+    fitted = {}
+    for f in meta["frames"]:
+        if f["split"] != "train":
+            continue
+        obs = np.asarray(Image.open(scene.parent / f["file_path"]), dtype=np.float64).ravel() / 255
+        clean = np.asarray(Image.open(scene.parent / f["clean_path"]), dtype=np.float64).ravel() / 255
+        ok = (clean > 0.15) & (clean < 0.85)  # chosen on the clean image: no censoring of the noise
+        A = np.stack([clean[ok], np.ones(ok.sum())], 1)
+        fitted[Path(f["file_path"]).stem] = np.linalg.lstsq(A, obs[ok], rcond=None)[0]
+    assert sorted(fitted) == sorted(truth)
+    t = np.array([truth[n] for n in sorted(truth)])
+    g = np.array([fitted[n] for n in sorted(truth)])
+    err = np.abs(g - t)
+    assert (err.mean(0) < [0.025, 0.008]).all() and (err.max(0) < [0.06, 0.02]).all(), err.mean(0)
+    assert np.corrcoef(t[:, 0], g[:, 0])[0, 1] > 0.9 and t[:, 0].std() > 0.03  # the drift is there, and found
+
+
 def test_make_scene_cli_writes_a_scene(tmp_path, capsys):
     from arcsem.cli.make_scene import main
 

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["DETECTOR_CAM", "ShadingConfig", "detector_shadow", "drift_and_noise", "ellipsoid_shadow", "sem_grey"]
+__all__ = ["DETECTOR_CAM", "ShadingConfig", "detector_shadow", "drift_and_noise", "ellipsoid_shadow", "exposure_drift", "sem_grey"]
 
 # Everhart-Thornley style side detector, fixed in the microscope (= camera) frame (OpenCV axes):
 # to the right of the image, above it and towards the beam source.
@@ -83,6 +83,12 @@ def ellipsoid_shadow(p: Tensor, det: Tensor, radii: Tensor, soft: float = 0.12) 
     return x * x * (3 - 2 * x)
 
 
+def exposure_drift(rng: np.random.Generator, drift: float) -> tuple[float, float]:
+    """An image's ``(contrast, brightness)``: log-normal contrast (sigma ``drift``), normal brightness
+    (sigma ``drift / 2``); the first two draws of ``rng`` (so the truth can be recomputed from the seed)."""
+    return float(np.exp(rng.normal(0.0, drift))), float(rng.normal(0.0, 0.5 * drift))
+
+
 def drift_and_noise(grey: np.ndarray, rng: np.random.Generator, drift: float, noise: float,
                     row_jitter: float) -> np.ndarray:
     """Observed image ``[H, W]`` from a clean one: contrast/brightness drift, then scan noise.
@@ -90,8 +96,7 @@ def drift_and_noise(grey: np.ndarray, rng: np.random.Generator, drift: float, no
     ``drift`` scales the per-image contrast (log-normal) and brightness (normal) changes;
     ``noise`` the per-pixel Gaussian noise; ``row_jitter`` a per-scan-line brightness offset.
     """
-    contrast = float(np.exp(rng.normal(0.0, drift)))
-    brightness = float(rng.normal(0.0, 0.5 * drift))
+    contrast, brightness = exposure_drift(rng, drift)
     out = grey * contrast + brightness  # an affine change, as ACT models it
     out = out + rng.normal(0.0, row_jitter, size=(grey.shape[0], 1))
     out = out + rng.normal(0.0, noise, size=grey.shape)

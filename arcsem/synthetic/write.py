@@ -21,10 +21,10 @@ from PIL import Image
 from .cameras import ViewSpec, arc_cameras, arc_views
 from .render import RenderConfig, ViewImages, render_views
 from .sdf import make_grain
-from .shading import drift_and_noise
+from .shading import drift_and_noise, exposure_drift
 from .sheet import contact_sheet
 
-__all__ = ["GENERATOR_VERSION", "SceneParams", "generate_scene", "reference_sets"]
+__all__ = ["GENERATOR_VERSION", "SceneParams", "generate_scene", "reference_sets", "true_exposures"]
 
 GENERATOR_VERSION = 2  # bump when the output of the same parameters changes (invalidates caches)
 FLIP = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV <-> OpenGL camera axes
@@ -130,6 +130,27 @@ def _transforms(p: SceneParams, cams, frames: list[dict], refs: dict, grain, dis
     }
 
 
+def drift_strength(p: SceneParams, v: ViewSpec) -> float:
+    """The exposure-drift sigma of a training view: ``p.drift``, up to 3x towards the top of the vertical arc."""
+    return p.drift * (1 + 2 * v.elevation / 85.0 if v.arc == "v" else 1.0)
+
+
+def view_rng(p: SceneParams, index: int) -> np.random.Generator:
+    """The generator of view ``index``'s drift and noise (its first two draws: :func:`exposure_drift`)."""
+    return np.random.default_rng([p.seed, index])
+
+
+def true_exposures(p: SceneParams) -> dict[str, tuple[float, float]]:
+    """``{training view name: (contrast, brightness)}``: the drift the scene's training images were given.
+
+    The observed image is ``clip(contrast * clean + brightness + noise)``; ACT should learn this up to one
+    affine map shared by all views (benchmarks/act_drift.py compares them).
+    """
+    views = arc_views(p.n_horizontal, p.n_vertical, p.test_every)
+    return {v.name: exposure_drift(view_rng(p, i), drift_strength(p, v))
+            for i, v in enumerate(views) if v.split == "train"}
+
+
 def _u8(x) -> np.ndarray:
     return np.clip(np.round(np.asarray(x, dtype=np.float64) * 255.0), 0, 255).astype(np.uint8)
 
@@ -137,8 +158,7 @@ def _u8(x) -> np.ndarray:
 def _write_view(out: Path, p: SceneParams, i: int, v: ViewSpec, r: ViewImages, is_ref: bool) -> dict:
     clean = r.grey.numpy()
     if v.split == "train":
-        strength = p.drift * (1 + 2 * v.elevation / 85.0 if v.arc == "v" else 1.0)
-        observed = drift_and_noise(clean, np.random.default_rng([p.seed, i]), strength, p.noise, p.row_jitter)
+        observed = drift_and_noise(clean, view_rng(p, i), drift_strength(p, v), p.noise, p.row_jitter)
     else:
         observed = clean
     n = v.name

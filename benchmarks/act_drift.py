@@ -10,7 +10,7 @@ is left with) that ACT removes: 1 = all, 0 = none, < 0 = ACT adds its own per-vi
 
 Usage (a run directory holds ``metrics.json`` and ``stage1/``; several may be given)::
 
-    .venv/bin/python benchmarks/act_drift.py multirun/.../0 multirun/.../1
+    .venv/bin/python benchmarks/act_drift.py multirun/.../0 multirun/.../1 [--per-view]
 """
 from __future__ import annotations
 
@@ -53,6 +53,7 @@ def explained(C: np.ndarray, B: np.ndarray, W: np.ndarray, b: np.ndarray) -> tup
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("runs", nargs="+", type=Path, help="run directories (metrics.json + stage1/)")
+    ap.add_argument("--per-view", action="store_true", help="also print each view's drift left after ACT")
     args = ap.parse_args(argv)
     print("| run | ACT lr | drift | contrast removed | brightness removed | held-out PSNR |")
     print("|---|---|---|---|---|---|")
@@ -72,8 +73,11 @@ def main(argv: list[str] | None = None) -> int:
         names, W, b = got
         C = np.array([truth[n][0] for n in names])
         B = np.array([truth[n][1] for n in names])
-        ec, eb, _, _ = explained(C, B, W, b)
+        ec, eb, g, h = explained(C, B, W, b)
         print(f"| {run} | {act_lr} | {meta['synthetic']['drift']} | {ec:.2f} | {eb:.2f} | {test:.2f} |")
+        if args.per_view:
+            for n, rc, rb in zip(names, C - W * g, B - (W * h + b)):
+                print(f"|   {n} | contrast left {rc:+.3f} | brightness left {rb:+.3f} | | | |")
     return 0
 
 

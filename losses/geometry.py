@@ -53,7 +53,7 @@ class NormalConsistency(Loss):
         official: bool = True
         depth: str = "expected"
 
-    def __init__(self, cfg: Config):
+    def __init__(self, cfg: Config, **runtime):
         super().__init__(cfg)
         if cfg.depth not in ("expected", "median"):
             from arcsem.errors import ConfigError

@@ -82,6 +82,13 @@ def test_bad_input():
         act.apply(torch.rand(2, 2, 3), torch.tensor([0]))
     with pytest.raises(ValueError):
         ACT(2, mode="affine")
+    with pytest.raises(ValueError, match="act.solver"):
+        ACT(2, solver="lbfgs")
+    with pytest.raises(ValueError, match="act.fit_rate"):
+        ACT(2, solver="closed_form", fit_rate=0.0)
+    with pytest.raises(ValueError, match="novel views"):
+        ACT(2, solver="closed_form").fit_views(torch.rand(1, 2, 2, 3), torch.ones(1, 2, 2, 1), torch.rand(1, 2, 2, 3),
+                                               torch.tensor([-1]))
 
 
 def test_act_configs():

@@ -112,13 +112,14 @@ def test_training_fits_the_images_and_calls_hooks_every_step():
     assert res.history[-1]["loss"] < 0.6 * res.history[0]["loss"]  # DSSIM of the noise stays
 
 
-def test_act_group_is_optimised_and_resume_is_exact(tmp_path):
+@pytest.mark.parametrize("solver", ["adam", "closed_form"])
+def test_act_group_is_optimised_and_resume_is_exact(tmp_path, solver):
     scene = tiny_scene()
     cfg = {"train": {"steps": 200}, "seed": 0}
 
     def run(ckpt_dir, stop_at=None, seed=0):
         torch.manual_seed(seed)
-        act = ACT(len(scene.train), "rgb", 1e-3)
+        act = ACT(len(scene.train), "rgb", 1e-3, solver=solver)
         bb = build(scene, act=act, seed=seed)
         losses = build_losses(L1_DSSIM, bb.provides)
 
@@ -139,6 +140,63 @@ def test_act_group_is_optimised_and_resume_is_exact(tmp_path):
     assert torch.equal(act_a.weight, act_b.weight) and torch.equal(act_a.bias, act_b.bias)
     assert not torch.allclose(act_a.weight, torch.ones_like(act_a.weight), atol=2e-3)  # ACT was trained
     assert [h["loss"] for h in res_a.history] == [h["loss"] for h in res_b.history]
+
+
+def test_act_prior_penalises_the_batch_images_and_holds_act_near_identity():
+    from arcsem.plugins import Batch
+
+    scene = tiny_scene()
+    act = ACT(len(scene.train), "rgb", 0.0)
+    with torch.no_grad():
+        act.weight[1] = torch.tensor([1.1, 1.0, 0.9])
+        act.bias[1] = torch.tensor([0.0, 0.2, 0.0])
+    prior = build_losses({"act_prior": {}}, {"rgb"}, act=act).terms["act_prior"]
+    cams = scene.train.cameras[[1, 1]]
+    value = prior({}, Batch(cameras=cams, images=scene.train.images[[1, 1]], indices=torch.tensor([1, 1])), 0)
+    assert value.item() == pytest.approx(0.01 + 0.01 + 0.04)  # image 1 once; images 0, 2, 3 are not in the batch
+    with pytest.raises(ConfigError, match="act=paper"):
+        build_losses({"act_prior": {}}, {"rgb"})
+
+    def fit(weight):  # the views differ by gains of ~5 %: ACT learns them unless the prior holds it
+        torch.manual_seed(0)
+        act = ACT(len(scene.train), "rgb", 0.0)
+        bb = build(scene, act=act)
+        terms = {**L1_DSSIM, "act_prior": {"weight": weight}}
+        train(bb, scene.train, build_losses(terms, bb.provides, act=act), loop(200), act=act, act_lr=1e-2)
+        return (act.weight - 1).abs().max().item() + act.bias.abs().max().item()
+
+    free, held = fit(0.0), fit(100.0)
+    assert free > 0.02 and held < 0.25 * free, (free, held)
+
+
+def test_closed_form_act_learns_the_views_gains_without_adam(monkeypatch):
+    """The tiny scene's views are one image times a per-view gain: the closed-form ACT finds the gains'
+    ratios (up to one shared factor, absorbed by the image), and ACT gets no optimiser group."""
+    from arcsem.act import affine_fit
+
+    pre = torch.rand(2, 8, 6, 3, dtype=torch.float64)
+    alpha = torch.ones(2, 8, 6, 1, dtype=torch.float64)
+    target = 1.2 * pre + 0.05
+    W, b = affine_fit(pre, alpha, target, "scalar")
+    assert W.shape == (2, 1) and torch.allclose(W, torch.full_like(W, 1.2)) and torch.allclose(b, torch.full_like(b, 0.05))
+    shrunk = [affine_fit(pre, alpha, target, "scalar", p)[0][0, 0].item() for p in (0.1, 1.0, 100.0)]
+    assert 1.2 > shrunk[0] > shrunk[1] > shrunk[2] > 1.0 and shrunk[2] < 1.01  # the ridge pulls W to the identity
+
+    scene = tiny_scene(n=6)
+    torch.manual_seed(0)
+    act = ACT(len(scene.train), "scalar", 0.0, solver="closed_form", fit_rate=0.5)
+    bb = build(scene, act=act)
+    from arcsem.train import loop as loop_mod
+
+    groups = []
+    real = loop_mod.apply_schedules
+    monkeypatch.setattr(loop_mod, "apply_schedules", lambda opts, *a, **k: groups.append(set(opts)) or real(opts, *a, **k))
+    train(bb, scene.train, build_losses({"l2": {}}, bb.provides), loop(300), act=act, act_lr=1e-3)
+    assert groups and all("act" not in g for g in groups) and not act.weight.requires_grad
+    gains = torch.stack([(scene.train.images[i] / scene.train.clean[i]).median() for i in range(6)])
+    ratio = act.weight[:, 0] / gains
+    assert (ratio / ratio.mean() - 1).abs().max() < 0.01, (act.weight[:, 0], gains)
+    assert (gains / gains.mean() - 1).abs().max() > 0.03  # the gains do differ
 
 
 def test_resume_with_a_different_config_lists_the_keys(tmp_path):
@@ -210,6 +268,9 @@ def test_ray_backbone_trains_on_random_ray_batches():
     res = train(bb, scene.train, losses, loop(100, rays_per_batch=256))
     assert bb.seen[0] == ((256, 3), (256,))
     assert res.history[-1]["loss"] < 0.5 * res.history[0]["loss"]
+    act = ACT(len(scene.train), "rgb", solver="closed_form")
+    with pytest.raises(ConfigError, match="act.solver=adam"):  # the closed form fits whole views only
+        train(build(scene, "_tiny_rays", act=act), scene.train, losses, loop(2, rays_per_batch=16), act=act, act_lr=1e-3)
     s = RaySampler(scene.train, 64, seed=1).next()
     o, d = scene.train.cameras.rays()
     n = len(scene.train)

@@ -117,7 +117,8 @@ def build_model(cfg: Any, scene: Scene, tc: TrainConfig | None = None):
     act_cfg = _plain(cfg.get("act")) or {}
     act = None
     if act_cfg.get("enabled", False):
-        act = ACT(len(scene.train), act_cfg.get("mode", "rgb"), float(act_cfg.get("init_noise", 1e-3)))
+        act = ACT(len(scene.train), act_cfg.get("mode", "rgb"), float(act_cfg.get("init_noise", 1e-3)),
+                  act_cfg.get("solver", "adam"), float(act_cfg.get("fit_rate", 0.5)), float(act_cfg.get("fit_prior", 0.0)))
     backbone = BACKBONES.build(bcfg, scene=scene, **({"act": act} if act is not None else {}))
     device = torch.device(str(cfg.get("device", "cpu")))
     return backbone.to(device), (act.to(device) if act is not None else None)
@@ -141,7 +142,7 @@ def run_stage1(cfg: Any, scene: Scene, run_dir: str | Path) -> dict:
     backbone, act = build_model(cfg, scene, tc)
     name = backbone.name
     losses = build_losses(merge_loss_cfgs(tc.losses, (tc.per_backbone.get(name) or {}).get("losses")),
-                          backbone.provides, backbone.batch_mode, backbone=name)
+                          backbone.provides, backbone.batch_mode, backbone=name, act=act)
     rays = tc.rays_per_batch or int(getattr(backbone.cfg, "batch_size", 5000))
     over = tc.per_backbone.get(name) or {}
     unknown = set(over) - {"backbone", "losses", "steps"}

@@ -21,6 +21,9 @@ optional ridge ``fit_prior`` towards the identity (:meth:`ACT.fit_views`); Adam 
 On the built-in scene every faster ACT loses held-out PSNR, the closed form most: per-view transforms
 and the scene's view-dependent SH colour can trade brightness freely, and the mean transform used
 for novel views does not undo the trade (benchmarks/results/README.md, "What ACT learns").
+``smooth_degree = L >= 0`` removes that trade: the transforms as applied (:meth:`ACT.effective`) lose
+their part that is a polynomial of degree <= L in the training views' directions (what SH colours of
+degree L can hold; :func:`smooth_projector`), keeping their mean; the parameters themselves are free.
 ACT is independent of any backbone: Gaussians call :meth:`ACT.apply` on ``[C, N, 3]`` colours,
 ray backbones on ``[R, S, 3]`` per-sample colours with ``[R]`` image ids.
 """
@@ -31,7 +34,7 @@ from typing import Literal
 import torch
 from torch import Tensor, nn
 
-__all__ = ["ACT", "ACT_MODES", "ACT_SOLVERS", "affine_fit"]
+__all__ = ["ACT", "ACT_MODES", "ACT_SOLVERS", "affine_fit", "smooth_projector"]
 
 ACT_MODES = ("rgb", "scalar")
 ACT_SOLVERS = ("adam", "closed_form")
@@ -46,7 +49,8 @@ class ACT(nn.Module):
     """
 
     def __init__(self, num_images: int, mode: Literal["rgb", "scalar"] = "rgb", init_noise: float = 1e-3,
-                 solver: Literal["adam", "closed_form"] = "adam", fit_rate: float = 0.5, fit_prior: float = 0.0):
+                 solver: Literal["adam", "closed_form"] = "adam", fit_rate: float = 0.5, fit_prior: float = 0.0,
+                 view_dirs: Tensor | None = None, smooth_degree: int = -1):
         super().__init__()
         if mode not in ACT_MODES:
             raise ValueError(f"ACT mode must be one of {ACT_MODES}, got '{mode}'")
@@ -61,6 +65,11 @@ class ACT(nn.Module):
             raise ValueError(f"ACT needs at least one training image, got {num_images}")
         k = 3 if mode == "rgb" else 1
         self.mode = mode
+        if smooth_degree >= 0:
+            if view_dirs is None or view_dirs.shape != (num_images, 3):
+                raise ValueError(f"act.smooth_degree={smooth_degree} needs the {num_images} training views' "
+                                 f"directions [N, 3], got {None if view_dirs is None else tuple(view_dirs.shape)}")
+            self.register_buffer("smooth", smooth_projector(view_dirs, smooth_degree))
         grad = solver == "adam"
         self.weight = nn.Parameter(torch.ones(num_images, k) + init_noise * torch.randn(num_images, k), grad)
         self.bias = nn.Parameter(init_noise * torch.randn(num_images, k), grad)
@@ -76,9 +85,18 @@ class ACT(nn.Module):
             raise IndexError(f"ACT: image ids {ids.unique().tolist()} outside -1..{self.num_images - 1}")
         novel = (ids < 0)[..., None]
         safe = ids.clamp_min(0)
-        W = torch.where(novel, self.weight.mean(0), self.weight[safe])
-        b = torch.where(novel, self.bias.mean(0), self.bias[safe])
+        W_all, b_all = self.effective()
+        W = torch.where(novel, W_all.mean(0), W_all[safe])
+        b = torch.where(novel, b_all.mean(0), b_all[safe])
         return W, b
+
+    def effective(self) -> tuple[Tensor, Tensor]:
+        """Every training image's ``W, b`` (``[N, k]``) as applied: the parameters, minus their smooth
+        part across view directions when ``smooth_degree >= 0`` (the mean is kept)."""
+        if not hasattr(self, "smooth"):
+            return self.weight, self.bias
+        P = self.smooth.to(self.weight.dtype)
+        return self.weight - P @ self.weight, self.bias - P @ self.bias
 
     def apply(self, colors: Tensor, image_ids: Tensor) -> Tensor:
         """Transform colours of the images ``image_ids``.
@@ -155,3 +173,20 @@ def affine_fit(pre: Tensor, alpha: Tensor, target: Tensor, mode: str, prior: flo
     if mode != "rgb":
         W, b = W[:, None], b[:, None]
     return W, b
+
+
+def smooth_projector(view_dirs: Tensor, degree: int) -> Tensor:
+    """``[N, N]`` projector onto the smooth functions of the view direction, minus the constant.
+
+    The span of the monomials ``x^a y^b z^c`` (``a + b + c <= degree``) of the unit directions
+    ``view_dirs [N, 3]`` (= real SH up to ``degree`` on the sphere), with the constant removed, so that
+    ``W - P @ W`` keeps ``W``'s mean and loses exactly what SH colours of that degree could also express.
+    """
+    d = torch.nn.functional.normalize(view_dirs.double(), dim=-1)
+    cols = [d[:, 0] ** a * d[:, 1] ** b * d[:, 2] ** c
+            for a in range(degree + 1) for b in range(degree + 1 - a) for c in range(degree + 1 - a - b)]
+    M = torch.stack(cols, 1)
+    M = M - M.mean(0, keepdim=True)  # orthogonal to the constant: the mean is left alone
+    U, S, _ = torch.linalg.svd(M, full_matrices=False)
+    U = U[:, S > 1e-8 * max(float(S.max()), 1e-30)] if S.numel() else U[:, :0]
+    return U @ U.T

@@ -35,7 +35,11 @@ def learned_act(run: Path) -> tuple[list[str], np.ndarray, np.ndarray] | None:
         return None
     with open(run / "stage1" / "views.csv", newline="") as f:
         names = [r["name"] for r in csv.DictReader(f) if r["split"] == "train"]
-    W, b = state["act.weight"].double().mean(1).numpy(), state["act.bias"].double().mean(1).numpy()
+    W, b = state["act.weight"].double(), state["act.bias"].double()
+    if "act.smooth" in state:  # act.smooth_degree >= 0: the transforms as applied (see ACT.effective)
+        P = state["act.smooth"].double()
+        W, b = W - P @ W, b - P @ b
+    W, b = W.mean(1).numpy(), b.mean(1).numpy()
     if len(names) != len(W):
         sys.exit(f"{run}: views.csv lists {len(names)} training views, ACT has {len(W)} images")
     return names, W, b
@@ -73,6 +77,8 @@ def main(argv: list[str] | None = None) -> int:
         names, W, b = got
         C = np.array([truth[n][0] for n in names])
         B = np.array([truth[n][1] for n in names])
+        print(f"|   true drift over the {len(C)} views: mean contrast {C.mean():.4f}, mean brightness {B.mean():+.4f}, "
+              f"sd {C.std():.4f} / {B.std():.4f} | | | | |")
         ec, eb, g, h = explained(C, B, W, b)
         print(f"| {run} | {act_lr} | {meta['synthetic']['drift']} | {ec:.2f} | {eb:.2f} | {test:.2f} |")
         if args.per_view:

@@ -39,8 +39,9 @@ def neighbour_act(act: ACT, train_dirs: torch.Tensor, d: torch.Tensor, k: int) -
     one = ACT(1, act.mode, 0.0)
     nearest = (train_dirs @ d).topk(k).indices
     with torch.no_grad():
-        one.weight.copy_(act.weight[nearest].mean(0, keepdim=True))
-        one.bias.copy_(act.bias[nearest].mean(0, keepdim=True))
+        W, b = act.effective()
+        one.weight.copy_(W[nearest].mean(0, keepdim=True))
+        one.bias.copy_(b[nearest].mean(0, keepdim=True))
     return one.to(act.weight.device)
 
 

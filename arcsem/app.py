@@ -155,11 +155,13 @@ def _gray_stage(cfg: DictConfig, scene: Any, run_dir: Path) -> dict:
 
 
 def _check_stage(cfg: DictConfig, scene: Any, run_dir: Path) -> dict:
-    """Build the backbone for the scene (validates dataset, plugin and its config); trains nothing."""
+    """Build the backbone and ACT as stage 1 would (validates dataset, plugin and their configs); trains nothing."""
     from .plugins import BACKBONES
+    from .train.stage1 import build_model
 
-    model = BACKBONES.build(cfg.backbone, scene=scene)
-    return {"backbone_origin": BACKBONES.origin(cfg.backbone.name), "primitives": int(model.num_primitives())}
+    model, act = build_model(cfg, scene)
+    return {"backbone_origin": BACKBONES.origin(cfg.backbone.name), "primitives": int(model.num_primitives()),
+            "act": act is not None}
 
 
 def _scene_summary(scene: Any) -> dict:

@@ -107,6 +107,9 @@ def prepare_scene(scene: Scene, tc: TrainConfig) -> Scene:
                                test=resize_split(scene.test, tc.downscale, tc.width))
 
 
+ACT_KEYS = {"enabled", "mode", "lr", "init_noise", "solver", "fit_rate", "fit_prior", "smooth_degree"}  # conf/act
+
+
 def build_model(cfg: Any, scene: Scene, tc: TrainConfig | None = None):
     """``(backbone, act)`` as configured (``per_backbone`` overrides applied), on ``cfg.device``."""
     from ..act import ACT
@@ -115,6 +118,9 @@ def build_model(cfg: Any, scene: Scene, tc: TrainConfig | None = None):
     bcfg = dict(_plain(cfg.backbone))
     bcfg.update((tc.per_backbone.get(bcfg["name"]) or {}).get("backbone") or {})
     act_cfg = _plain(cfg.get("act")) or {}
+    unknown = set(act_cfg) - ACT_KEYS
+    if unknown:
+        raise ConfigError(f"act: unknown key(s) {sorted(unknown)}; valid: {', '.join(sorted(ACT_KEYS))}")
     act = None
     if act_cfg.get("enabled", False):
         dirs = scene.train.cameras.world_to_cam[:, 2, :3]  # viewing axes (the camera's +z in world)

@@ -66,8 +66,7 @@ def main(argv: list[str] | None = None) -> int:
         meta = json.loads((Path(metrics["dataset"]["root"]) / "transforms.json").read_text())
         if "synthetic" not in meta:
             sys.exit(f"{run}: its dataset is not a built-in synthetic scene (no true drift to compare with)")
-        fields = SceneParams.__dataclass_fields__
-        truth = true_exposures(SceneParams(**{k: v for k, v in meta["synthetic"].items() if k in fields}))
+        truth = true_exposures(SceneParams.from_transforms(meta))
         test = metrics["stages"]["gray"]["stage1"]["test"]["psnr"]
         act_lr = OmegaConf.select(OmegaConf.load(run / "config.yaml"), "act.lr", default="?")
         got = learned_act(run)

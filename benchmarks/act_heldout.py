@@ -23,15 +23,9 @@ import torch
 from omegaconf import OmegaConf
 
 from arcsem.act import ACT
-from arcsem.cameras import Cameras
 from arcsem.data import load_scene
 from arcsem.metrics import psnr
 from arcsem.train.stage1 import load_stage1, prepare_scene, train_config
-
-
-def view_dirs(cams: Cameras) -> torch.Tensor:
-    """``[C, 3]`` unit viewing directions (the camera's +z axis in world coordinates, OpenCV axes)."""
-    return torch.nn.functional.normalize(cams.world_to_cam[:, 2, :3].double(), dim=-1)
 
 
 def neighbour_act(act: ACT, train_dirs: torch.Tensor, d: torch.Tensor, k: int) -> ACT:
@@ -55,7 +49,7 @@ def heldout_psnr(run: Path, ks: list[int]) -> dict[int, float]:
     if scene.test.clean is None:
         sys.exit(f"{run}: the dataset has no noise-free held-out images")
     sc = prepare_scene(scene, train_config(cfg))
-    tdirs, hdirs = view_dirs(sc.train.cameras), view_dirs(sc.test.cameras)
+    tdirs, hdirs = sc.train.cameras.forward.double(), sc.test.cameras.forward.double()
     out = {}
     for k in ks:
         vals = []

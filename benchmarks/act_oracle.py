@@ -7,7 +7,7 @@ and with the scene without drift (``+dataset.drift=0.0``). Any other overrides a
 a stage-1 run, e.g. (the quick preset's 2DGS + ACT row)::
 
     ARCSEM_CACHE=/tmp/c .venv/bin/python benchmarks/act_oracle.py --out multirun/act_oracle/0 \\
-        preset=quick variant=gs2d_act seed=0 threads=1 train.eval.video=false
+        +preset=quick +variant=gs2d_act seed=0 threads=1 train.eval.video=false
 """
 from __future__ import annotations
 
@@ -19,6 +19,7 @@ import torch
 from hydra import compose, initialize_config_module
 from omegaconf import OmegaConf
 
+from arcsem.app import set_threads
 from arcsem.data import load_scene
 from arcsem.synthetic.write import SceneParams, true_exposures
 from arcsem.train import stage1
@@ -31,12 +32,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     with initialize_config_module("arcsem.conf", version_base=None):
         cfg = compose("config", overrides=[*args.overrides, "act.lr=0.0"])
-    torch.set_num_threads(int(cfg.get("threads") or torch.get_num_threads()))
+    set_threads(cfg.get("threads"))
     torch.manual_seed(int(cfg.seed))
     scene = load_scene(cfg.dataset)
     meta = json.loads((Path(scene.root) / "transforms.json").read_text())
-    fields = SceneParams.__dataclass_fields__
-    truth = true_exposures(SceneParams(**{k: v for k, v in meta["synthetic"].items() if k in fields}))
+    truth = true_exposures(SceneParams.from_transforms(meta))
     build = stage1.build_model
 
     def oracle_build(*a, **k):

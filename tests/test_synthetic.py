@@ -295,8 +295,7 @@ def test_true_exposures_are_the_drift_in_the_training_images(scene):
     from arcsem.synthetic.write import SceneParams, true_exposures
 
     meta = json.loads(scene.read_text())
-    params = {k: v for k, v in meta["synthetic"].items() if k in SceneParams.__dataclass_fields__}
-    truth = true_exposures(SceneParams(**params))
+    truth = true_exposures(SceneParams.from_transforms(meta))
     fitted = {}
     for f in meta["frames"]:
         if f["split"] != "train":

@@ -48,6 +48,13 @@ class SceneParams:
     n_spines: int = 30
     test_every: int = 4           # one test view in every 4th gap of each arc
 
+    @classmethod
+    def from_transforms(cls, meta: dict) -> SceneParams:
+        """The parameters a generated scene was made with, from its ``transforms.json`` (``meta["synthetic"]``)."""
+        if "synthetic" not in meta:
+            raise ValueError("transforms.json has no 'synthetic' block: not a scene of the built-in generator")
+        return cls(**{k: v for k, v in meta["synthetic"].items() if k in cls.__dataclass_fields__})
+
 
 def reference_sets(views: list[ViewSpec]) -> dict[str, list[str]]:
     """The paper's reference sets by name: five = leftmost, centre, rightmost, angled, top."""

@@ -123,10 +123,9 @@ def build_model(cfg: Any, scene: Scene, tc: TrainConfig | None = None):
         raise ConfigError(f"act: unknown key(s) {sorted(unknown)}; valid: {', '.join(sorted(ACT_KEYS))}")
     act = None
     if act_cfg.get("enabled", False):
-        dirs = scene.train.cameras.world_to_cam[:, 2, :3]  # viewing axes (the camera's +z in world)
         act = ACT(len(scene.train), act_cfg.get("mode", "rgb"), float(act_cfg.get("init_noise", 1e-3)),
                   act_cfg.get("solver", "adam"), float(act_cfg.get("fit_rate", 0.5)), float(act_cfg.get("fit_prior", 0.0)),
-                  view_dirs=dirs, smooth_degree=int(act_cfg.get("smooth_degree", -1)))
+                  view_dirs=scene.train.cameras.forward, smooth_degree=int(act_cfg.get("smooth_degree", -1)))
     backbone = BACKBONES.build(bcfg, scene=scene, **({"act": act} if act is not None else {}))
     device = torch.device(str(cfg.get("device", "cpu")))
     return backbone.to(device), (act.to(device) if act is not None else None)

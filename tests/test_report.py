@@ -392,6 +392,10 @@ def test_paired_by_seed_deltas_interval_and_errors(tmp_path):
     depth, _ = pair(df, "gs2d", "gs2d_act", "stage1.depth.test_mae_pct")
     assert lower_is_better("stage1.depth.test_mae_pct")
     assert summary(depth["delta"], True)["b_wins"] == 0  # ACT's depth error is never lower here
+    notes = build_table(collect([sweep]), "grayscale_comparison").notes  # the same pairing, in the table
+    note = next(n for n in notes if n.startswith("held-out PSNR minus 2DGS + ACT's, paired by seed"))
+    assert "2DGS -0.30 dB" in note
+    assert "better at 1/3 seeds" in note
     with pytest.raises(DataError, match="no run of row 'gs3d'"):
         pair(df, "gs3d", "gs2d_act", "stage1.test.psnr")
     with pytest.raises(DataError, match="closest columns.*stage1.test.psnr"):

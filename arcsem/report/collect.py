@@ -45,17 +45,18 @@ class Study:
     name: str
     key: str                      # override key whose value is the row (e.g. "variant")
     rows: dict[str, str]          # row value -> label, in table order
+    ours: str | None = None       # the paper's method: other rows are compared with it, paired by seed
 
 
 STUDIES: dict[str, Study] = {
     s.name: s for s in (
         Study("grayscale_comparison", "variant",
-              {"plenoxels": "Plenoxels", "gs3d": "3DGS", "gs2d": "2DGS", "gs2d_act": "2DGS + ACT"}),
+              {"plenoxels": "Plenoxels", "gs3d": "3DGS", "gs2d": "2DGS", "gs2d_act": "2DGS + ACT"}, "gs2d_act"),
         Study("colorization_ablation", "ablation",
               {"full": "full", "no_tcm": "w/o TCM", "no_ccm": "w/o CCM", "no_act": "w/o ACT",
-               "no_all": "w/o all"}),
+               "no_all": "w/o all"}, "full"),
         Study("reference_count", "colorize.references",
-              {"five": "5", "four": "4", "three": "3", "two": "2", "one": "1"}),
+              {"five": "5", "four": "4", "three": "3", "two": "2", "one": "1"}, "five"),
         Study("runs", "", {}),  # every run of no known study (demo, single runs): one row per run folder
     )
 }

@@ -13,7 +13,9 @@ from pathlib import Path
 
 import pandas as pd
 
+from ..errors import DataError
 from .collect import STUDIES, Collection, MissingJob
+from .paired import lower_is_better, pair, summary
 
 __all__ = [
     "LAYOUTS",
@@ -172,11 +174,42 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
     seeds = sorted({str(s) for s in df["seed"].dropna()}) if "seed" in df else []
     if seeds:
         notes.append(f"seeds: {', '.join(seeds)}; several runs per row are shown as mean ± std.")
+    notes += _paired_notes(df, study, columns)
     for m in missing:
         where = m.job_dir or f"{m.sweep_dir} (job never started)"
         why = f" ({m.reason})" if m.reason else ""
         notes.append(f"missing job: {' '.join(m.overrides)} -- {where}{why}")
     return notes
+
+
+def _paired_notes(df: pd.DataFrame, study: str, columns: list[Column]) -> list[str]:
+    """Held-out PSNR of each row minus the study's own method, paired by seed, where >= 2 seeds pair up.
+
+    Seeds share their luck (initialisation, view order), so paired differences are far tighter than
+    the rows' mean ± std; the note gives their mean, 95 % t-interval and the seeds the row won.
+    """
+    spec = STUDIES[study]
+    key = next((c.key for c in columns if c.group == "held-out" and c.label == "PSNR"), None)
+    if spec.ours is None or key is None or key not in df or "seed" not in df or spec.ours not in set(df["row"]):
+        return []
+    parts = []
+    for row in [r for r in spec.rows if r != spec.ours] + sorted(set(df["row"].dropna()) - set(spec.rows)):
+        if row not in set(df["row"]):
+            continue
+        try:
+            table, _ = pair(df, spec.ours, row, key)
+        except DataError:  # several runs of one row and seed (e.g. a rerun): no unique pairing
+            parts.append(f"{spec.rows.get(row, row)}: not paired (several runs of one seed)")
+            continue
+        if len(table) < 2:
+            continue
+        s = summary(table["delta"], lower_is_better(key))
+        parts.append(f"{spec.rows.get(row, row)} {s['mean']:+.2f} dB [{s['ci_low']:+.2f}, {s['ci_high']:+.2f}], "
+                     f"better at {s['b_wins']}/{s['n']} seeds")
+    if not parts:
+        return []
+    return [f"held-out PSNR minus {spec.rows[spec.ours]}'s, paired by seed (mean, 95 % t-interval): "
+            + "; ".join(parts) + "."]
 
 
 def build_table(coll: Collection, study: str) -> Table:

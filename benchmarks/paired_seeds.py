@@ -1,8 +1,11 @@
 """Is row B better than row A? Paired by seed, with a confidence interval.
 
 Two rows of a study (e.g. ``gs2d`` and ``gs2d_act`` of the grayscale comparison) trained with the
-same seeds share the seed's luck (initialisation, view order), so their per-seed differences are far
-less noisy than the two rows' means +- std. This script pairs the runs found under the given folders
+same seeds start alike (initial points, view order), so the question "is B better?" is asked of the
+per-seed differences B - A: their mean and its t-interval say whether the difference stands out of the
+run-to-run noise. (Pairing helps only as far as the seed's luck is shared: on the built-in scene's
+2DGS rows the differences vary as much as the rows themselves, since densification soon makes the
+runs diverge.) This script pairs the runs found under the given folders
 (runs or Hydra sweep folders, read by ``arcsem.report.collect``) by seed and prints, per metric, each
 seed's difference B - A, their mean, standard deviation, a two-sided 95 % t-interval of the mean,
 and how many seeds B won (for an error metric, "won" means lower).

@@ -1,7 +1,7 @@
 """Paired-by-seed differences between two rows of a study (see ``benchmarks/paired_seeds.py``).
 
-Two rows trained with the same seeds share each seed's luck (initialisation, view order), so the
-per-seed differences B - A are far less noisy than the two rows' means +- std.
+Two rows trained with the same seeds start alike (initial points, view order); the mean of the
+per-seed differences B - A and its t-interval say whether B differs from A beyond run-to-run noise.
 """
 from __future__ import annotations
 

@@ -185,8 +185,8 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
 def _paired_notes(df: pd.DataFrame, study: str, columns: list[Column]) -> list[str]:
     """Held-out PSNR of each row minus the study's own method, paired by seed, where >= 2 seeds pair up.
 
-    Seeds share their luck (initialisation, view order), so paired differences are far tighter than
-    the rows' mean ± std; the note gives their mean, 95 % t-interval and the seeds the row won.
+    The note gives the differences' mean, its 95 % t-interval (does the row differ beyond run-to-run
+    noise?) and the seeds the row won.
     """
     spec = STUDIES[study]
     key = next((c.key for c in columns if c.group == "held-out" and c.label == "PSNR"), None)

@@ -51,7 +51,8 @@ def summary(delta: pd.Series, lower: bool) -> dict:
     """Mean, std, 95 % t-interval of the mean and B's wins over ``n`` paired seeds (``lower``: a
     smaller value is better, so B wins where ``delta < 0``)."""
     n = len(delta)
-    mean, sd = float(delta.mean()), float(delta.std(ddof=1)) if n > 1 else math.nan
+    mean = float(delta.mean())
+    sd = float(delta.std(ddof=1)) if n > 1 else math.nan
     half = float(stats.t.ppf(0.975, n - 1) * sd / math.sqrt(n)) if n > 1 else math.nan
     wins = int((delta < 0).sum() if lower else (delta > 0).sum())
     return {"n": n, "mean": mean, "std": sd, "ci_low": mean - half, "ci_high": mean + half, "b_wins": wins}

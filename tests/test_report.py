@@ -14,51 +14,11 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from report_util import GRAY, _job, _png, _stage1, _sweep
 
 from arcsem.report import build_report
 from arcsem.report.collect import collect, expected_jobs, parse_overrides
 from arcsem.report.tables import build_table, to_latex, to_markdown, write_tables
-
-GRAY = {  # variant -> (train psnr, ssim, lpips, test psnr, depth pct)
-    "plenoxels": (30.0, 0.80, 0.50, 28.0, 2.0),
-    "gs3d": (33.5, 0.90, 0.40, 31.0, 1.5),
-    "gs2d": (33.0, 0.88, 0.45, 30.5, 0.8),
-    "gs2d_act": (34.0, 0.89, 0.42, 31.5, 0.9),
-}
-
-
-def _png(path: Path, value: int, shape=(12, 16, 3)) -> None:
-    import cv2
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), np.full(shape, value, np.uint8))
-
-
-def _job(sweep: Path, num: int, overrides: list[str], metrics: dict | None, seed: int = 0) -> Path:
-    job = sweep / str(num)
-    (job / ".hydra").mkdir(parents=True)
-    (job / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(overrides))
-    if metrics is not None:
-        (job / "config.yaml").write_text(yaml.safe_dump({"seed": seed, "dataset": {"name": "synthetic"}}))
-        full = {"seed": seed, "git": "abc123", "overrides": overrides, **metrics}
-        (job / "metrics.json").write_text(json.dumps(full))
-    return job
-
-
-def _sweep(root: Path, experiment: str, key: str, values: list[str]) -> Path:
-    root.mkdir(parents=True)
-    multirun = {"hydra": {"sweeper": {"params": {key: ",".join(values)}},
-                          "overrides": {"task": [f"experiment={experiment}"]}}, "seed": 0}
-    (root / "multirun.yaml").write_text(yaml.safe_dump(multirun))
-    return root
-
-
-def _stage1(psnr, ssim, lpips, tpsnr, pct, lpips_note="/root/.cache/torch/hub/checkpoints/alexnet-owt-7be5be79.pth"):
-    return {"stage1": {"train": {"psnr": psnr, "ssim": ssim, "lpips": lpips},
-                       "test": {"psnr": tpsnr, "ssim": ssim - 0.01, "lpips": lpips + 0.01},
-                       # the trainer's keys; median_abs_pct (the older name) is a decoy the table must not use
-                       "depth": {"test_mae": pct / 100, "test_mae_pct": pct, "median_abs_pct": 99.0},
-                       "steps": 100, "time_s": 1.0, "num_primitives": 1000, "lpips_weights": lpips_note}}
 
 
 @pytest.fixture
@@ -364,42 +324,3 @@ def test_grid_reads_renders_of_a_shared_stage1_model(tmp_path):
     videos = copy_videos("grayscale_comparison", {"2DGS": run}, tmp_path / "out")
     assert [c for c, _ in videos] == ["2DGS: turntable"] and videos[0][1].is_file()
 
-
-def test_paired_by_seed_deltas_interval_and_errors(tmp_path):
-    """Rows paired by seed: B - A per seed, a t-interval that matches scipy's, wins counted the right
-    way for an error metric, an unpaired seed left out, and duplicates / unknown rows refused."""
-    from scipy import stats
-
-    from arcsem.errors import DataError
-    from arcsem.report.paired import lower_is_better, pair, summary
-
-    sweep = _sweep(tmp_path / "seeds", "grayscale_comparison", "variant", ["gs2d", "gs2d_act"])
-    psnr = {"gs2d": [30.0, 31.0, 29.5, 30.2], "gs2d_act": [30.5, 30.8, 30.1]}  # seed 3: no ACT run
-    num = 0
-    for v, vals in psnr.items():
-        for seed, p in enumerate(vals):
-            _job(sweep, num, ["experiment=grayscale_comparison", f"variant={v}", f"seed={seed}"],
-                 _stage1(33.0, 0.9, 0.4, p, 1.0 + 0.1 * seed * (v == "gs2d_act")), seed)
-            num += 1
-    df = collect([sweep]).runs
-    table, unpaired = pair(df, "gs2d", "gs2d_act", "stage1.test.psnr")
-    assert unpaired == [3]
-    np.testing.assert_allclose(table["delta"].to_numpy(), [0.5, -0.2, 0.6])
-    s = summary(table["delta"], lower_is_better("stage1.test.psnr"))
-    lo, hi = stats.t.interval(0.95, 2, loc=np.mean([0.5, -0.2, 0.6]), scale=stats.sem([0.5, -0.2, 0.6]))
-    assert (s["n"], s["b_wins"]) == (3, 2)
-    assert s["ci_low"] == pytest.approx(lo) and s["ci_high"] == pytest.approx(hi)
-    depth, _ = pair(df, "gs2d", "gs2d_act", "stage1.depth.test_mae_pct")
-    assert lower_is_better("stage1.depth.test_mae_pct")
-    assert summary(depth["delta"], True)["b_wins"] == 0  # ACT's depth error is never lower here
-    notes = build_table(collect([sweep]), "grayscale_comparison").notes  # the same pairing, in the table
-    note = next(n for n in notes if n.startswith("held-out PSNR minus 2DGS + ACT's, paired by seed"))
-    assert "2DGS -0.30 dB" in note
-    assert "better at 1/3 seeds" in note
-    with pytest.raises(DataError, match="no run of row 'gs3d'"):
-        pair(df, "gs3d", "gs2d_act", "stage1.test.psnr")
-    with pytest.raises(DataError, match="closest columns.*stage1.test.psnr"):
-        pair(df, "gs2d", "gs2d_act", "stage1.test.psnrr")
-    with pytest.raises(DataError, match="several runs of the same row and seed"):
-        pair(collect([sweep, sweep / "0"]).runs.pipe(lambda d: pd.concat([d, d.iloc[:1]])),
-             "gs2d", "gs2d_act", "stage1.test.psnr")

@@ -25,7 +25,7 @@ import sys
 
 from arcsem.errors import DataError
 from arcsem.report.collect import collect
-from arcsem.report.paired import lower_is_better, pair, summary
+from arcsem.report.paired import describe, lower_is_better, pair, summary
 
 DEFAULT_METRICS = ["stage1.test.psnr", "stage1.test.ssim", "stage1.depth.test_mae_pct"]
 
@@ -55,9 +55,7 @@ def report(args: argparse.Namespace) -> int:
         print(table.to_string(float_format=lambda x: f"{x:.4f}"))
         if unpaired:
             print(f"  left out (one row only): seeds {unpaired}")
-        s = summary(table["delta"], low)
-        print(f"  mean {s['mean']:+.4f}  std {s['std']:.4f}  95% CI [{s['ci_low']:+.4f}, {s['ci_high']:+.4f}]"
-              f"  {args.b} better at {s['b_wins']}/{s['n']} seeds")
+        print("  " + describe(summary(table["delta"], low), args.b))
     return 0
 
 

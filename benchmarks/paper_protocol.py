@@ -24,7 +24,7 @@ from omegaconf import OmegaConf
 from arcsem.data import load_scene
 from arcsem.errors import DataError
 from arcsem.report.collect import collect
-from arcsem.report.paired import pair, summary
+from arcsem.report.paired import describe, pair, summary
 from arcsem.train.evaluate import evaluate_split
 from arcsem.train.stage1 import load_stage1, prepare_scene, train_config
 
@@ -67,9 +67,7 @@ def main(argv: list[str] | None = None) -> int:
         for metric in ("observed.psnr", "observed.ssim"):
             table, _ = pair(df, args.a, args.b, metric)
             if len(table) > 1:
-                s = summary(table["delta"], lower=False)
-                print(f"{metric}: {args.b} - {args.a} mean {s['mean']:+.4f}, 95% CI [{s['ci_low']:+.4f}, "
-                      f"{s['ci_high']:+.4f}], {args.b} better at {s['b_wins']}/{s['n']} seeds")
+                print(f"{metric}: {args.b} - {args.a} " + describe(summary(table["delta"], lower=False), args.b))
     return 0
 
 

@@ -13,7 +13,7 @@ from scipy import stats
 
 from ..errors import DataError
 
-__all__ = ["LOWER_IS_BETTER", "lower_is_better", "pair", "summary"]
+__all__ = ["LOWER_IS_BETTER", "describe", "lower_is_better", "pair", "summary"]
 
 LOWER_IS_BETTER = ("mae", "lpips", "error")
 
@@ -56,3 +56,9 @@ def summary(delta: pd.Series, lower: bool) -> dict:
     half = float(stats.t.ppf(0.975, n - 1) * sd / math.sqrt(n)) if n > 1 else math.nan
     wins = int((delta < 0).sum() if lower else (delta > 0).sum())
     return {"n": n, "mean": mean, "std": sd, "ci_low": mean - half, "ci_high": mean + half, "b_wins": wins}
+
+
+def describe(s: dict, b: str) -> str:
+    """One line of a :func:`summary` ``s`` for row ``b``: mean, std, 95 % interval, wins."""
+    return (f"mean {s['mean']:+.4f}  std {s['std']:.4f}  95% CI [{s['ci_low']:+.4f}, {s['ci_high']:+.4f}]"
+            f"  {b} better at {s['b_wins']}/{s['n']} seeds")

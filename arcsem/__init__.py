@@ -16,21 +16,23 @@ __all__ = [
     "Cameras",
     "ConfigError",
     "DataError",
+    "Interrupted",
     "Loss",
+    "OutputError",
     "PluginError",
     "RenderOutput",
     "Scene",
     "Split",
     "TrainingError",
 ]
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 _WHERE = {
     "Cameras": "cameras", "Scene": "scene", "Split": "scene",
     "Backbone": "plugins", "Loss": "plugins", "Batch": "plugins", "RenderOutput": "plugins",
     "BACKBONES": "plugins", "LOSSES": "plugins",
     "ArcsemError": "errors", "ConfigError": "errors", "DataError": "errors", "PluginError": "errors",
-    "TrainingError": "errors",
+    "TrainingError": "errors", "OutputError": "errors", "Interrupted": "errors",
 }
 
 

@@ -13,6 +13,7 @@ dataset/plugin/config combination in seconds).
 from __future__ import annotations
 
 import json
+import logging
 import os
 import random
 import subprocess
@@ -24,7 +25,9 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from .errors import ConfigError, PluginError
+from .errors import ConfigError, Interrupted, PluginError
+
+log = logging.getLogger(__name__)
 
 __all__ = [
     "STAGES",
@@ -119,7 +122,7 @@ def set_threads(threads: Any) -> None:
     """
     if threads is None:
         return
-    if not isinstance(threads, int) or threads < 1:
+    if not isinstance(threads, int) or isinstance(threads, bool) or threads < 1:
         raise ConfigError(f"threads: expected a positive integer or null, got {threads!r}")
     import torch
 
@@ -170,44 +173,85 @@ def _scene_summary(scene: Any) -> dict:
             "camera_model": cams.model, "references": sorted(scene.references)}
 
 
-def run(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
-    """Run ``cfg.stage`` and write ``config.yaml`` and ``metrics.json`` into the run directory."""
-    from .data import load_scene
+def _inputs(scene: Any) -> tuple[list[str], list[str]]:
+    """The scene's input files and the folders they lie in (for :func:`arcsem.guard.protect`)."""
+    files = [f for split in (scene.train, scene.test) for f in (split.files or [])]
+    return files, sorted({scene.root, *(os.path.dirname(f) for f in files)})
 
-    t_start = time.perf_counter()
-    stage = str(cfg.stage)
-    if stage not in STAGES:
-        raise ConfigError(f"stage: unknown stage '{stage}'; available: {', '.join(STAGES)}")
-    run_dir = Path(run_dir) if run_dir is not None else run_directory(cfg)
-    _, overrides = _hydra_info()
-    write_text_atomic(run_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
-    seed_everything(int(cfg.seed))
-    set_threads(cfg.get("threads"))
-    metrics: dict[str, Any] = {
-        "seed": int(cfg.seed), "git_revision": git_revision(), "overrides": overrides, "stage": stage,
-        "backbone": str(cfg.backbone.name), "dataset": {"kind": str(cfg.dataset.kind)},
-        "timings": {},
-    }
-    t0 = time.perf_counter()
-    scene = load_scene(cfg.dataset)
-    metrics["timings"]["load_scene_s"] = time.perf_counter() - t0
-    metrics["dataset"].update(root=scene.root, **_scene_summary(scene))
-    stages = {"gray": ["gray"], "color": ["color"], "all": ["gray", "color"], "check": ["check"]}[stage]
-    metrics["stages"] = {}
+
+def _write_metrics(run_dir: Path, metrics: dict, t_start: float) -> None:
+    metrics["timings"]["total_s"] = time.perf_counter() - t_start
+    write_json_atomic(run_dir / "metrics.json", metrics)
+
+
+def _run_stages(cfg: DictConfig, scene: Any, run_dir: Path, stages: tuple[str, ...], metrics: dict,
+                t_start: float) -> None:
+    """Run ``stages`` in order; ``metrics.json`` is written after each, and records a failure before re-raising."""
     for name in stages:
         func = {"check": _check_stage, "gray": _gray_stage}.get(name) or _stage_function(name)
         t0 = time.perf_counter()
-        result = func(cfg, scene, run_dir) or {}
+        try:
+            result = func(cfg, scene, run_dir) or {}
+        except BaseException as exc:
+            from .cli.errors import one_line
+
+            metrics["status"] = "interrupted" if isinstance(exc, (KeyboardInterrupt, Interrupted)) else "failed"
+            metrics["failed_stage"], metrics["error"] = name, one_line(exc)
+            _write_metrics(run_dir, metrics, t_start)
+            raise
         metrics["timings"][f"{name}_s"] = time.perf_counter() - t0
         metrics["stages"][name] = result
         metrics.update({k: v for k, v in result.items() if k not in ("timings", "stages")})
         metrics["timings"].update({f"{name}.{k}": v for k, v in (result.get("timings") or {}).items()})
-    metrics["timings"]["total_s"] = time.perf_counter() - t_start
-    write_json_atomic(run_dir / "metrics.json", metrics)
-    if cfg.get("report", False):  # the demo: tables, grids and the HTML page of this run
-        from .report import build_report
+        metrics["completed_stages"].append(name)
+        _write_metrics(run_dir, metrics, t_start)
 
-        page = build_report([run_dir], out=run_dir / "report")
-        print(f"report: {page}")
+
+def run(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
+    """Run ``cfg.stage`` and write ``config.yaml`` and ``metrics.json`` (after every stage) into the run directory.
+
+    The whole config is validated first (:func:`arcsem.preflight.check_config`), the run folder is locked,
+    and while the stages run no file outside the run folder and the cache is written (:mod:`arcsem.guard`).
+    """
+    from .data import load_scene
+    from .guard import allowed_roots, protect
+    from .locks import run_folder_lock
+    from .preflight import STAGE_PLAN, check_config, check_scene
+    from .share import cache_root
+
+    t_start = time.perf_counter()
+    stage = str(cfg.stage)
+    check_config(cfg, stage)
+    run_dir = Path(run_dir) if run_dir is not None else run_directory(cfg)
+    with run_folder_lock(run_dir):
+        _, overrides = _hydra_info()
+        write_text_atomic(run_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
+        seed_everything(int(cfg.seed))
+        set_threads(cfg.get("threads"))
+        metrics: dict[str, Any] = {
+            "seed": int(cfg.seed), "git_revision": git_revision(), "overrides": overrides, "stage": stage,
+            "backbone": str(cfg.backbone.name), "dataset": {"kind": str(cfg.dataset.kind)}, "status": "running",
+            "completed_stages": [], "warnings": [], "timings": {}, "stages": {},
+        }
+        t0 = time.perf_counter()
+        scene = load_scene(cfg.dataset)
+        metrics["timings"]["load_scene_s"] = time.perf_counter() - t0
+        metrics["dataset"].update(root=scene.root, **_scene_summary(scene))
+        for warning in check_scene(cfg, scene, stage, run_dir):
+            log.warning(warning)
+            metrics["warnings"].append(warning)
+        stages = ("check",) if stage == "check" else STAGE_PLAN[stage]
+        files, folders = _inputs(scene)
+        with protect(allowed_roots(run_dir, cache_root(cfg)), inputs=files, input_dirs=folders,
+                     own=[run_dir, cache_root(cfg)]):
+            _run_stages(cfg, scene, run_dir, stages, metrics, t_start)
+        metrics["warnings"] += [w for r in metrics["stages"].values() for part in r.values()
+                                if isinstance(part, dict) for w in part.get("warnings") or []]
+        metrics["status"] = "complete"
+        _write_metrics(run_dir, metrics, t_start)
+        if cfg.get("report", False):  # the demo: tables, grids and the HTML page of this run
+            from .report import build_report
+
+            page = build_report([run_dir], out=run_dir / "report")
+            print(f"report: {page}")
     return metrics
-

@@ -6,7 +6,7 @@ shows the traceback instead).
 """
 from __future__ import annotations
 
-__all__ = ["ArcsemError", "ConfigError", "DataError", "PluginError", "TrainingError"]
+__all__ = ["ArcsemError", "ConfigError", "DataError", "Interrupted", "OutputError", "PluginError", "TrainingError"]
 
 
 class ArcsemError(Exception):
@@ -27,3 +27,11 @@ class PluginError(ArcsemError):
 
 class TrainingError(ArcsemError):
     """Training diverged or cannot resume (names the step / term / keys)."""
+
+
+class OutputError(ArcsemError):
+    """An output cannot or must not be written: outside the run folder, onto an input, disk full, read-only."""
+
+
+class Interrupted(ArcsemError):
+    """The user stopped the run (Ctrl-C); says what was saved. The CLI exits with code 130."""

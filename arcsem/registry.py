@@ -16,6 +16,7 @@ Example::
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from importlib import metadata
 from typing import Any
@@ -25,7 +26,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from .errors import ConfigError, PluginError
 
-__all__ = ["Registry", "validate_config"]
+__all__ = ["Registry", "check_fields", "checked", "validate_config"]
 
 
 class Registry:
@@ -89,8 +90,49 @@ class Registry:
         return cls(validate_config(cls.Config, cfg, where=f"{self.kind} '{name}'"), **runtime)
 
 
+def checked(default: Any = dataclasses.MISSING, *, default_factory: Any = dataclasses.MISSING,
+            ge: float | None = None, gt: float | None = None, le: float | None = None,
+            choices: tuple | None = None) -> Any:
+    """A dataclass field whose value :func:`validate_config` checks: ``ge``/``gt``/``le`` bounds (None passes),
+    ``choices`` (the allowed values). Example: ``steps: int = checked(1500, ge=1)``."""
+    rules = {k: v for k, v in (("ge", ge), ("gt", gt), ("le", le), ("choices", choices)) if v is not None}
+    if default_factory is not dataclasses.MISSING:
+        return dataclasses.field(default_factory=default_factory, metadata={"checks": rules})
+    return dataclasses.field(default=default, metadata={"checks": rules})
+
+
+def _violation(value: Any, rules: dict) -> str | None:
+    """What is wrong with ``value`` under ``rules`` (see :func:`checked`), or None."""
+    if value is None:
+        return None
+    if "choices" in rules and value not in rules["choices"]:
+        return f"must be one of {', '.join(map(str, rules['choices']))}"
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return None
+    if math.isnan(value):
+        return "must be a number, got NaN"
+    for op, bad, text in (("ge", lambda v, b: v < b, ">="), ("gt", lambda v, b: v <= b, ">"),
+                          ("le", lambda v, b: v > b, "<=")):
+        if op in rules and bad(value, rules[op]):
+            return f"must be {text} {rules[op]}"
+    return None
+
+
+def check_fields(obj: Any, where: str) -> None:
+    """Raise ConfigError for the first field of dataclass ``obj`` (recursively) that breaks its :func:`checked` rules."""
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if dataclasses.is_dataclass(value):
+            check_fields(value, f"{where}.{f.name}")
+            continue
+        problem = _violation(value, f.metadata.get("checks", {}))
+        if problem:
+            raise ConfigError(f"{where}.{f.name}: {problem}, got {value!r}")
+
+
 def validate_config(schema: type, values: dict, where: str) -> Any:
-    """Return ``schema(**values)`` checked by OmegaConf: unknown keys and wrong types raise ConfigError."""
+    """Return ``schema(**values)`` checked by OmegaConf and the fields' :func:`checked` rules: unknown keys,
+    wrong types and out-of-range values raise ConfigError naming the key."""
     fields = [f.name for f in dataclasses.fields(schema)]
     unknown = [k for k in values if k not in fields]
     if unknown:
@@ -101,4 +143,6 @@ def validate_config(schema: type, values: dict, where: str) -> Any:
         key = getattr(exc, "full_key", None) or "?"
         msg = str(exc).splitlines()[0]
         raise ConfigError(f"{where}: bad value for key '{key}': {msg}") from None
-    return OmegaConf.to_object(merged)
+    obj = OmegaConf.to_object(merged)
+    check_fields(obj, where)
+    return obj

@@ -13,7 +13,7 @@ from torch import Tensor
 
 from .cameras import Cameras
 
-__all__ = ["Scene", "Split"]
+__all__ = ["Scene", "Split", "scene_fingerprint"]
 
 
 @dataclass
@@ -123,3 +123,18 @@ class Scene:
         if self.specimen_size:
             return float(self.specimen_size), "specimen diameter"
         return self.size, "bounding-box diagonal"
+
+
+def scene_fingerprint(scene: Scene) -> dict:
+    """What identifies a dataset whatever its folder and resolution: a hash of the view names (in order),
+    the camera model and the poses (to 1e-4), plus the view counts for messages. A stage-1 model records
+    it; stage 2 refuses a model trained on another dataset."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for split in (scene.train, scene.test):
+        h.update(("|".join(split.names) + f"#{split.cameras.model}#").encode())
+        if len(split):
+            pose = split.cameras.world_to_cam[:, :3, :4].double()
+            h.update(torch.round(pose * 1e4).to(torch.int64).numpy().tobytes())
+    return {"hash": h.hexdigest()[:16], "train_views": len(scene.train), "test_views": len(scene.test)}

@@ -23,7 +23,6 @@ Cache root: ``cfg.cache_dir`` if set, else ``$ARCSEM_CACHE``, else ``~/.cache/ar
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import hashlib
 import json
 import os
@@ -51,7 +50,6 @@ TRAIN_IGNORED = ("resume", "eval_every", "log_every", "checkpoint_every", "progr
 RESULT_FILE = "result.json"
 
 DONE_FILE = "DONE"
-LOCK_FILE = ".lock"
 
 
 def _plain(cfg: Any) -> Any:
@@ -111,18 +109,12 @@ def stage1_dir(cfg: Mapping, create: bool = True) -> Path:
 
 @contextlib.contextmanager
 def stage1_lock(path: str | os.PathLike) -> Iterator[Path]:
-    """Exclusive ``fcntl.flock`` on ``path/.lock``; blocks until no other process holds it.
+    """The lock of a shared stage-1 folder (:func:`arcsem.locks.waiting_lock`): blocks until no other process
+    holds it, saying so on the console and in the log; released when the block ends or the process dies."""
+    from .locks import waiting_lock
 
-    The lock is released when the block ends, also on exceptions or if the process dies.
-    """
-    path = Path(path)
-    path.mkdir(parents=True, exist_ok=True)
-    with open(path / LOCK_FILE, "a+") as fh:
-        fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
-        try:
-            yield path
-        finally:
-            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+    with waiting_lock(path, "the shared stage-1 model, which another job is training") as p:
+        yield p
 
 
 def is_done(path: str | os.PathLike) -> bool:

@@ -33,6 +33,7 @@ def assert_one_line_error(proc: subprocess.CompletedProcess, *needles: str) -> s
     lines = [ln for ln in proc.stderr.strip().splitlines() if ln.strip()]
     errors = [ln for ln in lines if ln.startswith("error:")]
     assert len(errors) == 1 and lines[-1] == errors[0], proc.stderr
+    assert not any("Error executing job" in ln for ln in lines), proc.stderr  # Hydra's own line: not shown
     for needle in needles:
         assert needle in errors[0], errors[0]
     return errors[0]
@@ -90,7 +91,7 @@ def test_unknown_plugin(tmp_path, override, needles):
     ("seeed=3", ["'seeed'"]),  # Hydra (struct config)
     ("+backbone.sh_degre=2", ["unknown key(s) 'sh_degre'", "valid keys:"]),  # plugin Config dataclass
     ("threads=0", ["threads: expected a positive integer or null, got 0"]),  # a bad value
-    ("+act.solvr=adam", ["act: unknown key(s) ['solvr']", "smooth_degree"]),  # the act group
+    ("+act.solvr=adam", ["act: unknown key(s) 'solvr'", "smooth_degree"]),  # the act group (ActConfig)
 ])
 def test_mistyped_config_key(tmp_path, override, needles):
     assert_one_line_error(run_cli(tmp_path, *dataset(tmp_path), "backbone=gs3d", override), *needles)

@@ -84,7 +84,8 @@ def test_app_run_check_stage(tmp_path):
     assert {"load_scene_s", "check_s", "total_s"} <= set(saved["timings"])
     written = yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())
     assert written["dataset"]["path"] == str(scene.parent) and written["seed"] == 7
-    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == ["config.yaml", "metrics.json"]  # no tmp left
+    left = sorted(p.name for p in (tmp_path / "run").iterdir())
+    assert left == [".arcsem.lock", "config.yaml", "metrics.json"]  # no tmp file, no owner note left behind
 
 
 def test_app_dispatches_stages(tmp_path, monkeypatch):
@@ -104,7 +105,14 @@ def test_app_dispatches_stages(tmp_path, monkeypatch):
 
     monkeypatch.setattr(arcsem.train, "run_stage1", stage1, raising=False)
     monkeypatch.setattr(arcsem.colorize, "run_stage2", stage2, raising=False)
-    cfg = compose_with("dataset=transforms", f"dataset.path={scene.parent}", "stage=all")
+    import cv2
+    import numpy as np
+
+    colour = np.zeros((12, 16, 3), np.uint8)  # the scene's 16x12 images
+    colour[..., 0] = 200  # a colour reference for view_01 (stage=all checks the references before stage 1)
+    cv2.imwrite(str(tmp_path / "view_01.png"), colour)
+    cfg = compose_with("dataset=transforms", f"dataset.path={scene.parent}", "stage=all",
+                       f"colorize.references={tmp_path / 'view_01.png'}")
     m = app.run(cfg, run_dir=tmp_path / "r")
     assert calls == [("gray", 2, tmp_path / "r"), ("color", 2, tmp_path / "r")]
     assert m["psnr"] == 25.0 and m["stages"]["gray"]["psnr"] == 30.5 and m["lpips_weights"] == "missing: test"

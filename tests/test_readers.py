@@ -282,7 +282,7 @@ def test_load_scene_config_errors(tiny_transforms):
         load_scene(OmegaConf.create({"kind": "transforms", "path": "???"}))
     with pytest.raises(ConfigError, match="unknown kind 'nerf'; available: transforms, colmap, synthetic"):
         load_scene({"kind": "nerf"})
-    with pytest.raises(ConfigError, match="dataset.split: 'random'"):
+    with pytest.raises(ConfigError, match="dataset.split: must be one of auto, every_k, none, got 'random'"):
         load_scene({"kind": "transforms", "path": "x", "split": "random"})
     path = tiny_transforms(n=2, aabb=[[0, 0], [1, 1]])
     with pytest.raises(DataError, match="'aabb' must be"):

@@ -127,7 +127,7 @@ def test_lock_is_exclusive(tmp_path):
     import fcntl
 
     # while held, a second open file description cannot take it
-    with stage1_lock(tmp_path / "x") as path, open(path / ".lock") as fh, pytest.raises(BlockingIOError):
+    with stage1_lock(tmp_path / "x") as path, open(path / ".arcsem.lock") as fh, pytest.raises(BlockingIOError):
         fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    with open(tmp_path / "x" / ".lock") as fh:  # released after the block
+    with open(tmp_path / "x" / ".arcsem.lock") as fh:  # released after the block
         fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)

@@ -1,22 +1,41 @@
-"""One-line errors for the console scripts: ``error: <message>`` on stderr and exit code 2.
+"""One-line errors for the console scripts: ``error: <message>`` on stderr and an exit code.
 
-User errors are :class:`~arcsem.errors.ArcsemError` and Hydra/OmegaConf config errors (unknown
-override key, missing config option, bad value). Anything else is a bug and keeps its traceback.
-``debug=true`` on the command line or ``ARCSEM_DEBUG=1`` re-raises every error with its traceback.
+What the user can cause or fix ends with one line and no traceback:
+
+* :class:`~arcsem.errors.ArcsemError` and Hydra/OmegaConf config errors (unknown key, bad value): exit 2;
+* the environment: a folder that cannot be written (permission, read-only file system), a full disk, a
+  file too large: exit 2, with what to do;
+* Ctrl-C (``KeyboardInterrupt``, :class:`~arcsem.errors.Interrupted`): exit 130.
+
+Anything else is a bug and keeps its traceback. ``debug=true`` on the command line or ``ARCSEM_DEBUG=1``
+re-raises every error with its traceback.
 """
 from __future__ import annotations
 
+import errno
 import functools
 import os
 import sys
 from collections.abc import Callable
 from typing import Any
 
-from ..errors import ArcsemError
+from ..errors import ArcsemError, Interrupted
 
-__all__ = ["EXIT_USER_ERROR", "call_reporting_errors", "debug_requested", "one_line", "with_error_handling"]
+__all__ = ["EXIT_INTERRUPTED", "EXIT_USER_ERROR", "call_reporting_errors", "debug_requested", "describe",
+           "exit_code", "one_line", "with_error_handling"]
 
 EXIT_USER_ERROR = 2
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report Ctrl-C
+
+_ENV_ERRNOS = {
+    errno.EACCES: "permission denied; choose a folder you can write (hydra.run.dir=... or --out)",
+    errno.EPERM: "operation not permitted; choose a folder you can write (hydra.run.dir=... or --out)",
+    errno.EROFS: "the file system is read-only; choose a writable folder (hydra.run.dir=... or --out)",
+    errno.ENOSPC: "no space left on the device; free some space and run the same command again (finished "
+                  "stages and checkpoints already on disk are kept)",
+    errno.EDQUOT: "disk quota exceeded; free some space and run the same command again",
+    errno.EFBIG: "file too large for this file system or process limit",
+}
 
 
 def debug_requested(argv: list[str] | None = None) -> bool:
@@ -27,11 +46,22 @@ def debug_requested(argv: list[str] | None = None) -> bool:
     return any(a.lstrip("+~").lower() in ("debug=true", "debug=1", "debug=yes") or a == "--debug" for a in argv)
 
 
-def _user_error_types() -> tuple[type[BaseException], ...]:
+def _config_error_types() -> tuple[type[BaseException], ...]:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
     return ArcsemError, HydraException, OmegaConfBaseException
+
+
+def exit_code(exc: BaseException) -> int | None:
+    """The exit code of an error the user can cause or fix, or None for a bug (keep the traceback)."""
+    if isinstance(exc, (KeyboardInterrupt, Interrupted)):
+        return EXIT_INTERRUPTED
+    if isinstance(exc, _config_error_types()):
+        return EXIT_USER_ERROR
+    if isinstance(exc, OSError) and exc.errno in _ENV_ERRNOS:
+        return EXIT_USER_ERROR
+    return None
 
 
 def one_line(exc: BaseException) -> str:
@@ -41,25 +71,36 @@ def one_line(exc: BaseException) -> str:
     if not lines and cause is not None:
         return one_line(cause)
     msg = "; ".join(lines) or type(exc).__name__
-    if cause is not None and isinstance(cause, _user_error_types()) and str(cause).strip() not in msg:
+    if cause is not None and isinstance(cause, _config_error_types()) and str(cause).strip() not in msg:
         msg += f" ({'; '.join(ln.strip() for ln in str(cause).splitlines() if ln.strip())})"
     return msg
 
 
-def call_reporting_errors(call: Callable[[], Any], debug: bool = False) -> Any:
-    """``call()``; a user error prints one ``error:`` line and returns 2 (re-raised when ``debug``)."""
+def describe(exc: BaseException) -> str:
+    """The one-line message for a user-facing error (see :func:`exit_code`)."""
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted (Ctrl-C)"
+    if isinstance(exc, OSError) and exc.errno in _ENV_ERRNOS:
+        where = exc.filename or "a file"
+        return f"cannot write {where}: {_ENV_ERRNOS[exc.errno]}"
+    return one_line(exc)
+
+
+def call_reporting_errors(call: Callable[[], Any], debug: bool = False, prefix: str = "") -> Any:
+    """``call()``; a user error prints one ``error:`` line (after ``prefix``) and returns its exit code."""
     debug = debug or debug_requested([])
     try:
         return call()
-    except _user_error_types() as exc:
-        if debug:
+    except BaseException as exc:
+        code = exit_code(exc)
+        if code is None or debug:
             raise
-        print(f"error: {one_line(exc)}", file=sys.stderr)
-        return EXIT_USER_ERROR
+        print(f"error: {prefix}{describe(exc)}", file=sys.stderr, flush=True)
+        return code
 
 
 def with_error_handling(func: Callable[..., Any]) -> Callable[..., Any]:
-    """Wrap a console-script ``main``: user errors print one ``error:`` line and exit 2."""
+    """Wrap a console-script ``main``: user errors print one ``error:`` line and exit with their code."""
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
@@ -67,8 +108,8 @@ def with_error_handling(func: Callable[..., Any]) -> Callable[..., Any]:
         if not debug:
             os.environ.setdefault("HYDRA_FULL_ERROR", "1")  # Hydra re-raises; we print the one line
         result = call_reporting_errors(lambda: func(*args, **kwargs), debug)
-        if result == EXIT_USER_ERROR:
-            sys.exit(EXIT_USER_ERROR)
+        if isinstance(result, int) and not isinstance(result, bool) and result in (EXIT_USER_ERROR, EXIT_INTERRUPTED):
+            sys.exit(result)
         return result
 
     return wrapper

@@ -49,17 +49,17 @@ def evaluate_colour(backbone, scene, refs, run_dir: Path, cc) -> dict:
     return out
 
 
-def _png(path: Path, img: torch.Tensor) -> None:
+def _png(folder: Path, name: str, img: torch.Tensor) -> None:
     import imageio.v2 as imageio
 
+    from ..guard import out_path
     from ..train.evaluate import to_uint8
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    imageio.imwrite(path, to_uint8(img))
+    imageio.imwrite(out_path(folder, name, ".png"), to_uint8(img))
 
 
 def write_outputs(backbone, scene, run_dir: Path, cc, pseudo: torch.Tensor, valid: torch.Tensor) -> dict:
-    """``colored/<input name>.png`` (every training view), ``colorize/pseudo/<name>.png``,
+    """``colored/<view name>.png`` (every training view), ``colorize/pseudo/<name>.png``,
     ``colored_turntable.*`` and ``colored_model.<ext>``; returns their paths."""
     from ..train.stage1 import turntable
 
@@ -67,9 +67,8 @@ def write_outputs(backbone, scene, run_dir: Path, cc, pseudo: torch.Tensor, vali
     split = scene.train
     with torch.no_grad():
         for i in range(len(split)):
-            stem = Path(split.files[i]).stem if split.files else split.names[i]
-            _png(run_dir / "colored" / f"{stem}.png", backbone.render(split.cameras[i:i + 1])["rgb"][0].clamp(0, 1).cpu())
-            _png(run_dir / "colorize" / "pseudo" / f"{split.names[i]}.png", pseudo[i] * valid[i][..., None])
+            _png(run_dir / "colored", split.names[i], backbone.render(split.cameras[i:i + 1])["rgb"][0].clamp(0, 1).cpu())
+            _png(run_dir / "colorize" / "pseudo", split.names[i], pseudo[i] * valid[i][..., None])
     out = {"colored_dir": str(run_dir / "colored")}
     if cc.eval.video:
         out["video"] = str(turntable(backbone, scene, run_dir / "colored_turntable", cc.eval.video_frames, cc.eval.fps))

@@ -98,7 +98,7 @@ def load_references(scene, spec: str | list[str]) -> References:
     if isinstance(spec, str) and not Path(spec).exists() and ("/" not in spec and "." not in spec):
         if spec not in scene.reference_sets:
             raise ConfigError(
-                f"references: unknown preset '{spec}'; scene has: {', '.join(scene.reference_sets) or 'none'}"
+                f"colorize.references: unknown preset '{spec}'; the dataset has: {', '.join(scene.reference_sets) or 'none'}"
             )
         names = list(scene.reference_sets[spec])
         images = []

@@ -29,7 +29,8 @@ from .masks import specimen_masks
 from .pseudocolor import cached_pseudo_colors, pseudo_colors, pseudo_key
 from .references import References, load_references
 
-__all__ = ["ColorTargets", "colorize_config", "find_stage1", "render_depths", "run_stage2"]
+__all__ = ["ColorTargets", "check_stage1_model", "colorize_config", "colorize_losses", "find_stage1", "render_depths",
+           "run_stage2"]
 
 log = logging.getLogger(__name__)
 
@@ -40,6 +41,32 @@ def _plain(x: Any) -> Any:
 
 def colorize_config(cfg: Any) -> ColorizeConfig:
     return validate_config(ColorizeConfig, dict(_plain(cfg.get("colorize")) or {}), where="colorize")
+
+
+def colorize_losses(cc: ColorizeConfig, backbone: Any):
+    """The stage-2 :class:`LossSet` (terms with weight 0 dropped), checked against ``backbone`` (class or model)."""
+    from ..train import build_losses
+
+    terms = {k: v for k, v in (_plain(cc.losses) or {}).items() if v is not None and float(v.get("weight", 1)) != 0}
+    return build_losses(terms, backbone.provides, backbone.batch_mode, where="colorize.losses", backbone=backbone.name)
+
+
+def check_stage1_model(cfg: Any, cc: ColorizeConfig, scene, run_dir: Path) -> Path:
+    """The stage-1 checkpoint :func:`find_stage1` finds, after checking it was trained on ``scene``'s dataset."""
+    from ..scene import scene_fingerprint
+    from ..train.checkpoint import load_checkpoint
+
+    ckpt = find_stage1(cfg, cc, run_dir)
+    saved = (load_checkpoint(ckpt).get("config") or {}).get("dataset_fingerprint")
+    here = scene_fingerprint(scene)
+    if saved is None:
+        raise DataError(f"colorize.stage1: {ckpt} records no dataset fingerprint (an older arcsem); retrain stage 1")
+    if saved["hash"] != here["hash"]:
+        raise DataError(f"colorize.stage1: {ckpt} was trained on another dataset ({saved['train_views']} training + "
+                        f"{saved['test_views']} test views, fingerprint {saved['hash']}) than this run's "
+                        f"({here['train_views']} + {here['test_views']} views, {here['hash']}): same views, cameras "
+                        "and split are needed")
+    return ckpt
 
 
 def find_stage1(cfg: Any, cc: ColorizeConfig, run_dir: Path) -> Path:
@@ -151,13 +178,14 @@ def _pseudo_quality(split, masks, refs, colors, valid) -> dict:
 def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     """Colour the stage-1 model; returns ``{"stage2": {...}, "features": "imagenet"|"random"}``."""
     from ..share import cache_root
-    from ..train import LoopConfig, build_losses, load_stage1, train
+    from ..train import LoopConfig, load_stage1, train
+    from ..train.loop import loss_trend_warning
     from .outputs import evaluate_colour, write_outputs
     from .vgg import get_vgg
 
     run_dir = Path(run_dir)
     cc = colorize_config(cfg)
-    ckpt = find_stage1(cfg, cc, run_dir)
+    ckpt = check_stage1_model(cfg, cc, scene, run_dir)
     refs = load_references(scene, cc.references)  # validated against the dataset's views
     backbone, _ = load_stage1(ckpt, scene, cfg)  # (resizes the scene as stage 1 did, internally)
     scene = _prepare_scene(scene, ckpt, cc)
@@ -167,9 +195,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     masks = specimen_masks(split, cc.masks, cc.mask_folder, cc.sam_checkpoint)
     cache_dir = Path(cc.cache_dir) if cc.cache_dir else cache_root(cfg) / "colorize"
     pseudo, valid, pinfo = _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir)
-    terms = {k: v for k, v in (_plain(cc.losses) or {}).items() if v is not None and float(v.get("weight", 1)) != 0}
-    losses = build_losses(terms, backbone.provides, backbone.batch_mode, where="colorize.losses",
-                          backbone=backbone.name)
+    losses = colorize_losses(cc, backbone)
     use_guidance = any(n in losses.terms for n in ("tcm", "ccm"))
     vgg = get_vgg(cc.vgg) if use_guidance else None
     t0 = time.perf_counter()
@@ -197,4 +223,8 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
                 "time_s": pinfo["time_s"]}, guidance_time_s=t_guid,
         vgg={"arch": cc.vgg, "weights": vgg.weights_detail} if vgg is not None else None,
         final_loss=res.history[-1]["loss"] if res.history else None)
+    warning = loss_trend_warning(res.history, loop.desc)
+    if warning:
+        log.warning(warning)
+        result["warnings"] = [warning]
     return {"stage2": result, "features": features}

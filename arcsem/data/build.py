@@ -15,9 +15,11 @@ import numpy as np
 import torch
 
 from ..cameras import Cameras
-from ..errors import ConfigError, DataError
+from ..errors import DataError
+from ..registry import checked, validate_config
 from ..scene import Scene, Split
 from .io import read_array, read_image, read_mask, resize
+from .names import view_names
 
 __all__ = [
     "ReaderOptions",
@@ -25,11 +27,24 @@ __all__ = [
     "assemble_scene",
     "bounds_from_cameras",
     "bounds_from_points",
+    "check_rotation",
     "reader_options",
     "select_views",
 ]
 
 SPLIT_MODES = ("auto", "every_k", "none")
+
+
+def check_rotation(R: np.ndarray, where: str, tol: float = 1e-3) -> None:
+    """DataError unless ``R [3, 3]`` is a rotation (orthonormal, determinant +1, to ``tol``): a camera pose
+    with a singular or scaled rotation part (a broken export) cannot be inverted or rendered."""
+    R = np.asarray(R, dtype=np.float64)
+    err = float(np.abs(R.T @ R - np.eye(3)).max())
+    det = float(np.linalg.det(R))
+    if not np.isfinite(err) or err > tol or det < 0:
+        what = "singular" if abs(det) < 1e-9 else ("a reflection" if det < 0 else "not orthonormal")
+        raise DataError(f"{where}: the rotation part is {what} (|R^T R - I| = {err:.3g}, det = {det:.3g}); "
+                        "a camera pose must be a rigid transform")
 
 
 @dataclass
@@ -60,24 +75,21 @@ class ViewSpec:
 class ReaderOptions:
     """Options every reader shares (conf/dataset/*.yaml)."""
 
-    downscale: float = 1.0  # images and cameras are shrunk by this factor (cv2 INTER_AREA)
-    split: str = "auto"  # auto: the dataset's own split (frame `split` keys / separate files), else all train
-    test_every: int = 8  # split=every_k: views 0, k, 2k, ... (in file order) are test views
-    max_views: int | None = None  # keep at most this many views, evenly spaced, before splitting
+    downscale: float = checked(1.0, ge=1.0)  # images and cameras are shrunk by this factor (cv2 INTER_AREA)
+    split: str = checked("auto", choices=SPLIT_MODES)  # auto: the dataset's own split (frame `split` keys /
+    # separate files), else all train
+    test_every: int = checked(8, ge=2)  # split=every_k: views 0, k, 2k, ... (in file order) are test views
+    max_views: int | None = checked(None, ge=2)  # keep at most this many views, evenly spaced, before splitting
 
 
 def reader_options(cfg: Any) -> ReaderOptions:
     """Validated :class:`ReaderOptions` from a dataset config (a DictConfig or a dict)."""
     get = (lambda k, d: cfg.get(k, d)) if hasattr(cfg, "get") else (lambda k, d: getattr(cfg, k, d))
-    opts = ReaderOptions(float(get("downscale", 1.0) or 1.0), str(get("split", "auto")),
-                         int(get("test_every", 8)), get("max_views", None))
-    if opts.split not in SPLIT_MODES:
-        raise ConfigError(f"dataset.split: '{opts.split}' is not one of {', '.join(SPLIT_MODES)}")
-    if opts.downscale < 1.0:
-        raise ConfigError(f"dataset.downscale: {opts.downscale} must be >= 1")
-    if opts.test_every < 2:
-        raise ConfigError(f"dataset.test_every: {opts.test_every} must be >= 2")
-    return opts
+    values = {k: get(k, None) for k in ("downscale", "split", "test_every", "max_views")}
+    if values["downscale"] is None:  # `downscale: null` means no downscaling (0 is refused, not read as 1)
+        values["downscale"] = 1.0
+    return validate_config(ReaderOptions, {k: v for k, v in values.items() if v is not None or k == "max_views"},
+                           where="dataset")
 
 
 def select_views(views: list[ViewSpec], opts: ReaderOptions) -> tuple[list[ViewSpec], list[ViewSpec]]:
@@ -199,6 +211,8 @@ def assemble_scene(root: Path, views: list[ViewSpec], opts: ReaderOptions, *, bo
     """Select, split and read ``views``; bounds from ``bounds``, else the points, else the frusta."""
     if not views:
         raise DataError(f"{root}: the dataset has no views")
+    for v, name in zip(views, view_names([v.image for v in views])):
+        v.name = name
     w, h, model = _common_size(views)
     train_v, test_v = select_views(views, opts)
     if not train_v:

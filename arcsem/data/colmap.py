@@ -83,10 +83,17 @@ def read_colmap(path: str | Path, opts: ReaderOptions | None = None, *, images: 
     opts = opts or ReaderOptions()
     root = Path(path).expanduser().resolve()
     model_dir = find_colmap_model(root)
+    ext = ".bin" if (model_dir / "cameras.bin").is_file() else ".txt"
+    missing = [f"{n}{ext}" for n in ("cameras", "images", "points3D") if not (model_dir / f"{n}{ext}").is_file()]
+    if missing:
+        raise DataError(f"{model_dir}: COLMAP model incomplete, {', '.join(missing)} missing (a model is cameras, "
+                        f"images and points3D{ext})")
     try:
         rec = pycolmap.Reconstruction(str(model_dir))
     except Exception as exc:  # noqa: BLE001 (pycolmap raises plain RuntimeError/ValueError for broken files)
-        raise DataError(f"{model_dir}: cannot read COLMAP model: {str(exc).splitlines()[0]}") from None
+        first = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise DataError(f"{model_dir}: cannot read the COLMAP model (cameras{ext}, images{ext}, points3D{ext}): "
+                        f"a file is truncated or corrupt (pycolmap: {first})") from None
     intr = {cid: colmap_intrinsics(cam, undistort) for cid, cam in rec.cameras.items()}
     views = []
     for _, img in sorted(rec.images.items(), key=lambda kv: kv[1].name):

@@ -56,7 +56,12 @@ def read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     elif img.dtype == np.uint16:
         img = img.astype(np.float32) / 65535.0
     else:
-        img = np.clip(img.astype(np.float32), 0.0, 1.0)
+        img = img.astype(np.float32)
+        bad = ~np.isfinite(img)
+        if bad.any():
+            y, x = np.argwhere(bad)[0][:2]
+            raise DataError(f"{path}: {int(bad.sum())} pixel value(s) are NaN or infinite (first at x={x}, y={y})")
+        img = np.clip(img, 0.0, 1.0)
     if img.ndim == 2:
         img = img[..., None]
     alpha = None

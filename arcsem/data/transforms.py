@@ -28,7 +28,7 @@ import torch
 from ..cameras import opengl_to_opencv
 from ..errors import DataError
 from ..scene import Scene
-from .build import ReaderOptions, ViewSpec, assemble_scene
+from .build import ReaderOptions, ViewSpec, assemble_scene, check_rotation
 from .io import read_image, read_ply, resolve_file
 
 __all__ = ["find_transforms_files", "frame_views", "read_transforms"]
@@ -63,35 +63,55 @@ def _load_json(path: Path) -> dict:
     return data
 
 
+def _number(p: dict, key: str, where: str, positive: bool = False) -> float:
+    """``p[key]`` as a finite float (DataError naming the key otherwise); ``positive``: also > 0."""
+    value = p[key]
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if not ok or (positive and value <= 0):
+        need = "a positive number" if positive else "a finite number"
+        raise DataError(f"{where}: '{key}' must be {need}, got {value!r}")
+    return float(value)
+
+
 def _intrinsics(p: dict, img_path: Path, where: str) -> tuple[np.ndarray, int, int, str]:
     """``K [3,3]``, w, h and model from merged top-level/frame keys ``p``."""
     name = str(p.get("camera_model", "PINHOLE")).upper()
     if name not in MODELS:
         raise DataError(f"{where}: unknown camera_model '{p.get('camera_model')}'; "
                         f"expected one of {', '.join(MODELS)}")
-    if any(float(p.get(k, 0.0)) != 0.0 for k in DISTORTION_KEYS):
-        raise DataError(f"{where}: lens distortion ({', '.join(k for k in DISTORTION_KEYS if k in p)}) "
+    if any(_number(p, k, where) != 0.0 for k in DISTORTION_KEYS if p.get(k) is not None):  # null: none
+        raise DataError(f"{where}: lens distortion ({', '.join(k for k in DISTORTION_KEYS if p.get(k))}) "
                         "is not supported in transforms.json; undistort the images first")
     model = MODELS[name]
     if "w" in p and "h" in p:
-        w, h = int(p["w"]), int(p["h"])
+        w, h = int(_number(p, "w", where, True)), int(_number(p, "h", where, True))
     else:
         img = read_image(img_path)[0]
         w, h = img.shape[1], img.shape[0]
     if "fl_x" in p:
-        fx = float(p["fl_x"])
+        fx = _number(p, "fl_x", where, True)
     elif "camera_angle_x" in p and model == "pinhole":
-        fx = 0.5 * w / math.tan(0.5 * float(p["camera_angle_x"]))
+        fx = 0.5 * w / math.tan(0.5 * _angle(p, "camera_angle_x", where))
     else:
         raise DataError(f"{where}: no focal length (fl_x or camera_angle_x)")
     if "fl_y" in p:
-        fy = float(p["fl_y"])
+        fy = _number(p, "fl_y", where, True)
     elif "camera_angle_y" in p and model == "pinhole":
-        fy = 0.5 * h / math.tan(0.5 * float(p["camera_angle_y"]))
+        fy = 0.5 * h / math.tan(0.5 * _angle(p, "camera_angle_y", where))
     else:
         fy = fx
-    K = np.array([[fx, 0, float(p.get("cx", w / 2))], [0, fy, float(p.get("cy", h / 2))], [0, 0, 1]])
+    cx = _number(p, "cx", where) if "cx" in p else w / 2
+    cy = _number(p, "cy", where) if "cy" in p else h / 2
+    K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
     return K, w, h, model
+
+
+def _angle(p: dict, key: str, where: str) -> float:
+    """A field of view in radians, in (0, pi)."""
+    a = _number(p, key, where, True)
+    if a >= math.pi:
+        raise DataError(f"{where}: '{key}' must be an angle in radians between 0 and pi, got {a}")
+    return a
 
 
 def _pose(frame: dict, where: str) -> np.ndarray:
@@ -103,6 +123,7 @@ def _pose(frame: dict, where: str) -> np.ndarray:
         c2w = np.vstack([c2w, [0, 0, 0, 1]])
     if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
         raise DataError(f"{where}: 'transform_matrix' must be a finite 4x4 (or 3x4) matrix")
+    check_rotation(c2w[:3, :3], f"{where}: 'transform_matrix'")
     c2w_cv = opengl_to_opencv(torch.from_numpy(c2w)).numpy()
     return np.linalg.inv(c2w_cv)
 
@@ -132,18 +153,6 @@ def frame_views(path: Path, data: dict, split: str | None) -> list[ViewSpec]:
     return views
 
 
-def _unique_names(views: list[ViewSpec], base: Path) -> None:
-    """View name = file stem; stems shared by several views (``train/r_0``, ``test/r_0``) become the
-    path relative to the json folder, without extension."""
-    stems = [v.name for v in views]
-    for v in views:
-        if stems.count(v.name) > 1:
-            try:
-                v.name = v.image.relative_to(base.resolve()).with_suffix("").as_posix()
-            except ValueError:
-                v.name = v.image.with_suffix("").as_posix()
-
-
 def read_transforms(path: str | Path, opts: ReaderOptions | None = None) -> Scene:
     """Read a transforms.json file or folder into a :class:`Scene` (see the module docstring)."""
     opts = opts or ReaderOptions()
@@ -154,7 +163,6 @@ def read_transforms(path: str | Path, opts: ReaderOptions | None = None) -> Scen
         first = first or (file, data)
         views += frame_views(file, data, split)
     file, data = first
-    _unique_names(views, file.parent)
     points = colors = None
     if data.get("ply_file_path"):
         points, colors = read_ply(resolve_file(file.parent, data["ply_file_path"], f"{file}: ply_file_path", ()))

@@ -2,8 +2,11 @@
 
 A checkpoint holds the model (and ACT, unless it lives inside the model), every optimiser, the
 sampler's generator and order, the global RNG states, the number of completed steps and the
-flattened config it was trained with. Files are written to ``<name>.tmp`` and moved into place with
-``os.replace``, so a crash mid-write leaves the previous checkpoint intact.
+flattened config it was trained with: tensors and plain data (numbers, strings, lists, dicts) only,
+read back with ``torch.load(weights_only=True)``, so a crafted file cannot run code. Each file
+carries ``format: FORMAT``; a file without it (an older arcsem, or not a checkpoint) gives a clear
+error. Files are written to a temporary file in the same folder (unique per writer) and moved into
+place with ``os.replace``, so a crash or a full disk mid-write leaves the previous checkpoint intact.
 
 Models whose size changes during training (densified Gaussians, pruned voxel grids) load through
 :func:`load_module_state`, which resizes parameters and buffers to the saved shapes first.
@@ -11,10 +14,12 @@ Models whose size changes during training (densified Gaussians, pruned voxel gri
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 import pickle
 import random
+import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -23,9 +28,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..errors import TrainingError
+from ..errors import OutputError, TrainingError
 
 __all__ = [
+    "FORMAT",
     "check_config",
     "config_diff",
     "config_hash",
@@ -73,8 +79,16 @@ def check_config(saved: Mapping, current: Mapping, path: str | Path) -> None:
                             f"use another run directory or train.resume=never to start over")
 
 
+FORMAT = "arcsem-checkpoint-2"
+"""Written into every checkpoint; 2: plain data only (format 1 pickled NumPy objects)."""
+
+
 def rng_state() -> dict:
-    state = {"torch": torch.get_rng_state(), "python": random.getstate(), "numpy": np.random.get_state()}
+    """The global RNG states as tensors and plain data (no NumPy objects: ``weights_only`` loads them)."""
+    kind, keys, pos, has_gauss, cached = np.random.get_state()
+    numpy_state = {"kind": str(kind), "keys": torch.from_numpy(np.asarray(keys, dtype=np.int64)), "pos": int(pos),
+                   "has_gauss": int(has_gauss), "cached_gaussian": float(cached)}
+    state = {"torch": torch.get_rng_state(), "python": random.getstate(), "numpy": numpy_state}
     if torch.cuda.is_available():
         state["cuda"] = torch.cuda.get_rng_state_all()
     return state
@@ -82,31 +96,53 @@ def rng_state() -> dict:
 
 def set_rng_state(state: dict) -> None:
     torch.set_rng_state(state["torch"])
-    random.setstate(state["python"])
-    np.random.set_state(state["numpy"])
+    py = state["python"]
+    random.setstate((py[0], tuple(py[1]), py[2]))
+    n = state["numpy"]
+    np.random.set_state((n["kind"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached_gaussian"]))
     if "cuda" in state and torch.cuda.is_available():
         torch.cuda.set_rng_state_all(state["cuda"])
 
 
 def save_checkpoint(path: str | Path, state: dict) -> Path:
-    """Write ``state`` to ``path`` atomically (tmp file, fsync, ``os.replace``)."""
+    """Write ``state`` (plus ``format``) to ``path`` atomically: serialised in memory, written to a unique
+    temporary file, fsynced, ``os.replace``d. OutputError (the old file intact) when it cannot be written."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        torch.save(state, f)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    buf = io.BytesIO()
+    torch.save({**state, "format": FORMAT}, buf)  # in memory: a failed write is an OSError with its errno
+    tmp = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        with os.fdopen(fd, "wb") as f:
+            f.write(buf.getbuffer())
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
+        kept = "the previous checkpoint is intact" if path.is_file() else "no checkpoint is on disk"
+        raise OutputError(f"cannot write checkpoint {path}: {exc.strerror or exc} ({kept})") from None
     return path
 
 
 def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict:
-    """Read a checkpoint written by :func:`save_checkpoint` (TrainingError if unreadable)."""
+    """Read a checkpoint written by :func:`save_checkpoint` with ``weights_only=True`` (tensors and plain
+    data; nothing in the file is executed). TrainingError if unreadable, foreign or of another format."""
     try:
-        return torch.load(path, map_location=map_location, weights_only=False)
-    except (OSError, RuntimeError, EOFError, ValueError, pickle.UnpicklingError) as exc:
-        raise TrainingError(f"cannot read checkpoint {path}: {exc}") from None
+        state = torch.load(path, map_location=map_location, weights_only=True)
+    except pickle.UnpicklingError:
+        raise TrainingError(f"cannot read checkpoint {path}: it holds Python objects other than tensors and plain "
+                            "data (an older arcsem checkpoint, or not an arcsem checkpoint); it was not loaded. "
+                            "Retrain, or delete the file (train.resume=never ignores it)") from None
+    except (OSError, RuntimeError, EOFError, ValueError) as exc:
+        raise TrainingError(f"cannot read checkpoint {path}: {str(exc).splitlines()[0] if str(exc) else exc}") from None
+    if not isinstance(state, dict) or state.get("format") != FORMAT:
+        found = state.get("format", "none") if isinstance(state, dict) else type(state).__name__
+        raise TrainingError(f"{path} is not an arcsem checkpoint of format {FORMAT} (found: {found}); "
+                            "retrain, or delete the file (train.resume=never ignores it)")
+    return state
 
 
 def load_module_state(module: nn.Module, state: Mapping[str, torch.Tensor]) -> None:

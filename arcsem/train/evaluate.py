@@ -131,18 +131,20 @@ def _write_view(render_dir: Path, split: Split, i: int, out: dict, depth: torch.
     """``<name>.png``, ``<name>_depth.png`` and the ground truth beside them (``_gt``, ``_depth_gt``)."""
     import imageio.v2 as imageio
 
+    from ..guard import out_path
+
     name = split.names[i]
-    imageio.imwrite(render_dir / f"{name}.png", to_uint8(out["rgb"]))
+    imageio.imwrite(out_path(render_dir, name, ".png"), to_uint8(out["rgb"]))
     target = split.clean if split.clean is not None else split.images
-    imageio.imwrite(render_dir / f"{name}_gt.png", to_uint8(target[i]))
+    imageio.imwrite(out_path(render_dir, name, "_gt.png"), to_uint8(target[i]))
     gt = split.depths[i] if split.depths is not None else None
     lo = hi = None
     if gt is not None and bool((gt > 0).any()):
         lo, hi = float(gt[gt > 0].min()), float(gt[gt > 0].max())
-        imageio.imwrite(render_dir / f"{name}_depth_gt.png", depth_image(gt, gt > 0, lo, hi))
+        imageio.imwrite(out_path(render_dir, name, "_depth_gt.png"), depth_image(gt, gt > 0, lo, hi))
     if depth is not None:
         valid = out["alpha"][..., 0] > 0.5 if "alpha" in out else torch.ones_like(depth[..., 0], dtype=torch.bool)
-        imageio.imwrite(render_dir / f"{name}_depth.png", depth_image(depth[..., 0], valid, lo, hi))
+        imageio.imwrite(out_path(render_dir, name, "_depth.png"), depth_image(depth[..., 0], valid, lo, hi))
 
 
 def mean_metrics(rows: Iterable[dict[str, Any]]) -> dict[str, float]:

@@ -5,16 +5,19 @@ stage's ``batch_hook`` add its targets to ``batch.extras``, render, sum the acti
 ``backbone.pre_backward``, backpropagate, check gradients, call ``backbone.post_backward`` (densify,
 prune, upsample: it may replace tensors in ``optimizers[group]``), step every optimiser and check
 the parameters. Any non-finite loss term, gradient or parameter stops the run with a
-:class:`TrainingError` that names the step and the term or group; the last checkpoint on disk is
-the last good one (nothing is written after the failure).
+:class:`TrainingError` that names the step, the term or group, and the checkpoint actually on disk
+(or that there is none); nothing is written after the failure.
 
 Checkpoints go to ``ckpt_dir/last.pt`` every ``checkpoint_every`` steps and at the end. With
-``resume="auto"`` an existing checkpoint whose config matches is continued; ``"must"`` requires
-one; ``"never"`` starts over. Evaluation and checkpointing run under a forked RNG, so how often
-they happen does not change the trained model.
+``resume="auto"`` an existing checkpoint whose config matches is continued (announced on the console
+and in the log); ``"must"`` requires one; ``"never"`` starts over. Ctrl-C stops after the step in
+progress, writes a checkpoint and raises :class:`~arcsem.errors.Interrupted`; a second Ctrl-C stops at
+once. Evaluation and checkpointing run under a forked RNG, so how often they happen does not change
+the trained model.
 """
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -26,30 +29,33 @@ import torch
 from torch import nn
 from tqdm.auto import tqdm
 
-from ..errors import ConfigError, TrainingError
+from ..errors import ConfigError, Interrupted, TrainingError
 from ..plugins import Batch, RenderOutput
-from ..registry import validate_config
+from ..registry import checked, validate_config
 from ..scene import Split
 from . import checkpoint as ckpt
+from .interrupt import StopRequest
 from .losses import LossSet
 from .optim import OptimConfig, apply_schedules, group_schedules, make_optimizers
 from .sampling import make_sampler
 
-__all__ = ["LoopConfig", "TrainResult", "batch_psnr", "render_batch", "train"]
+log = logging.getLogger(__name__)
+
+__all__ = ["LoopConfig", "TrainResult", "batch_psnr", "loss_trend_warning", "render_batch", "train"]
 
 
 @dataclass
 class LoopConfig:
     """How long and how a stage trains (the trainer keys of a ``train``/``colorize`` preset)."""
 
-    steps: int
-    stage: str = "geometry"  # passed to backbone.param_groups: "geometry" (stage 1) | "color" (stage 2)
-    batch_views: int = 1  # views per step (image backbones)
-    rays_per_batch: int = 5000  # rays per step (ray backbones; svox2's default)
-    log_every: int = 100  # progress-bar / history interval (steps)
-    eval_every: int = 0  # evaluation interval (0: only at the end, done by the caller)
-    checkpoint_every: int = 1000  # checkpoint interval (0: only at the end)
-    resume: str = "auto"  # auto | never | must
+    steps: int = checked(ge=1)
+    stage: str = checked("geometry", choices=("geometry", "color"))  # passed to backbone.param_groups
+    batch_views: int = checked(1, ge=1)  # views per step (image backbones)
+    rays_per_batch: int = checked(5000, ge=1)  # rays per step (ray backbones; svox2's default)
+    log_every: int = checked(100, ge=1)  # progress-bar / history interval (steps)
+    eval_every: int = checked(0, ge=0)  # evaluation interval (0: only at the end, done by the caller)
+    checkpoint_every: int = checked(1000, ge=0)  # checkpoint interval (0: only at the end)
+    resume: str = checked("auto", choices=("auto", "never", "must"))
     seed: int = 0
     progress: bool = True  # show a tqdm bar
     desc: str = "train"  # progress-bar label
@@ -94,13 +100,13 @@ def _groups(backbone: nn.Module, act: nn.Module | None, stage: str) -> dict[str,
     return groups
 
 
-def _check_finite(step: int, what: str, named: Mapping[str, Any], kind: str) -> None:
+def _check_finite(run: _Run, step: int, what: str, named: Mapping[str, Any], kind: str) -> None:
     for name, value in named.items():
         tensors = value if isinstance(value, (list, tuple)) else [value]
         for t in tensors:
             if t is not None and not bool(torch.isfinite(t).all()):
-                raise TrainingError(f"step {step}: {kind} '{name}' is not finite ({what}); "
-                                    "training stopped, the last checkpoint on disk is the last good one")
+                raise TrainingError(f"step {step}: {kind} '{name}' is not finite ({what}); training stopped, "
+                                    f"{run.on_disk()}")
 
 
 class _Run:
@@ -113,6 +119,7 @@ class _Run:
                                     loop.rays_per_batch, loop.seed, _device(backbone))
         self.optim = optim
         self.step, self.time_s, self.history, self.evals, self.resumed_from = 0, 0.0, [], [], None
+        self.saved_step: int | None = None  # step of the checkpoint on disk (None: none written or loaded)
         self.act_separate = act is not None and not any(m is act for m in backbone.modules())
         if getattr(act, "solver", "adam") == "closed_form" and getattr(backbone, "batch_mode", "image") != "image":
             raise ConfigError(f"act.solver=closed_form fits whole views; backbone '{backbone.name}' trains on "
@@ -134,6 +141,15 @@ class _Run:
     def save(self) -> None:
         if self.path is not None:
             ckpt.save_checkpoint(self.path, self.state())
+            self.saved_step = self.step
+
+    def on_disk(self) -> str:
+        """What a user can resume from, for messages: the checkpoint on disk, or that there is none."""
+        if self.path is None:
+            return "no checkpoints are written in this run"
+        if self.saved_step is None:
+            return f"no checkpoint has been written yet ({self.path} does not exist)"
+        return f"the checkpoint on disk is from step {self.saved_step} ({self.path})"
 
     def restore(self, act_lr: float | None) -> None:
         """Load ``last.pt`` per ``loop.resume``; always leaves optimisers built."""
@@ -159,8 +175,9 @@ class _Run:
             o.load_state_dict(state["optimizers"][g])
         self.sampler.load_state_dict(state["sampler"])
         ckpt.set_rng_state(state["rng"])
-        self.step = self.resumed_from = int(state["step"])
+        self.step = self.resumed_from = self.saved_step = int(state["step"])
         self.time_s, self.history, self.evals = state["time_s"], state["history"], state["evals"]
+        log.info("%s: resuming from step %d of %d (%s)", self.loop.desc, self.step, self.loop.steps, self.path)
 
 
 def _device(backbone: nn.Module) -> torch.device:
@@ -177,22 +194,23 @@ def _step(run: _Run, losses: LossSet, batch_hook, step: int) -> tuple[float, flo
         batch = batch_hook(batch)
     out = render_batch(bb, batch)
     total, terms = losses(out, batch, step)
-    _check_finite(step, "loss", terms, "loss term")
+    _check_finite(run, step, "loss", terms, "loss term")
     bb.pre_backward(step, out)
     bb.zero_grad(set_to_none=True)
     for o in run.optimizers.values():
         o.zero_grad(set_to_none=True)
     total.backward()
     grads = {g: [p.grad for pg in o.param_groups for p in pg["params"]] for g, o in run.optimizers.items()}
-    _check_finite(step, "gradient", grads, "gradient of group")
+    _check_finite(run, step, "gradient", grads, "gradient of group")
     bb.post_backward(step, out, run.optimizers)
     for o in run.optimizers.values():
         o.step()
     if run.act is not None and getattr(run.act, "solver", "adam") == "closed_form":
         run.act.fit_views(out["rgb"].detach(), out["alpha"].detach(), batch.images, batch.cameras.image_ids)
-        _check_finite(step, "after the closed-form ACT fit", {"act": [run.act.weight, run.act.bias]}, "parameter group")
+        _check_finite(run, step, "after the closed-form ACT fit", {"act": [run.act.weight, run.act.bias]},
+                      "parameter group")
     params = {g: [p for pg in o.param_groups for p in pg["params"]] for g, o in run.optimizers.items()}
-    _check_finite(step, "after the optimiser step", params, "parameter group")
+    _check_finite(run, step, "after the optimiser step", params, "parameter group")
     return float(total.detach()), batch_psnr(out["rgb"], batch.images), {k: float(v.detach()) for k, v in terms.items()}
 
 
@@ -224,6 +242,18 @@ def train(backbone: nn.Module, split: Split, losses: LossSet, loop: LoopConfig |
     run.restore(act_lr)
     backbone.train()
     bar = tqdm(total=loop.steps, initial=run.step, desc=loop.desc, disable=not loop.progress, dynamic_ncols=True)
+    stop = StopRequest()
+    with stop:
+        _loop(run, losses, batch_hook, evaluate, on_step, bar, stop)
+    if run.resumed_from != loop.steps:  # nothing to add when resuming a finished run
+        with torch.random.fork_rng(devices=[]):
+            run.save()
+    return TrainResult(run.step, run.time_s, run.resumed_from, run.path, run.history, run.evals)
+
+
+def _loop(run: _Run, losses: LossSet, batch_hook, evaluate, on_step, bar, stop: StopRequest) -> None:
+    """The steps; on a stop request (Ctrl-C) write a checkpoint after the step in progress and raise Interrupted."""
+    loop = run.loop
     try:
         while run.step < loop.steps:
             t0 = time.perf_counter()
@@ -232,18 +262,33 @@ def train(backbone: nn.Module, split: Split, losses: LossSet, loop: LoopConfig |
             run.step += 1
             record = {"step": run.step, "loss": loss, "psnr": psnr, **terms}
             bar.update(1)
-            if run.step % max(loop.log_every, 1) == 0 or run.step == loop.steps:
+            if run.step % max(loop.log_every, 1) == 0 or run.step in (1, loop.steps):
                 run.history.append(record)
                 bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{psnr:.2f}")
             if on_step is not None:
                 on_step(run.step, record)
             _periodic(run, evaluate, bar)
+            if stop.requested:
+                with torch.random.fork_rng(devices=[]):
+                    run.save()
+                raise Interrupted(f"{loop.desc} interrupted at step {run.step} of {loop.steps}: {run.on_disk()}; "
+                                  "run the same command again to resume")
     finally:
         bar.close()
-    if run.resumed_from != loop.steps:  # nothing to add when resuming a finished run
-        with torch.random.fork_rng(devices=[]):
-            run.save()
-    return TrainResult(run.step, run.time_s, run.resumed_from, run.path, run.history, run.evals)
+
+
+def loss_trend_warning(history: list[dict], desc: str) -> str | None:
+    """A warning when training made the loss worse: the mean of the last tenth of the logged losses is above
+    the first logged one (step 1), as when a learning rate is far too high. None otherwise."""
+    logged = [(h["step"], h["loss"]) for h in history if math.isfinite(h.get("loss", math.nan))]
+    if len(logged) < 3:
+        return None
+    tail = [v for _, v in logged[-max(1, len(logged) // 10):]]
+    first, last = logged[0][1], sum(tail) / len(tail)
+    if last <= first:
+        return None
+    return (f"{desc}: the training loss rose from {first:.4g} at step {logged[0][0]} to {last:.4g} at the end; "
+            "the model got worse while training (a learning rate too high? see train.optim)")
 
 
 def _periodic(run: _Run, evaluate, bar) -> None:

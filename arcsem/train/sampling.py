@@ -104,12 +104,13 @@ def _resize(x: Tensor | None, h: int, w: int, mode: str) -> Tensor | None:
 
 
 def resize_split(split: Split, downscale: float = 1.0, width: int | None = None) -> Split:
-    """The split at a lower resolution: by ``downscale`` (2 = half size) or to ``width`` pixels.
+    """The split at a lower resolution: by ``downscale`` (2 = half size) or to ``width`` pixels; never
+    larger than it is (a ``width`` above the images' keeps their size).
 
     Images and colours are box-filtered (``area``); masks, depths and normals take the nearest
     sample (no mixing of foreground and background depths). Cameras follow via ``Cameras.scaled``.
     """
-    factor = (width / split.cameras.width) if width else 1.0 / float(downscale)
+    factor = min((width / split.cameras.width) if width else 1.0 / float(downscale), 1.0)
     if abs(factor - 1.0) < 1e-9 or len(split) == 0:
         return split
     cams = split.cameras.scaled(factor)

@@ -18,6 +18,7 @@ preset serves every backbone of a sweep.
 from __future__ import annotations
 
 import dataclasses
+import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,11 +28,11 @@ from omegaconf import DictConfig, OmegaConf
 
 from ..errors import ConfigError, TrainingError
 from ..plugins import BACKBONES
-from ..registry import validate_config
+from ..registry import checked, validate_config
 from ..scene import Scene
 from .checkpoint import load_checkpoint, load_module_state
 from .evaluate import evaluate_split, mean_metrics, to_uint8, write_views_csv
-from .loop import LoopConfig, train
+from .loop import LoopConfig, loss_trend_warning, train
 from .losses import build_losses, merge_loss_cfgs
 from .optim import OptimConfig
 from .sampling import resize_split
@@ -41,13 +42,20 @@ __all__ = [
     "NON_SEMANTIC_KEYS",
     "EvalConfig",
     "TrainConfig",
+    "act_config",
+    "backbone_config",
     "build_model",
     "evaluate",
     "load_stage1",
+    "per_backbone",
     "prepare_scene",
     "run_stage1",
     "stage1_config",
+    "stage1_losses",
+    "train_config",
 ]
+
+log = logging.getLogger(__name__)
 
 NON_SEMANTIC_KEYS = ("resume", "eval_every", "log_every", "checkpoint_every", "progress", "eval")
 """``train`` keys that do not change the trained model (ignored when deciding whether to resume)."""
@@ -60,25 +68,25 @@ class EvalConfig:
     lpips: bool = True  # LPIPS (AlexNet); NaN + reason when its ImageNet weights are missing
     renders: bool = True  # write renders/{train,test}/<name>.png and <name>_depth.png
     video: bool = True  # turntable video of novel views along the training arcs
-    video_frames: int = 60
-    fps: int = 20
-    max_train_views: int | None = None  # score at most this many training views (None: all, the paper)
-    periodic_views: int = 4  # views scored (PSNR/SSIM) at every periodic evaluation
+    video_frames: int = checked(60, ge=1)
+    fps: int = checked(20, ge=1)
+    max_train_views: int | None = checked(None, ge=1)  # score at most this many training views (None: all, the paper)
+    periodic_views: int = checked(4, ge=1)  # views scored (PSNR/SSIM) at every periodic evaluation
 
 
 @dataclass
 class TrainConfig:
     """``train``: the stage-1 preset (see conf/train/quick.yaml and paper.yaml)."""
 
-    steps: int = 60_000  # ArCSEM stage 1
-    batch_views: int = 1  # views per step (image backbones)
-    rays_per_batch: int | None = None  # ray backbones; None: the backbone's batch_size, else 5000
-    downscale: float = 1.0  # training/evaluation images at 1/downscale of the dataset resolution
-    width: int | None = None  # or: resize to this width (overrides downscale)
-    log_every: int = 100
-    eval_every: int = 0  # periodic evaluation (0: only the final one)
-    checkpoint_every: int = 5000
-    resume: str = "auto"  # auto | never | must
+    steps: int = checked(60_000, ge=1)  # ArCSEM stage 1
+    batch_views: int = checked(1, ge=1)  # views per step (image backbones)
+    rays_per_batch: int | None = checked(None, ge=1)  # ray backbones; None: the backbone's batch_size, else 5000
+    downscale: float = checked(1.0, ge=1.0)  # training/evaluation images at 1/downscale of the dataset resolution
+    width: int | None = checked(None, ge=1)  # or: resize to this width (overrides downscale; never upsamples)
+    log_every: int = checked(100, ge=1)
+    eval_every: int = checked(0, ge=0)  # periodic evaluation (0: only the final one)
+    checkpoint_every: int = checked(5000, ge=0)  # 0: only at the end
+    resume: str = checked("auto", choices=("auto", "never", "must"))
     progress: bool = True
     losses: dict[str, Any] = field(default_factory=lambda: {"l1": {"weight": 0.8}, "dssim": {"weight": 0.2}})
     optim: OptimConfig = field(default_factory=OptimConfig)
@@ -94,11 +102,17 @@ def train_config(cfg: Any) -> TrainConfig:
     return validate_config(TrainConfig, dict(_plain(cfg.train) or {}), where="train")
 
 
-def stage1_config(cfg: Any) -> dict:
-    """The part of ``cfg`` that determines the stage-1 model (compared when resuming)."""
+def stage1_config(cfg: Any, scene: Scene | None = None) -> dict:
+    """The part of ``cfg`` that determines the stage-1 model (compared when resuming), with the dataset's
+    :func:`~arcsem.scene.scene_fingerprint` when ``scene`` is given (stage 2 checks it)."""
     train = {k: v for k, v in dict(_plain(cfg.train) or {}).items() if k not in NON_SEMANTIC_KEYS}
-    return {"dataset": _plain(cfg.get("dataset")), "backbone": _plain(cfg.backbone), "act": _plain(cfg.get("act")),
-            "train": train, "seed": int(cfg.get("seed", 0))}
+    out = {"dataset": _plain(cfg.get("dataset")), "backbone": _plain(cfg.backbone), "act": _plain(cfg.get("act")),
+           "train": train, "seed": int(cfg.get("seed", 0))}
+    if scene is not None:
+        from ..scene import scene_fingerprint
+
+        out["dataset_fingerprint"] = scene_fingerprint(scene)
+    return out
 
 
 def prepare_scene(scene: Scene, tc: TrainConfig) -> Scene:
@@ -107,7 +121,47 @@ def prepare_scene(scene: Scene, tc: TrainConfig) -> Scene:
                                test=resize_split(scene.test, tc.downscale, tc.width))
 
 
-ACT_KEYS = {"enabled", "mode", "lr", "init_noise", "solver", "fit_rate", "fit_prior", "smooth_degree"}  # conf/act
+def act_config(cfg: Any):
+    """The validated ``act`` group (:class:`arcsem.act.ActConfig`)."""
+    from ..act import ActConfig
+
+    return validate_config(ActConfig, dict(_plain(cfg.get("act")) or {}), where="act")
+
+
+def per_backbone(tc: TrainConfig, name: str) -> dict:
+    """``train.per_backbone.<name>`` (keys ``backbone``, ``losses``, ``steps``), validated."""
+    over = dict(tc.per_backbone.get(name) or {})
+    unknown = set(over) - {"backbone", "losses", "steps"}
+    if unknown:
+        raise ConfigError(f"train.per_backbone.{name}: unknown key(s) {sorted(unknown)}; valid: backbone, losses, steps")
+    steps = over.get("steps", tc.steps)
+    if not isinstance(steps, int) or isinstance(steps, bool) or steps < 1:
+        raise ConfigError(f"train.per_backbone.{name}.steps: must be an integer >= 1, got {steps!r}")
+    return over
+
+
+def backbone_config(cfg: Any, tc: TrainConfig) -> dict:
+    """``cfg.backbone`` with its ``per_backbone`` overrides, checked against the plugin's ``Config``."""
+    bcfg = dict(_plain(cfg.backbone))
+    name = bcfg.get("name")
+    bcfg.update(per_backbone(tc, str(name)).get("backbone") or {})
+    cls = BACKBONES.get(str(name))
+    validate_config(cls.Config, {k: v for k, v in bcfg.items() if k != "name"}, where=f"backbone '{name}'")
+    return bcfg
+
+
+def stage1_losses(cfg: Any, tc: TrainConfig, act: Any = None):
+    """The stage-1 :class:`LossSet` for ``cfg.backbone`` (checked against the plugin's outputs).
+
+    ``act``: the ACT module, or True to stand for one (validation before the scene is known)."""
+    from ..act import ACT
+
+    name = str(cfg.backbone.name)
+    cls = BACKBONES.get(name)
+    if act is True:
+        act = ACT(1)
+    return build_losses(merge_loss_cfgs(tc.losses, per_backbone(tc, name).get("losses")), cls.provides,
+                        cls.batch_mode, backbone=name, act=act or None)
 
 
 def build_model(cfg: Any, scene: Scene, tc: TrainConfig | None = None):
@@ -115,17 +169,12 @@ def build_model(cfg: Any, scene: Scene, tc: TrainConfig | None = None):
     from ..act import ACT
 
     tc = tc or train_config(cfg)
-    bcfg = dict(_plain(cfg.backbone))
-    bcfg.update((tc.per_backbone.get(bcfg["name"]) or {}).get("backbone") or {})
-    act_cfg = _plain(cfg.get("act")) or {}
-    unknown = set(act_cfg) - ACT_KEYS
-    if unknown:
-        raise ConfigError(f"act: unknown key(s) {sorted(unknown)}; valid: {', '.join(sorted(ACT_KEYS))}")
+    bcfg = backbone_config(cfg, tc)
+    ac = act_config(cfg)
     act = None
-    if act_cfg.get("enabled", False):
-        act = ACT(len(scene.train), act_cfg.get("mode", "rgb"), float(act_cfg.get("init_noise", 1e-3)),
-                  act_cfg.get("solver", "adam"), float(act_cfg.get("fit_rate", 0.5)), float(act_cfg.get("fit_prior", 0.0)),
-                  view_dirs=scene.train.cameras.forward, smooth_degree=int(act_cfg.get("smooth_degree", -1)))
+    if ac.enabled:
+        act = ACT(len(scene.train), ac.mode, ac.init_noise, ac.solver, ac.fit_rate, ac.fit_prior,
+                  view_dirs=scene.train.cameras.forward, smooth_degree=ac.smooth_degree)
     backbone = BACKBONES.build(bcfg, scene=scene, **({"act": act} if act is not None else {}))
     device = torch.device(str(cfg.get("device", "cpu")))
     return backbone.to(device), (act.to(device) if act is not None else None)
@@ -145,24 +194,23 @@ def run_stage1(cfg: Any, scene: Scene, run_dir: str | Path) -> dict:
     """Train, evaluate and export stage 1; returns ``{"stage1": {...}}`` for ``metrics.json``."""
     run_dir = Path(run_dir)
     tc = train_config(cfg)
-    scene = prepare_scene(scene, tc)
+    raw_scene, scene = scene, prepare_scene(scene, tc)
     backbone, act = build_model(cfg, scene, tc)
     name = backbone.name
-    losses = build_losses(merge_loss_cfgs(tc.losses, (tc.per_backbone.get(name) or {}).get("losses")),
-                          backbone.provides, backbone.batch_mode, backbone=name, act=act)
+    losses = stage1_losses(cfg, tc, act)
     rays = tc.rays_per_batch or int(getattr(backbone.cfg, "batch_size", 5000))
-    over = tc.per_backbone.get(name) or {}
-    unknown = set(over) - {"backbone", "losses", "steps"}
-    if unknown:
-        raise ConfigError(f"train.per_backbone.{name}: unknown key(s) {sorted(unknown)}; valid: backbone, losses, steps")
+    over = per_backbone(tc, name)
     loop = LoopConfig(steps=int(over.get("steps", tc.steps)), stage="geometry", batch_views=tc.batch_views, rays_per_batch=rays,
                       log_every=tc.log_every, eval_every=tc.eval_every, checkpoint_every=tc.checkpoint_every,
                       resume=tc.resume, seed=int(cfg.get("seed", 0)), progress=tc.progress, desc=f"stage 1 ({name})")
-    act_lr = float((_plain(cfg.get("act")) or {}).get("lr", 1e-4))
+    act_lr = act_config(cfg).lr
     res = train(backbone, scene.train, losses, loop, optim=tc.optim, ckpt_dir=run_dir / "checkpoints",
-                config=stage1_config(cfg), act=act, act_lr=act_lr,
+                config=stage1_config(cfg, raw_scene), act=act, act_lr=act_lr,
                 evaluate=_periodic_eval(backbone, scene, tc.eval) if tc.eval_every else None)
     _write_history(run_dir / "train_history.csv", res.history)
+    warning = loss_trend_warning(res.history, loop.desc)
+    if warning:
+        log.warning(warning)
     backbone.eval()
     result = evaluate(backbone, scene, run_dir, tc.eval)
     export = _export(backbone, run_dir)
@@ -170,7 +218,8 @@ def run_stage1(cfg: Any, scene: Scene, run_dir: str | Path) -> dict:
                        "resumed_from": res.resumed_from, "num_primitives": int(backbone.num_primitives()),
                        "image_size": [scene.train.cameras.width, scene.train.cameras.height],
                        "losses": sorted(losses.terms), "checkpoint": str(res.checkpoint), "export": export,
-                       "periodic": res.evals, "final_loss": res.history[-1]["loss"] if res.history else None}}
+                       "periodic": res.evals, "final_loss": res.history[-1]["loss"] if res.history else None,
+                       "warnings": [warning] if warning else []}}
 
 
 def evaluate(backbone, scene: Scene, run_dir: str | Path | None, ec: EvalConfig | None = None) -> dict:

@@ -1,0 +1,134 @@
+"""Everything a run will need, checked before it trains anything.
+
+:func:`check_config` runs before the dataset is read: the top-level keys (``seed``, ``device``,
+``threads``) and, for every stage the run will execute, its config group (ranges, types, choices), its
+backbone and loss plugins. :func:`check_scene` runs once the scene is loaded: image sizes (the SSIM
+window, the training resolution), the colour references, and for ``stage=color`` the stage-1 model,
+which must have been trained on this dataset (:func:`arcsem.scene.scene_fingerprint`). So
+``stage=all colorize.references=seven`` fails in seconds, not after stage 1.
+
+Every problem raises :class:`~arcsem.errors.ConfigError` or :class:`~arcsem.errors.DataError` naming the
+key, file or view; warnings (the training width capped at the images' width) are returned as strings.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from .errors import ConfigError, DataError
+
+__all__ = ["MIN_IMAGE_SIZE", "STAGE_PLAN", "check_config", "check_device", "check_scene"]
+
+STAGE_PLAN = {"gray": ("gray",), "color": ("color",), "all": ("gray", "color"), "check": ("gray", "color")}
+"""The training stages each ``stage`` value runs or, for ``check``, validates (stage 2's references and model
+only where it can: their problems are warnings, since a dataset may be meant for stage 1 alone)."""
+
+MIN_IMAGE_SIZE = 11
+"""Smallest image side arcsem trains or scores on: the 11-pixel SSIM window."""
+
+
+def check_device(device: Any) -> None:
+    """``device`` must name a torch device this machine has."""
+    import torch
+
+    try:
+        dev = torch.device(str(device))
+    except RuntimeError:
+        raise ConfigError(f"device: '{device}' is not a device; use cpu, cuda or cuda:<index>") from None
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            build = f"CUDA {torch.version.cuda}" if torch.version.cuda else "a CPU-only build"
+            raise ConfigError(f"device={device}: no CUDA device is available on this machine (torch is {build}); "
+                              "use device=cpu")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise ConfigError(f"device={device}: this machine has {torch.cuda.device_count()} CUDA device(s)")
+    elif dev.type != "cpu":
+        raise ConfigError(f"device: '{device}' is not supported; use cpu or cuda")
+
+
+def _check_top_level(cfg: Any) -> None:
+    seed = cfg.get("seed", 0)
+    if not isinstance(seed, int) or isinstance(seed, bool):
+        raise ConfigError(f"seed: expected an integer, got {seed!r}")
+    threads = cfg.get("threads")
+    if threads is not None and (not isinstance(threads, int) or isinstance(threads, bool) or threads < 1):
+        raise ConfigError(f"threads: expected a positive integer or null, got {threads!r}")
+    check_device(cfg.get("device", "cpu"))
+
+
+def _check_gray(cfg: Any) -> None:
+    from .train.stage1 import act_config, backbone_config, stage1_losses, train_config
+
+    tc = train_config(cfg)
+    backbone_config(cfg, tc)  # the plugin's Config, per_backbone overrides applied
+    stage1_losses(cfg, tc, act=act_config(cfg).enabled)
+
+
+def _check_color(cfg: Any) -> None:
+    from .colorize.stage2 import colorize_config, colorize_losses
+    from .plugins import BACKBONES
+
+    cc = colorize_config(cfg)
+    colorize_losses(cc, BACKBONES.get(str(cfg.backbone.name)))
+    refs = cc.references
+    files = [refs] if isinstance(refs, str) else list(refs or [])
+    for f in files:
+        if ("/" in str(f) or "." in str(f)) and not Path(str(f)).expanduser().exists():
+            raise DataError(f"colorize.references: file or folder not found: {f}")
+
+
+def check_config(cfg: Any, stage: str) -> None:
+    """Validate the config of every stage ``stage`` runs (see the module docstring); reads no data."""
+    from .app import STAGES
+
+    if stage not in STAGES:
+        raise ConfigError(f"stage: unknown stage '{stage}'; available: {', '.join(STAGES)}")
+    _check_top_level(cfg)
+    for name in STAGE_PLAN[stage]:
+        {"gray": _check_gray, "color": _check_color}[name](cfg)
+
+
+def _check_sizes(cfg: Any, scene: Any, stages: tuple[str, ...]) -> list[str]:
+    cams = scene.train.cameras
+    if min(cams.width, cams.height) < MIN_IMAGE_SIZE:
+        raise DataError(f"{scene.root}: the images are {cams.width}x{cams.height} px ('{scene.train.names[0]}'); "
+                        f"arcsem needs at least {MIN_IMAGE_SIZE}x{MIN_IMAGE_SIZE} (the SSIM window)")
+    if "gray" not in stages:
+        return []
+    from .train.stage1 import train_config
+
+    tc = train_config(cfg)
+    warnings = []
+    if tc.width and tc.width > cams.width:
+        warnings.append(f"train.width={tc.width} is wider than the images ({cams.width} px): training at "
+                        f"{cams.width} px (arcsem never upsamples)")
+    w = min(tc.width, cams.width) if tc.width else round(cams.width / tc.downscale)
+    h = round(cams.height * w / cams.width)
+    if min(w, h) < MIN_IMAGE_SIZE:
+        key = "train.width" if tc.width else "train.downscale"
+        raise ConfigError(f"{key}: training images would be {w}x{h} px; arcsem needs at least "
+                          f"{MIN_IMAGE_SIZE}x{MIN_IMAGE_SIZE} (the SSIM window)")
+    return warnings
+
+
+def check_scene(cfg: Any, scene: Any, stage: str, run_dir: Path) -> list[str]:
+    """Checks that need the loaded scene; returns warnings. ``stage=color`` also checks the stage-1 model."""
+    stages = STAGE_PLAN[stage]
+    if len(scene.train) < 2:
+        raise DataError(f"{scene.root}: {len(scene.train)} training view(s); a 3-D scene needs at least 2 "
+                        "(check dataset.split and dataset.max_views)")
+    warnings = _check_sizes(cfg, scene, stages)
+    if "color" in stages:
+        from .colorize.references import load_references
+        from .colorize.stage2 import check_stage1_model, colorize_config
+
+        cc = colorize_config(cfg)
+        try:
+            load_references(scene, cc.references)
+        except (ConfigError, DataError) as exc:
+            if stage != "check":
+                raise
+            warnings.append(f"stage 2 (stage=color) would stop here: {exc}")
+        if stage == "color":
+            check_stage1_model(cfg, cc, scene, run_dir)
+    return warnings

@@ -4,16 +4,16 @@ input file is written at all.
 Output names are made safe where they are formed (:func:`arcsem.data.names.view_names`,
 :func:`out_path`); this module is the backstop under them. :func:`protect` installs a Python audit
 hook (PEP 578) that sees every file the process opens for writing, renames, removes or creates a
-folder for, from any library written in Python (``open``, ``os.replace``, ``os.mkdir``, ``torch.save``,
-``imageio``...), and refuses with :class:`~arcsem.errors.OutputError` a write that
+folder for through Python (``open``, ``os.replace``, ``os.mkdir``, ``np.save``, ``imageio``, ``torch.save``
+to a file object...), and refuses with :class:`~arcsem.errors.OutputError` a write that
 
 * targets an input file (the dataset's files, listed by the caller), or a path inside an input
   folder that is not inside the run folder or the cache (the ``own`` folders); or
 * lies outside every allowed folder (the run folder, the cache root, the torch hub and extension
   folders, the temporary folder).
 
-Writes made by C code (OpenCV's ``imwrite``) or other processes (ffmpeg) are not seen: arcsem passes
-them only paths built with :func:`out_path`. Outside :func:`protect` the hook does nothing.
+Writes made by C code (OpenCV's ``imwrite``, ``torch.save`` given a path name) or other processes
+(ffmpeg) are not seen: arcsem passes them only paths built with :func:`out_path` or inside the run folder. Outside :func:`protect` the hook does nothing.
 """
 from __future__ import annotations
 

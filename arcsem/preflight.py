@@ -111,6 +111,19 @@ def _check_sizes(cfg: Any, scene: Any, stages: tuple[str, ...]) -> list[str]:
     return warnings
 
 
+def _check_color_inputs(cc: Any, scene: Any) -> None:
+    """What ``colorize.masks`` and ``colorize.depth`` need from the dataset or the disk."""
+    if cc.masks == "dataset" and scene.train.masks is None:
+        raise DataError("colorize.masks=dataset but the dataset has no masks; use auto, otsu, grabcut or files")
+    if cc.masks == "files" and not (cc.mask_folder and Path(cc.mask_folder).expanduser().is_dir()):
+        raise DataError(f"colorize.masks=files needs colorize.mask_folder, an existing folder (got {cc.mask_folder!r})")
+    if cc.masks == "sam" and not (cc.sam_checkpoint and Path(cc.sam_checkpoint).expanduser().is_file()):
+        raise DataError(f"colorize.masks=sam needs colorize.sam_checkpoint, a Segment Anything checkpoint file "
+                        f"(got {cc.sam_checkpoint!r})")
+    if cc.depth == "dataset" and scene.train.depths is None:
+        raise DataError("colorize.depth=dataset but the dataset has no depth maps; use depth=model")
+
+
 def check_scene(cfg: Any, scene: Any, stage: str, run_dir: Path) -> list[str]:
     """Checks that need the loaded scene; returns warnings. ``stage=color`` also checks the stage-1 model."""
     stages = STAGE_PLAN[stage]
@@ -124,6 +137,7 @@ def check_scene(cfg: Any, scene: Any, stage: str, run_dir: Path) -> list[str]:
 
         cc = colorize_config(cfg)
         try:
+            _check_color_inputs(cc, scene)
             load_references(scene, cc.references)
         except (ConfigError, DataError) as exc:
             if stage != "check":

@@ -131,7 +131,7 @@ def test_sweep_prints_one_line_per_failed_job_and_exits_2(tmp_path):
     proc = run_cli(tmp_path, "-m", "stage=check", *ds, "seed=1,abc", f"hydra.sweep.dir={tmp_path / 'sweep'}")
     assert proc.returncode == 2 and "Traceback" not in proc.stderr and "Error executing job" not in proc.stderr
     errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("error:")]
-    assert errors == ["error: job 1 (stage=check dataset=transforms "
-                      f"dataset.path={tmp_path / 'scene'} seed=abc): seed: expected an integer, got 'abc'"]
+    job = f"job 1 (stage=check dataset=transforms dataset.path={tmp_path / 'scene'} seed=abc)"
+    assert errors == [f"error: {job}: seed: expected an integer, got 'abc'"]
     assert (tmp_path / "sweep" / "0" / "metrics.json").is_file()  # the good job still ran
     assert "sweep: 1 job(s) failed" in proc.stderr

@@ -7,6 +7,7 @@ folder, a read-only folder, a full disk and Ctrl-C end with one ``error:`` line;
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import signal
@@ -15,8 +16,17 @@ import time
 
 import pytest
 import torch
-from bad_input_util import (TINY, colour_reference, dataset, evil_checkpoint, nerf_synthetic, one_error_line, run_cli,
-                            tree_hashes, two_camera_folders)
+from bad_input_util import (
+    TINY,
+    colour_reference,
+    dataset,
+    evil_checkpoint,
+    nerf_synthetic,
+    one_error_line,
+    run_cli,
+    tree_hashes,
+    two_camera_folders,
+)
 from conftest import arcsem_command, ring_poses
 
 pytestmark = pytest.mark.slow
@@ -49,7 +59,7 @@ def test_nerf_synthetic_layout_writes_renders_and_metrics(tmp_path):
 
 
 def math_finite(x) -> bool:
-    return isinstance(x, float) and x == x and abs(x) != float("inf")
+    return isinstance(x, float) and math.isfinite(x)
 
 
 @pytest.mark.parametrize("where", ["colorize.stage1", "run folder", "shared cache"])
@@ -64,8 +74,9 @@ def test_crafted_checkpoint_is_refused_and_never_executed(tmp_path, where):
         evil_checkpoint(run / "checkpoints" / "last.pt", marker)
         extra += ["stage=gray"]
     else:
-        from arcsem.share import stage1_dir
         from test_config import compose_with
+
+        from arcsem.share import stage1_dir
 
         cfg = compose_with(*ds, *TINY, *extra, "share_stage1=true")
         folder = stage1_dir(cfg)
@@ -110,7 +121,7 @@ def test_resume_is_announced_and_the_same_run_folder_cannot_be_used_twice(tmp_pa
         assert "is in use by another arcsem run" in line and f"pid {long.pid}" in line
         # Ctrl-C: the long run stops after its step, writes a checkpoint and says where
         long.send_signal(signal.SIGINT)
-        out, err = long.communicate(timeout=120)
+        _, err = long.communicate(timeout=120)
     finally:
         long.kill()
     assert long.returncode == 130, err[-2000:]
@@ -162,7 +173,7 @@ def _private_mount() -> list[str] | None:
     without root and without touching the machine), or None where the kernel does not allow it."""
     if shutil.which("unshare") is None:
         return None
-    ok = subprocess.run(["unshare", "-rm", "true"], capture_output=True).returncode == 0
+    ok = subprocess.run(["unshare", "-rm", "true"], capture_output=True, check=False).returncode == 0
     return ["unshare", "-rm"] if ok else None
 
 
@@ -180,7 +191,8 @@ def test_read_only_folder_and_full_disk(tmp_path):
               f"{{ {cmd} stage=gray {' '.join(ds + TINY)} hydra.run.dir={ro}/run; echo rc=$? >&2; "
               f"{cmd} stage=gray {' '.join(ds + TINY)} train.checkpoint_every=1 hydra.run.dir={small}/run; "
               "echo rc=$? >&2; }")
-    proc = subprocess.run([*prefix, "sh", "-c", script], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    proc = subprocess.run([*prefix, "sh", "-c", script], capture_output=True, text=True, timeout=300, cwd=tmp_path,
+                          check=False)
     blocks = proc.stderr.split("rc=")
     assert len(blocks) == 3, proc.stderr[-3000:]
     read_only, full = blocks[0], blocks[1].split("\n", 1)[1]

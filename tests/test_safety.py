@@ -44,7 +44,7 @@ def test_guard_refuses_writes_to_inputs_and_outside(tmp_path):
     with protect([run], inputs=[data / "img.png"], input_dirs=[data]):
         (run / "ok.txt").write_text("fine")  # the run folder
         with pytest.raises(OutputError, match="it is an input file"):
-            open(data / "img.png", "wb")
+            (data / "img.png").write_bytes(b"overwritten")
         with pytest.raises(OutputError, match="input folder"):
             (data / "new.png").write_bytes(b"x")
         with pytest.raises(OutputError, match="outside the run folder"):
@@ -82,9 +82,8 @@ def test_waiting_lock_announces_the_wait(tmp_path, caplog):
     holder = threading.Thread(target=hold, args=(tmp_path / "run", 1.0, started))
     holder.start()
     started.wait()
-    with pytest.raises(OutputError, match="is in use by another arcsem run"):  # refused at once, no wait
-        with run_folder_lock(tmp_path / "run"):
-            pass
+    with pytest.raises(OutputError, match="is in use by another arcsem run"), run_folder_lock(tmp_path / "run"):
+        pass  # refused at once, no wait
     holder.join()
 
 

@@ -83,6 +83,10 @@ def build_losses(cfg: Mapping | None, provides: frozenset[str] | set[str], batch
         if float(term_cfg.get("weight", 1.0)) == 0.0:
             continue
         loss = LOSSES.build({"name": plugin, **term_cfg}, **runtime)
+        for key in ("weight", "start_step"):
+            value = getattr(loss.cfg, key, 0)
+            if not isinstance(value, (int, float)) or value < 0:
+                raise ConfigError(f"{where}.{name}.{key}: must be >= 0, got {value!r}")
         missing = set(loss.requires) - set(provides)
         if missing:
             raise ConfigError(

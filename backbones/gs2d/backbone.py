@@ -6,6 +6,7 @@ from typing import ClassVar
 
 from arcsem.errors import ConfigError
 from arcsem.plugins import BACKBONES, RenderOutput
+from arcsem.registry import checked
 
 from ..gaussians.base import GaussianBackbone, GaussianConfig
 
@@ -26,15 +27,15 @@ class GS2DBackbone(GaussianBackbone):
     class Config(GaussianConfig):
         """2DGS defaults (official repository)."""
 
-        prune_opacity: float = 0.05  # official 2DGS opacity_cull
+        prune_opacity: float = checked(0.05, ge=0.0, le=1.0)  # official 2DGS opacity_cull
         # normalised depth of the distortion loss: "linear" m = z / extent (any camera distance,
         # orthographic too) or "ndc", the official mapping, which is ~flat at SEM camera distances
-        distortion_depth: str = "linear"
+        distortion_depth: str = checked("linear", choices=("linear", "ndc"))
         # sigma (pixels) of the screen-space low-pass filter: a surfel is drawn at least as a 2-D Gaussian of
         # this sigma around its projected centre (official 1/sqrt(2) = 0.707). It widens every silhouette by
         # about a sigma, and a fit to sharp silhouettes pays for that by shrinking the surface: at low
         # resolution a pixel is ~1 % of the specimen (benchmarks/results/README.md, "Surfels behind the surface")
-        lowpass_sigma: float = 0.7071067811865476
+        lowpass_sigma: float = checked(0.7071067811865476, ge=0.0)
 
     def __init__(self, cfg: Config, scene=None, act=None, **runtime):
         super().__init__(cfg, scene=scene, act=act, **runtime)

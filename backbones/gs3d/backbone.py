@@ -5,6 +5,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from arcsem.plugins import BACKBONES, RenderOutput
+from arcsem.registry import checked
 
 from ..gaussians.base import GaussianBackbone, GaussianConfig
 
@@ -23,7 +24,7 @@ class GS3DBackbone(GaussianBackbone):
     class Config(GaussianConfig):
         """3DGS defaults (official repository)."""
 
-        prune_opacity: float = 0.005  # official 3DGS min_opacity
+        prune_opacity: float = checked(0.005, ge=0.0, le=1.0)  # official 3DGS min_opacity
 
     def _rasterize(self, means, quats, scales, opacities, colors, cams, **kw) -> RenderOutput:
         from .render import render_3dgs  # the rasteriser module (imported when first used)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import typing
 from collections.abc import Callable
 from importlib import metadata
 from typing import Any
@@ -130,6 +131,22 @@ def check_fields(obj: Any, where: str) -> None:
             raise ConfigError(f"{where}.{f.name}: {problem}, got {value!r}")
 
 
+def _check_flags(schema: type, values: Any, where: str) -> None:
+    """OmegaConf would read ``7`` as ``True``: a boolean field must be given a boolean (nested dataclasses too)."""
+    if not isinstance(values, dict):
+        return
+    try:
+        hints = typing.get_type_hints(schema)
+    except Exception:  # noqa: BLE001 (unresolvable annotations: OmegaConf still checks the types)
+        return
+    for k, v in values.items():
+        hint = hints.get(k)
+        if hint is bool and not isinstance(v, bool) and v not in ("true", "false", "True", "False"):
+            raise ConfigError(f"{where}.{k}: must be true or false, got {v!r}")
+        if dataclasses.is_dataclass(hint):
+            _check_flags(hint, v, f"{where}.{k}")
+
+
 def validate_config(schema: type, values: dict, where: str) -> Any:
     """Return ``schema(**values)`` checked by OmegaConf and the fields' :func:`checked` rules: unknown keys,
     wrong types and out-of-range values raise ConfigError naming the key."""
@@ -137,6 +154,7 @@ def validate_config(schema: type, values: dict, where: str) -> Any:
     unknown = [k for k in values if k not in fields]
     if unknown:
         raise ConfigError(f"{where}: unknown key(s) {', '.join(map(repr, unknown))}; valid keys: {', '.join(fields)}")
+    _check_flags(schema, values, where)
     try:
         merged = OmegaConf.merge(OmegaConf.structured(schema), values)
     except OmegaConfBaseException as exc:

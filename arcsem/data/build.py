@@ -211,6 +211,11 @@ def assemble_scene(root: Path, views: list[ViewSpec], opts: ReaderOptions, *, bo
     """Select, split and read ``views``; bounds from ``bounds``, else the points, else the frusta."""
     if not views:
         raise DataError(f"{root}: the dataset has no views")
+    seen: dict[Path, int] = {}
+    for i, v in enumerate(views):
+        if v.image in seen:
+            raise DataError(f"{root}: views {seen[v.image]} and {i} both read {v.image}; each view needs its own image")
+        seen[v.image] = i
     for v, name in zip(views, view_names([v.image for v in views])):
         v.name = name
     w, h, model = _common_size(views)

@@ -29,32 +29,14 @@ ray backbones on ``[R, S, 3]`` per-sample colours with ``[R]`` image ids.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Literal
 
 import torch
 from torch import Tensor, nn
 
-from .registry import checked
+from .configs import ACT_MODES, ACT_SOLVERS
 
-__all__ = ["ACT", "ACT_MODES", "ACT_SOLVERS", "ActConfig", "affine_fit", "smooth_projector"]
-
-ACT_MODES = ("rgb", "scalar")
-ACT_SOLVERS = ("adam", "closed_form")
-
-
-@dataclass
-class ActConfig:
-    """``act`` (conf/act/*.yaml): whether and how stage 1 learns per-image affine colour transforms."""
-
-    enabled: bool = False
-    mode: str = checked("rgb", choices=ACT_MODES)  # rgb: the paper's text; scalar: the authors' code
-    lr: float = checked(1e-4, gt=0.0)  # constant Adam rate of the transforms
-    init_noise: float = checked(1e-3, ge=0.0)  # identity + N(0, init_noise)
-    solver: str = checked("adam", choices=ACT_SOLVERS)  # closed_form: an experiment (see the module docstring)
-    fit_rate: float = checked(0.5, gt=0.0, le=1.0)
-    fit_prior: float = checked(0.0, ge=0.0)
-    smooth_degree: int = checked(-1, ge=-1)
+__all__ = ["ACT", "ACT_MODES", "ACT_SOLVERS", "affine_fit", "smooth_projector"]
 
 
 class ACT(nn.Module):

@@ -60,7 +60,7 @@ def _check_gray(cfg: Any) -> None:
     from .train.stage1 import act_config, backbone_config, stage1_losses, train_config
 
     tc = train_config(cfg)
-    backbone_config(cfg, tc)  # the plugin's Config, per_backbone overrides applied
+    backbone_config(cfg)  # the plugin's Config
     stage1_losses(cfg, tc, act=act_config(cfg).enabled)
 
 

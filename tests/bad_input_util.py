@@ -13,7 +13,7 @@ from conftest import arcsem_command, ring_poses, w2c_to_opengl_c2w, write_transf
 
 # stage 1 in seconds: native size (no upsampling), few Gaussians, no video/LPIPS, one thread
 TINY = ["train.width=null", "threads=1", "train.steps=3", "train.eval.video=false", "train.eval.lpips=false",
-        "train.progress=false", "train.per_backbone.gs2d.backbone.random_init_points=200",
+        "train.progress=false", "backbone.random_init_points=200",
         "colorize.steps=2", "colorize.progress=false", "colorize.eval.video=false", "colorize.eval.lpips=false",
         "colorize.losses.tcm.weight=0", "colorize.losses.ccm.weight=0"]
 

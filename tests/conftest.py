@@ -96,6 +96,8 @@ def missing_defaults(overrides=()) -> list[str]:
     for entry in yaml.safe_load((CONF / "config.yaml").read_text())["defaults"]:
         if isinstance(entry, dict):
             (group, option), = entry.items()
+            if group.startswith("optional ") or "${" in str(option):  # optional: a missing file is fine
+                continue
             if option is not None and group not in chosen and not (CONF / group / f"{option}.yaml").is_file():
                 out.append(f"~{group}")
     return out

@@ -20,7 +20,7 @@ from arcsem.registry import validate_config
 DEFAULT_GROUPS = {next(iter(e)) for e in yaml.safe_load((CONF / "config.yaml").read_text())["defaults"]
                   if isinstance(e, dict)}
 OPTIONS = sorted((d.name, f.stem) for d in CONF.iterdir() if d.is_dir() and not d.name.startswith("_")
-                 for f in d.glob("*.yaml"))
+                 and d.name != "tuning" for f in d.glob("*.yaml"))  # tuning: chosen by train x backbone (below)
 LAUNCHERS = {"basic": "BasicLauncher", "joblib": "JoblibLauncher", "submitit_local": "LocalLauncher",
              "submitit_slurm": "SlurmLauncher"}
 
@@ -140,3 +140,12 @@ def _loads(name: str) -> bool:
         return True
     except PluginError:
         return False
+
+
+def test_every_tuning_file_is_a_train_preset_for_a_backbone():
+    """conf/tuning/<train>_<backbone>.yaml is picked by the defaults list; a stray name would never be used."""
+    trains = {o for g, o in OPTIONS if g == "train"}
+    backbones = {o for g, o in OPTIONS if g == "backbone"}
+    for f in (CONF / "tuning").glob("*.yaml"):
+        train, _, backbone = f.stem.partition("_")
+        assert train in trains and (backbone in backbones or backbone == "gaussians"), f.name

@@ -6,9 +6,9 @@ import torch
 from trainer_util import L1_DSSIM, loop, tiny_scene
 
 from arcsem.act import ACT
-from arcsem.plugins import BACKBONES, LOSSES
+from arcsem.plugins import BACKBONES
 from arcsem.train.loop import train
-from arcsem.train.losses import build_losses, merge_loss_cfgs
+from arcsem.train.losses import build_losses
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -55,24 +55,45 @@ def test_real_backbone_resumes_exactly_across_densification(name, tmp_path):
 
 
 @pytest.mark.parametrize("preset", ["quick", "paper"])
-def test_presets_validate_against_trainer_and_backbone_configs(preset):
+@pytest.mark.parametrize("backbone", ["gs2d", "gs3d", "plenoxels"])
+def test_presets_validate_against_trainer_and_backbone_configs(preset, backbone):
+    """Each preset, adapted to each backbone by conf/tuning (Hydra composition), validates and names real losses."""
     from hydra import compose, initialize_config_module
 
-    from arcsem.registry import validate_config
-    from arcsem.train.stage1 import train_config
+    from arcsem.train.stage1 import backbone_config, stage1_losses, train_config
 
     with initialize_config_module("arcsem.conf", version_base=None):
-        cfg = compose("config", overrides=[f"train={preset}", "dataset=transforms"])
+        cfg = compose("config", overrides=[f"train={preset}", f"backbone={backbone}", "dataset=transforms"])
     tc = train_config(cfg)
-    assert tc.losses == {"l1": {"weight": 0.8}, "dssim": {"weight": 0.2}}  # (1-0.2) L1 + 0.2 D-SSIM
-    for name, over in tc.per_backbone.items():
-        cls = BACKBONES.get(name)
-        validate_config(cls.Config, dict(over.get("backbone") or {}), where=f"train.per_backbone.{name}")
-        assert set(over) <= {"backbone", "losses", "steps"}, over
-        merged = merge_loss_cfgs(tc.losses, over.get("losses"))
-        assert all(k in LOSSES.names() for k, v in merged.items() if v is not None), merged
+    backbone_config(cfg)  # the plugin's Config accepts every tuned key
+    terms = stage1_losses(cfg, tc, act=True).terms
+    off = {k for k, v in cfg.train.losses.items() if v is None or v.weight == 0}
+    assert set(cfg.train.losses) - off == set(terms)
+    if backbone == "plenoxels":
+        assert set(terms) == {"l2", "tv"}  # svox2: MSE + TV
+    else:
+        assert {"l1", "dssim"} <= set(terms)  # (1-0.2) L1 + 0.2 D-SSIM
     if preset == "paper":
         assert tc.steps == 60_000 and tc.downscale == 1 and tc.width is None
+
+
+def test_command_line_wins_over_the_tuned_preset_and_typos_fail_at_compose():
+    from hydra import compose, initialize_config_module
+    from hydra.errors import ConfigCompositionException
+
+    with initialize_config_module("arcsem.conf", version_base=None):
+        tuned = compose("config", overrides=["backbone=gs2d", "train=quick"])
+        mine = compose("config", overrides=["backbone=gs2d", "train=quick", "backbone.densify_every=50",
+                                            "backbone.sh_degree=2", "train.losses.distortion.weight=0"])
+        with pytest.raises(ConfigCompositionException, match="sh_degre"):
+            compose("config", overrides=["backbone=gs2d", "backbone.sh_degre=2"])
+    assert tuned.backbone.densify_every == 25 and tuned.train.losses.distortion.weight == 10.0  # quick_gs2d
+    assert mine.backbone.densify_every == 50 and mine.backbone.sh_degree == 2
+    assert mine.train.losses.distortion.weight == 0
+    import dataclasses
+
+    from arcsem.backbones.gs2d.config import GS2DConfig  # every effective key is in the composed config
+    assert {f.name for f in dataclasses.fields(GS2DConfig)} | {"name"} == set(tuned.backbone)
 
 
 def test_gaussian_rates_follow_the_backbone_schedule_unless_the_config_overrides_a_group(monkeypatch):

@@ -76,8 +76,28 @@ def one_line(exc: BaseException) -> str:
     return msg
 
 
+def _unknown_schema_key(exc: BaseException) -> str | None:
+    """For a key missing from a Hydra schema (a typo): the key and the schema's keys, without Hydra's hint
+    to append it with ``+`` (which would only move the error to the run's own check)."""
+    import dataclasses
+
+    from omegaconf.errors import ConfigAttributeError, ConfigKeyError
+
+    cause = exc
+    while cause is not None and not isinstance(cause, (ConfigAttributeError, ConfigKeyError)):
+        cause = cause.__cause__ or cause.__context__
+    schema = getattr(cause, "object_type", None)
+    if cause is None or schema is None or not dataclasses.is_dataclass(schema):
+        return None
+    keys = ", ".join(f.name for f in dataclasses.fields(schema))
+    return f"{cause.full_key}: unknown key; valid keys: {keys}"
+
+
 def describe(exc: BaseException) -> str:
     """The one-line message for a user-facing error (see :func:`exit_code`)."""
+    unknown = _unknown_schema_key(exc)
+    if unknown:
+        return unknown
     if isinstance(exc, KeyboardInterrupt):
         return "interrupted (Ctrl-C)"
     if isinstance(exc, OSError) and exc.errno in _ENV_ERRNOS:

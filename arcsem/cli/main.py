@@ -22,9 +22,12 @@ import hydra
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
+from ..schemas import setup
 from .errors import EXIT_USER_ERROR, debug_requested, describe, exit_code, with_error_handling
 
 __all__ = ["SweepSummary", "hydra_main", "main"]
+
+setup()  # config schemas and plugin config folders, before Hydra composes anything
 
 FAILED_DIR = ".failed"
 _failed_sweeps: list[int] = []  # failures counted by SweepSummary in this process

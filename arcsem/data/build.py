@@ -15,8 +15,9 @@ import numpy as np
 import torch
 
 from ..cameras import Cameras
+from ..configs import ReaderOptions
 from ..errors import DataError
-from ..registry import checked, validate_config
+from ..registry import validate_config
 from ..scene import Scene, Split
 from .io import read_array, read_image, read_mask, resize
 from .names import view_names
@@ -32,7 +33,6 @@ __all__ = [
     "select_views",
 ]
 
-SPLIT_MODES = ("auto", "every_k", "none")
 
 
 def check_rotation(R: np.ndarray, where: str, tol: float = 1e-3) -> None:
@@ -69,17 +69,6 @@ class ViewSpec:
     clean: Path | None = None
     reference: Path | None = None
     undistort: Callable[[np.ndarray], np.ndarray] | None = field(default=None, repr=False)
-
-
-@dataclass
-class ReaderOptions:
-    """Options every reader shares (conf/dataset/*.yaml)."""
-
-    downscale: float = checked(1.0, ge=1.0)  # images and cameras are shrunk by this factor (cv2 INTER_AREA)
-    split: str = checked("auto", choices=SPLIT_MODES)  # auto: the dataset's own split (frame `split` keys /
-    # separate files), else all train
-    test_every: int = checked(8, ge=2)  # split=every_k: views 0, k, 2k, ... (in file order) are test views
-    max_views: int | None = checked(None, ge=2)  # keep at most this many views, evenly spaced, before splitting
 
 
 def reader_options(cfg: Any) -> ReaderOptions:

@@ -18,17 +18,15 @@ Schedules are pure functions of the step, so a resumed run sets exactly the same
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any
 
 import torch
 from torch import nn
 
+from ..configs import GroupSchedule, OptimConfig
 from ..errors import ConfigError
-from ..registry import checked, validate_config
+from ..registry import validate_config
 
 __all__ = [
     "GroupSchedule",
@@ -39,30 +37,6 @@ __all__ = [
     "lr_at",
     "make_optimizers",
 ]
-
-
-@dataclass
-class GroupSchedule:
-    """Learning rate of one group over the run (log-linear decay, as in 3DGS/svox2)."""
-
-    lr: float = checked(ge=0.0)  # rate at step 0
-    lr_final: float | None = checked(None, ge=0.0)  # rate at ``decay_steps`` (None: constant)
-    decay_steps: int | None = checked(None, ge=1)  # steps of the decay (None: the run's length)
-    delay_steps: int = checked(0, ge=0)  # svox2-style warm-up: rate multiplied by a sine ramp from ``delay_mult`` to 1
-    delay_mult: float = checked(1.0, ge=0.0)
-
-
-@dataclass
-class OptimConfig:
-    """``train.optim``: optimiser type, its constants and per-group overrides."""
-
-    type: str | None = checked(None, choices=("adam", "rmsprop"))  # None: the backbone's choice, else adam
-    eps: float = checked(1.0e-15, gt=0.0)  # Adam epsilon of 3DGS/2DGS
-    betas: tuple[float, float] = (0.9, 0.999)
-    rmsprop_alpha: float = checked(0.95, ge=0.0, le=1.0)  # svox2's RMSProp beta
-    rmsprop_eps: float = checked(1.0e-8, gt=0.0)
-    groups: dict[str, Any] = dataclasses.field(default_factory=dict)  # group -> GroupSchedule overrides
-    lr_scale: float = checked(1.0, gt=0.0)  # every group's rate (not ACT's) times this: short schedules take larger steps
 
 
 def lr_at(s: Schedule, step: int, total_steps: int) -> float:

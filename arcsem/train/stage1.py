@@ -9,32 +9,29 @@ returned dict into ``metrics.json``). It writes into ``run_dir``:
 * ``views.csv``, ``renders/{train,test}/<name>.png`` and ``<name>_depth.png``, ``turntable.mp4``
   (``.gif`` without ffmpeg), ``train_history.csv``.
 
-The ``train`` config group (``conf/train/*.yaml``) is validated against :class:`TrainConfig`.
-``per_backbone.<name>`` adapts a preset to a backbone: ``backbone`` keys merged into
-``cfg.backbone`` (e.g. a shortened densification schedule), ``losses`` merged into
-``losses`` (``null`` removes a term) and ``steps`` (a backbone whose step costs more), so one
-preset serves every backbone of a sweep.
+The ``train`` config group (``conf/train/*.yaml``) is validated against :class:`TrainConfig`. A preset adapts to
+a backbone through Hydra's composition (``conf/tuning/<train>_<backbone>.yaml``), so the command line always wins;
+a loss set to ``null`` in ``train.losses`` is off.
 """
 from __future__ import annotations
 
 import dataclasses
 import logging
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from ..errors import ConfigError, TrainingError
+from ..configs import EvalConfig, TrainConfig
+from ..errors import TrainingError
 from ..plugins import BACKBONES
-from ..registry import checked, validate_config
+from ..registry import validate_config
 from ..scene import Scene
 from .checkpoint import load_checkpoint, load_module_state
 from .evaluate import evaluate_split, mean_metrics, to_uint8, write_views_csv
 from .loop import LoopConfig, loss_trend_warning, train
-from .losses import build_losses, merge_loss_cfgs
-from .optim import OptimConfig
+from .losses import build_losses
 from .sampling import resize_split
 from .video import arc_path, write_video
 
@@ -47,7 +44,6 @@ __all__ = [
     "build_model",
     "evaluate",
     "load_stage1",
-    "per_backbone",
     "prepare_scene",
     "run_stage1",
     "stage1_config",
@@ -59,39 +55,6 @@ log = logging.getLogger(__name__)
 
 NON_SEMANTIC_KEYS = ("resume", "eval_every", "log_every", "checkpoint_every", "progress", "eval")
 """``train`` keys that do not change the trained model (ignored when deciding whether to resume)."""
-
-
-@dataclass
-class EvalConfig:
-    """``train.eval``: what the final and periodic evaluations do."""
-
-    lpips: bool = True  # LPIPS (AlexNet); NaN + reason when its ImageNet weights are missing
-    renders: bool = True  # write renders/{train,test}/<name>.png and <name>_depth.png
-    video: bool = True  # turntable video of novel views along the training arcs
-    video_frames: int = checked(60, ge=1)
-    fps: int = checked(20, ge=1)
-    max_train_views: int | None = checked(None, ge=1)  # score at most this many training views (None: all, the paper)
-    periodic_views: int = checked(4, ge=1)  # views scored (PSNR/SSIM) at every periodic evaluation
-
-
-@dataclass
-class TrainConfig:
-    """``train``: the stage-1 preset (see conf/train/quick.yaml and paper.yaml)."""
-
-    steps: int = checked(60_000, ge=1)  # ArCSEM stage 1
-    batch_views: int = checked(1, ge=1)  # views per step (image backbones)
-    rays_per_batch: int | None = checked(None, ge=1)  # ray backbones; None: the backbone's batch_size, else 5000
-    downscale: float = checked(1.0, ge=1.0)  # training/evaluation images at 1/downscale of the dataset resolution
-    width: int | None = checked(None, ge=1)  # or: resize to this width (overrides downscale; never upsamples)
-    log_every: int = checked(100, ge=1)
-    eval_every: int = checked(0, ge=0)  # periodic evaluation (0: only the final one)
-    checkpoint_every: int = checked(5000, ge=0)  # 0: only at the end
-    resume: str = checked("auto", choices=("auto", "never", "must"))
-    progress: bool = True
-    losses: dict[str, Any] = field(default_factory=lambda: {"l1": {"weight": 0.8}, "dssim": {"weight": 0.2}})
-    optim: OptimConfig = field(default_factory=OptimConfig)
-    eval: EvalConfig = field(default_factory=EvalConfig)
-    per_backbone: dict[str, Any] = field(default_factory=dict)  # name -> {backbone: {...}, losses: {...}, steps: n}
 
 
 def _plain(x: Any) -> Any:
@@ -123,28 +86,15 @@ def prepare_scene(scene: Scene, tc: TrainConfig) -> Scene:
 
 def act_config(cfg: Any):
     """The validated ``act`` group (:class:`arcsem.act.ActConfig`)."""
-    from ..act import ActConfig
+    from ..configs import ActConfig
 
     return validate_config(ActConfig, dict(_plain(cfg.get("act")) or {}), where="act")
 
 
-def per_backbone(tc: TrainConfig, name: str) -> dict:
-    """``train.per_backbone.<name>`` (keys ``backbone``, ``losses``, ``steps``), validated."""
-    over = dict(tc.per_backbone.get(name) or {})
-    unknown = set(over) - {"backbone", "losses", "steps"}
-    if unknown:
-        raise ConfigError(f"train.per_backbone.{name}: unknown key(s) {sorted(unknown)}; valid: backbone, losses, steps")
-    steps = over.get("steps", tc.steps)
-    if not isinstance(steps, int) or isinstance(steps, bool) or steps < 1:
-        raise ConfigError(f"train.per_backbone.{name}.steps: must be an integer >= 1, got {steps!r}")
-    return over
-
-
-def backbone_config(cfg: Any, tc: TrainConfig) -> dict:
-    """``cfg.backbone`` with its ``per_backbone`` overrides, checked against the plugin's ``Config``."""
+def backbone_config(cfg: Any) -> dict:
+    """``cfg.backbone`` as a plain dict, checked against the plugin's ``Config`` (ranges too)."""
     bcfg = dict(_plain(cfg.backbone))
     name = bcfg.get("name")
-    bcfg.update(per_backbone(tc, str(name)).get("backbone") or {})
     cls = BACKBONES.get(str(name))
     validate_config(cls.Config, {k: v for k, v in bcfg.items() if k != "name"}, where=f"backbone '{name}'")
     return bcfg
@@ -160,8 +110,7 @@ def stage1_losses(cfg: Any, tc: TrainConfig, act: Any = None):
     cls = BACKBONES.get(name)
     if act is True:
         act = ACT(1)
-    return build_losses(merge_loss_cfgs(tc.losses, per_backbone(tc, name).get("losses")), cls.provides,
-                        cls.batch_mode, backbone=name, act=act or None)
+    return build_losses(tc.losses, cls.provides, cls.batch_mode, backbone=name, act=act or None)
 
 
 def build_model(cfg: Any, scene: Scene, tc: TrainConfig | None = None):
@@ -169,7 +118,7 @@ def build_model(cfg: Any, scene: Scene, tc: TrainConfig | None = None):
     from ..act import ACT
 
     tc = tc or train_config(cfg)
-    bcfg = backbone_config(cfg, tc)
+    bcfg = backbone_config(cfg)
     ac = act_config(cfg)
     act = None
     if ac.enabled:
@@ -199,8 +148,7 @@ def run_stage1(cfg: Any, scene: Scene, run_dir: str | Path) -> dict:
     name = backbone.name
     losses = stage1_losses(cfg, tc, act)
     rays = tc.rays_per_batch or int(getattr(backbone.cfg, "batch_size", 5000))
-    over = per_backbone(tc, name)
-    loop = LoopConfig(steps=int(over.get("steps", tc.steps)), stage="geometry", batch_views=tc.batch_views, rays_per_batch=rays,
+    loop = LoopConfig(steps=tc.steps, stage="geometry", batch_views=tc.batch_views, rays_per_batch=rays,
                       log_every=tc.log_every, eval_every=tc.eval_every, checkpoint_every=tc.checkpoint_every,
                       resume=tc.resume, seed=int(cfg.get("seed", 0)), progress=tc.progress, desc=f"stage 1 ({name})")
     act_lr = act_config(cfg).lr

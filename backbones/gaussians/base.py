@@ -11,7 +11,6 @@ official loop with its 1-based ``iteration = step + 1``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import torch
@@ -19,8 +18,8 @@ from torch import Tensor, nn
 
 from arcsem.cameras import Cameras
 from arcsem.plugins import Backbone, RenderOutput
-from arcsem.registry import checked
 
+from .config import GaussianConfig
 from .densify import DensifyStats, clone_split_prune, reset_opacity, screen_grad_norms
 from .init import init_gaussians, random_points
 from .model import GaussianModel, active_sh_degree_at
@@ -31,42 +30,6 @@ __all__ = ["GaussianBackbone", "GaussianConfig"]
 GEOMETRY_GROUPS = {"xyz": "means", "f_dc": "sh_dc", "f_rest": "sh_rest", "opacity": "opacity_logits",
                    "scaling": "log_scales", "rotation": "quats"}
 COLOR_GROUPS = ("f_dc", "f_rest")
-
-
-@dataclass
-class GaussianConfig:
-    """Shared Gaussian settings; defaults = the official 3DGS/2DGS ones."""
-
-    sh_degree: int = checked(3, ge=0, le=3)  # maximum SH degree
-    sh_increase_every: int = checked(1000, ge=1)  # active SH degree +1 every this many steps (stage 1)
-    random_init_points: int = checked(100_000, ge=1)  # random init inside the scene bounds when there is no point cloud
-    init_opacity: float = checked(0.1, gt=0.0, le=1.0)  # initial opacity of every Gaussian
-    background: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])  # RGB behind the scene
-    # learning rates (Adam); position is multiplied by the scene extent and decays log-linearly
-    lr_position_init: float = checked(1.6e-4, ge=0.0)
-    lr_position_final: float = checked(1.6e-6, ge=0.0)
-    lr_position_max_steps: int = checked(30_000, ge=1)
-    lr_feature: float = checked(2.5e-3, ge=0.0)  # SH DC
-    lr_feature_rest: float = checked(2.5e-3 / 20, ge=0.0)  # higher SH bands
-    lr_opacity: float = checked(0.05, ge=0.0)
-    lr_scaling: float = checked(0.005, ge=0.0)
-    lr_rotation: float = checked(0.001, ge=0.0)
-    # adaptive density control
-    densify: bool = True
-    densify_from: int = checked(500, ge=0)
-    densify_until: int = checked(15_000, ge=0)
-    densify_every: int = checked(100, ge=1)
-    densify_grad_threshold: float = checked(2e-4, gt=0.0)  # mean NDC gradient norm (see densify.py)
-    percent_dense: float = checked(0.01, gt=0.0)  # clone if max scale <= this x extent, else split
-    opacity_reset_every: int = checked(3000, ge=1)  # opacities -> min(o, 0.01)
-    prune_opacity: float = checked(0.05, ge=0.0, le=1.0)  # 2DGS 0.05, 3DGS 0.005
-    max_screen_size: float = checked(20.0, gt=0.0)  # prune screen radius > this (px) after the first opacity reset
-    max_world_scale: float = checked(0.1, gt=0.0)  # ... and max scale > this x extent
-    # rasteriser
-    tile: int = checked(16, ge=1)
-    chunk_tiles: int | None = checked(None, ge=1)  # tiles composited at once (None = renderer's default)
-    # auto: fused C++ kernels when they build (CPU), else the PyTorch reference (one warning); torch | cpp explicit
-    rasterizer: str = checked("auto", choices=("auto", "torch", "cpp"))
 
 
 class GaussianBackbone(Backbone):

@@ -1,14 +1,13 @@
 """The ``gs2d`` backbone: 2D Gaussian Splatting (Huang et al. 2024) on the shared Gaussian code."""
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import ClassVar
 
 from arcsem.errors import ConfigError
 from arcsem.plugins import BACKBONES, RenderOutput
-from arcsem.registry import checked
 
-from ..gaussians.base import GaussianBackbone, GaussianConfig
+from ..gaussians.base import GaussianBackbone
+from .config import GS2DConfig
 
 __all__ = ["GS2DBackbone"]
 
@@ -23,19 +22,7 @@ class GS2DBackbone(GaussianBackbone):
     num_scales: ClassVar[int] = 2
     random_rotations: ClassVar[bool] = True  # official 2DGS starts from random rotations
 
-    @dataclass
-    class Config(GaussianConfig):
-        """2DGS defaults (official repository)."""
-
-        prune_opacity: float = checked(0.05, ge=0.0, le=1.0)  # official 2DGS opacity_cull
-        # normalised depth of the distortion loss: "linear" m = z / extent (any camera distance,
-        # orthographic too) or "ndc", the official mapping, which is ~flat at SEM camera distances
-        distortion_depth: str = checked("linear", choices=("linear", "ndc"))
-        # sigma (pixels) of the screen-space low-pass filter: a surfel is drawn at least as a 2-D Gaussian of
-        # this sigma around its projected centre (official 1/sqrt(2) = 0.707). It widens every silhouette by
-        # about a sigma, and a fit to sharp silhouettes pays for that by shrinking the surface: at low
-        # resolution a pixel is ~1 % of the specimen (benchmarks/results/README.md, "Surfels behind the surface")
-        lowpass_sigma: float = checked(0.7071067811865476, ge=0.0)
+    Config = GS2DConfig
 
     def __init__(self, cfg: Config, scene=None, act=None, **runtime):
         super().__init__(cfg, scene=scene, act=act, **runtime)

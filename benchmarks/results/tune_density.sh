@@ -9,7 +9,7 @@ set -uo pipefail
 cd "$(dirname "$0")/../.."
 BIN=${BIN:-.venv/bin}
 OUT=${1:-multirun/tune_density}
-B=++train.per_backbone.gs2d.backbone
+B=backbone
 declare -A RUNS=(
   [grad1e-4]="$B.densify_grad_threshold=1e-4"          # preset 2e-4 (official): more clones and splits
   [pd0.05]="$B.percent_dense=0.05"                     # preset 0.185: split (smaller surfels) above 0.05 x extent

@@ -10,7 +10,7 @@ set -uo pipefail
 cd "$(dirname "$0")/../.."
 BIN=${BIN:-.venv/bin}
 OUT=${1:-multirun/tune_geometry}
-G=train.per_backbone.gs2d.losses
+G=train.losses
 NORMALISED="$G.normal_consistency.official=false $G.normal_consistency.depth=expected"
 declare -A RUNS=(
   [none]="$G.distortion.weight=0 $NORMALISED"
@@ -25,5 +25,5 @@ declare -A RUNS=(
 )
 source "benchmarks/results/tune_runs.sh"
 # measured before the preset's low-pass filter, size and normal consistency changed: pinned explicitly
-COMMON="$PRESET_192 ++train.per_backbone.gs2d.backbone.lowpass_sigma=0.7071067811865476"
+COMMON="$PRESET_192 backbone.lowpass_sigma=0.7071067811865476"
 tune_runs

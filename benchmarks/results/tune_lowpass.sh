@@ -13,8 +13,8 @@ set -uo pipefail
 cd "$(dirname "$0")/../.."
 BIN=${BIN:-.venv/bin}
 OUT=${1:-multirun/tune_lowpass}
-B=++train.per_backbone.gs2d.backbone.lowpass_sigma
-G=train.per_backbone.gs2d.losses
+B=backbone.lowpass_sigma
+G=train.losses
 declare -A RUNS=(
   [sigma0.707]="$B=0.7071067811865476"
   [sigma0.5]="$B=0.5"

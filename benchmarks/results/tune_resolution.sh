@@ -11,7 +11,7 @@ cd "$(dirname "$0")/../.."
 BIN=${BIN:-.venv/bin}
 OUT=${1:-multirun/tune_resolution}
 size() { echo "dataset.width=$1 dataset.height=$2 train.width=$1"; }
-NC=train.per_backbone.gs2d.losses.normal_consistency.weight
+NC=train.losses.normal_consistency.weight
 declare -A RUNS=(
   [w192]="$(size 192 128) $NC=0.05"        # the quick preset before 2026-11-22
   [w240]="$(size 240 160) $NC=0.05"

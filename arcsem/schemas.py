@@ -1,0 +1,67 @@
+"""Hydra set-up at start-up: config schemas in the ConfigStore, and third-party config folders on the search path.
+
+* **Schemas.** The core's dataclasses (:mod:`arcsem.configs`) and every backbone's ``Config`` (entry-point group
+  ``arcsem.backbone_configs``: light modules, no torch) are stored as ``<group>/<name>_schema``; each YAML of
+  the group lists its schema first in its defaults (``defaults: [gs2d_schema, _self_]``). So
+  ``backbone.sh_degree=2`` works without ``+``, a mistyped key fails when the config is composed, and
+  ``--cfg job`` and the run's ``config.yaml`` show every effective key.
+* **Search path.** A plugin package adds its YAML folder with an entry point in the group ``arcsem.conf``
+  (``my_plugin = "pkg://my_plugin.conf"``); :class:`EntryPointSearchPath` appends every such folder. It is
+  registered with Hydra directly, so it works for editable installs too (Hydra's scan of the
+  ``hydra_plugins`` namespace does not see packages installed with ``pip install -e``).
+
+:func:`setup` is idempotent; the ``arcsem`` CLI and ``arcsem.conf`` (read by ``compose``) call it.
+"""
+from __future__ import annotations
+
+import dataclasses
+from importlib import metadata
+
+from hydra.core.config_search_path import ConfigSearchPath
+from hydra.plugins.search_path_plugin import SearchPathPlugin
+
+__all__ = ["CONFIG_GROUP", "CONF_GROUP", "EntryPointSearchPath", "backbone_schema", "setup"]
+
+CONFIG_GROUP = "arcsem.backbone_configs"  # backbone name -> "module:ConfigClass"
+CONF_GROUP = "arcsem.conf"  # plugin name -> "pkg://package.conf" (a folder of config groups)
+_done = False
+
+
+class EntryPointSearchPath(SearchPathPlugin):
+    """Appends the config folder of every installed arcsem plugin (entry-point group ``arcsem.conf``)."""
+
+    def manipulate_search_path(self, search_path: ConfigSearchPath) -> None:
+        for ep in sorted(metadata.entry_points(group=CONF_GROUP), key=lambda e: e.name):
+            search_path.append(provider=f"arcsem-plugin:{ep.name}", path=ep.value)
+
+
+def backbone_schema(name: str, config: type) -> type:
+    """``config`` with a leading ``name: str = <name>`` field: the schema of ``conf/backbone/<name>.yaml``."""
+    return dataclasses.make_dataclass(f"{config.__name__}Schema", [("name", str, dataclasses.field(default=name))],
+                                      bases=(config,))
+
+
+def setup() -> None:
+    """Store the schemas and register the search-path plugin (once per process)."""
+    global _done
+    if _done:
+        return
+    from hydra.core.config_store import ConfigStore
+    from hydra.core.plugins import Plugins
+
+    from .configs import ActConfig, ColorizeConfig, TrainConfig
+
+    cs = ConfigStore.instance()
+    for group, node in (("train", TrainConfig), ("colorize", ColorizeConfig), ("act", ActConfig)):
+        cs.store(group=group, name=f"{group}_schema", node=node)
+    for ep in metadata.entry_points(group=CONFIG_GROUP):
+        try:
+            config = ep.load()
+        except Exception as exc:  # noqa: BLE001 (a broken plugin must not stop the others; named when used)
+            import warnings
+
+            warnings.warn(f"arcsem: backbone config {ep.name} = {ep.value} does not load: {exc!r}", stacklevel=2)
+            continue
+        cs.store(group="backbone", name=f"{ep.name}_schema", node=backbone_schema(ep.name, config))
+    Plugins.instance().register(EntryPointSearchPath)
+    _done = True

@@ -1,0 +1,25 @@
+"""``gs2d`` settings: a plain dataclass, importable without torch (Hydra schema, :mod:`arcsem.schemas`)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from arcsem.registry import checked
+
+from ..gaussians.config import GaussianConfig
+
+__all__ = ["GS2DConfig"]
+
+
+@dataclass
+class GS2DConfig(GaussianConfig):
+    """2DGS defaults (official repository)."""
+
+    prune_opacity: float = checked(0.05, ge=0.0, le=1.0)  # official 2DGS opacity_cull
+    # normalised depth of the distortion loss: "linear" m = z / extent (any camera distance,
+    # orthographic too) or "ndc", the official mapping, which is ~flat at SEM camera distances
+    distortion_depth: str = checked("linear", choices=("linear", "ndc"))
+    # sigma (pixels) of the screen-space low-pass filter: a surfel is drawn at least as a 2-D Gaussian of
+    # this sigma around its projected centre (official 1/sqrt(2) = 0.707). It widens every silhouette by
+    # about a sigma, and a fit to sharp silhouettes pays for that by shrinking the surface: at low
+    # resolution a pixel is ~1 % of the specimen (benchmarks/results/README.md, "Surfels behind the surface")
+    lowpass_sigma: float = checked(0.7071067811865476, ge=0.0)

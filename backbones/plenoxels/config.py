@@ -1,0 +1,71 @@
+"""``plenoxels`` settings: a plain dataclass, importable without torch (Hydra schema, :mod:`arcsem.schemas`).
+
+Defaults are the paper's (ArCSEM: 128^3 growing to 304x304x128, 38,400 steps per resolution) and svox2's."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+__all__ = ["PlenoxelsConfig"]
+
+
+@dataclass
+class PlenoxelsConfig:
+    reso: list[list[int]] = field(default_factory=lambda: [[128, 128, 128], [256, 256, 128], [304, 304, 128]])
+    """Grid resolutions of the coarse-to-fine schedule. Paper: 128^3 up to 304x304x128 in 3 stages
+    (115,200 steps = 3 x 38,400); the middle resolution is not given in the paper (our choice)."""
+    upsample_every: int = 38400
+    """Steps per resolution (paper: 38,400)."""
+    sh_degree: int = 2
+    """SH degree (svox2: 2, 9 coefficients per channel)."""
+    init_sigma: float = 0.1
+    """Initial density (svox2), in 1 / normalised length (the box's longest half-side = 1)."""
+    init_sh: float = 0.0
+    """Initial SH coefficients (svox2: 0, i.e. grey 0.5)."""
+    step_size: float = 0.5
+    """Ray-marching step in voxels (svox2: 0.5)."""
+    stop_thresh: float = 1e-4
+    """Early stop: samples with transmittance below this are masked (svox2: 1e-4 ... 1e-7)."""
+    background: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    """Background colour (SEM: black); with ``learn_background`` its initial value."""
+    learn_background: bool = False
+    """Learn one background colour (group ``background``, stage 1 only): what rays leaving the grid's
+    box see. SEM views show the substrate far outside the specimen's box (our extension)."""
+    lr_background: float = 1e-2
+    """RMSProp rate of the background colour's logit."""
+    batch_size: int = 5000
+    """Rays per training step (svox2)."""
+    optimizer: str = "rmsprop"
+    """svox2 uses RMSProp for density and SH."""
+    rms_beta: float = 0.95
+    rms_eps: float = 1e-8
+    lr_sigma: float = 3e1
+    lr_sigma_final: float = 5e-2
+    lr_sigma_decay_steps: int = 250000
+    lr_sigma_delay_steps: int = 15000
+    lr_sigma_delay_mult: float = 1e-2
+    lr_sh: float = 1e-2
+    lr_sh_final: float = 5e-6
+    lr_sh_decay_steps: int = 250000
+    lr_sh_delay_steps: int = 0
+    lr_sh_delay_mult: float = 1e-2
+    lambda_tv: float = 1e-5
+    """TV weight on density (svox2 range 1e-5 .. 5e-3)."""
+    lambda_tv_sh: float = 1e-3
+    """TV weight on SH (svox2 range 1e-3 .. 5e-3)."""
+    tv_sparse_frac: float = 0.01
+    """Fraction of stored voxels on which TV is evaluated each step."""
+    tv_eps: float = 1e-5
+    prune: str = "weight"
+    """After each upsample: "weight" (svox2: max rendering weight over training rays), "density", "none"."""
+    prune_weight_thresh: float = 0.256
+    """svox2: 0.0005 * 512, divided by the new z resolution."""
+    prune_density_thresh: float = 5.0
+    prune_dilate: int = 2
+    prune_image_scale: float = 1.0
+    """Scale of the training views rendered to find the max weights (svox2: full resolution) ..."""
+    prune_max_rays: int = 1_000_000
+    """... reduced further so that at most this many rays are rendered (CPU budget; our choice)."""
+    chunk: int = 8192
+    """Rays per chunk when rendering whole images."""
+    renderer: str = "auto"
+    """"cpp" (fused C++ CPU kernel), "torch" (PyTorch reference, any device), "auto" (cpp on CPU if it builds)."""

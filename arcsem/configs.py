@@ -10,11 +10,10 @@ from typing import Any
 
 from .registry import checked
 
-__all__ = ["ACT_MODES", "ACT_SOLVERS", "DEFAULT_LOSSES", "SPLIT_MODES", "ActConfig", "ColorizeConfig", "EvalConfig",
+__all__ = ["ACT_MODES", "DEFAULT_LOSSES", "SPLIT_MODES", "ActConfig", "ColorizeConfig", "EvalConfig",
            "GroupSchedule", "OptimConfig", "ReaderOptions", "TrainConfig"]
 
 ACT_MODES = ("rgb", "scalar")
-ACT_SOLVERS = ("adam", "closed_form")
 SPLIT_MODES = ("auto", "every_k", "none")
 
 
@@ -82,10 +81,6 @@ class ActConfig:
     mode: str = checked("rgb", choices=ACT_MODES)  # rgb: the paper's text; scalar: the authors' code
     lr: float = checked(1e-4, gt=0.0)  # constant Adam rate of the transforms
     init_noise: float = checked(1e-3, ge=0.0)  # identity + N(0, init_noise)
-    solver: str = checked("adam", choices=ACT_SOLVERS)  # closed_form: an experiment (see the module docstring)
-    fit_rate: float = checked(0.5, gt=0.0, le=1.0)
-    fit_prior: float = checked(0.0, ge=0.0)
-    smooth_degree: int = checked(-1, ge=-1)
 
 
 DEFAULT_LOSSES = {

@@ -12,6 +12,7 @@ RenderOutput keys (``C`` cameras of ``H x W``; ray backbones use ``[R, ...]`` fo
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
@@ -19,6 +20,7 @@ import torch
 from torch import Tensor, nn
 
 from .cameras import Cameras
+from .configs import GroupSchedule
 from .registry import Registry
 
 __all__ = ["BACKBONES", "LOSSES", "Backbone", "Batch", "Loss", "RenderOutput"]
@@ -49,15 +51,28 @@ class Batch:
 
 
 class Backbone(nn.Module):
-    """Base class of scene representations.
+    """Base class of scene representations: every hook the trainer (stage 1), stage 2 and the exports call.
 
-    Subclasses define ``Config`` (a dataclass whose defaults are the paper's), ``provides`` and
-    ``render``. ``batch_mode`` tells the trainer whether to feed whole images or random ray batches.
+    A plugin defines ``Config`` (a dataclass whose defaults are the paper's), ``provides`` and :meth:`render`
+    (plus :meth:`render_rays` for ``batch_mode = "rays"``), and :meth:`param_groups`. Every other hook has a
+    default here; nothing outside this list is called on a backbone (tests/test_backbone_contract.py checks it).
+
+    Construction: ``cls(cfg, scene=scene, act=act)``: ``cfg`` the validated ``Config``, ``scene`` the
+    :class:`~arcsem.scene.Scene` at the training resolution, ``act`` the ACT module (stage 1 with ACT) or None.
+
+    The trainer, per step: :meth:`learning_rates` (once) and the optimisers from :meth:`make_optimizers` (once,
+    Adam for the groups it leaves out), :meth:`render` / :meth:`render_rays`, the losses, :meth:`pre_backward`,
+    ``backward``, :meth:`post_backward`, the optimiser steps; :meth:`state_dict` / ``load_state_dict`` for
+    checkpoints; :meth:`num_primitives` for the record; :meth:`export` at the end. Stage 2 calls
+    :meth:`set_act` (None: no ACT when colouring), :meth:`param_groups` ``("color")`` and :meth:`render`
+    (its ``depth`` / ``median_depth`` for pseudo-colours).
     """
 
     name: ClassVar[str]
     provides: ClassVar[frozenset[str]] = frozenset({"rgb", "alpha", "depth"})
     batch_mode: ClassVar[Literal["image", "rays"]] = "image"
+    export_suffix: ClassVar[str] = ".ply"  # the file :meth:`export` writes: model<suffix> in the run folder
+    rays_per_step: ClassVar[int] = 5000  # ray backbones: rays per training step unless train.rays_per_batch is set
 
     @dataclass
     class Config:
@@ -68,36 +83,71 @@ class Backbone(nn.Module):
         self.cfg = cfg
 
     def render(self, cams: Cameras, **kw: Any) -> RenderOutput:
-        """Render ``C`` cameras; returns at least the keys in ``provides``."""
+        """Render ``C`` cameras; returns at least the keys in ``provides`` (``[C, H, W, k]`` each)."""
         raise NotImplementedError
 
     def render_rays(self, rays_o: Tensor, rays_d: Tensor, image_ids: Tensor, **kw: Any) -> RenderOutput:
-        """Ray backbones: render ``[R,3]`` rays (directions with unit camera z)."""
+        """Ray backbones: render ``[R, 3]`` rays (directions with unit camera z); ``image_ids [R]`` select ACT."""
         raise NotImplementedError(f"{self.name} renders whole images only")
 
     def param_groups(self, stage: str) -> dict[str, list[nn.Parameter]]:
-        """Parameters by optimiser group; ``stage`` is ``"geometry"`` (stage 1) or ``"color"`` (stage 2)."""
+        """Parameters by optimiser group; ``stage`` is ``"geometry"`` (stage 1) or ``"color"`` (stage 2, colours only)."""
         raise NotImplementedError
+
+    def learning_rates(self, stage: str) -> dict[str, GroupSchedule | Callable[[int], float]]:
+        """The rate of each group of :meth:`param_groups` ``(stage)``: a :class:`~arcsem.configs.GroupSchedule`
+        (constant, or log-linear decay) or a function ``step -> lr``. ``train.optim.groups.<group>`` overrides it.
+
+        Default: from the ``Config`` fields ``lr_<group>`` (and ``lr_<group>_final``: a log-linear decay over the
+        run). A group without a rate stops the run before it trains, naming the group."""
+        out: dict[str, GroupSchedule | Callable[[int], float]] = {}
+        for group in self.param_groups(stage):
+            lr = getattr(self.cfg, f"lr_{group}", None)
+            if lr is not None:
+                out[group] = GroupSchedule(lr=float(lr), lr_final=getattr(self.cfg, f"lr_{group}_final", None))
+        return out
+
+    def make_optimizers(self, stage: str, groups: dict[str, list[nn.Parameter]]) -> dict[str, torch.optim.Optimizer]:
+        """Optimisers for some of ``groups`` (``{group: optimizer}``, one param group each, named ``group``);
+        the trainer builds Adam (``train.optim``) for the rest. Default: none (all Adam). Not used when
+        ``train.optim.type`` is set."""
+        return {}
+
+    def set_act(self, act: nn.Module | None) -> None:
+        """Use ``act`` (an :class:`~arcsem.act.ACT`) on the colours, or none (stage 2 colours without ACT)."""
+        self.act = act
 
     def pre_backward(self, step: int, out: RenderOutput) -> None:
         """Hook before ``loss.backward()`` (e.g. retain gradients of screen-space means)."""
 
     def post_backward(self, step: int, out: RenderOutput, optimizers: dict[str, torch.optim.Optimizer]) -> None:
-        """Hook after backward, before the optimiser step (densify, prune, upsample)."""
+        """Hook after backward, before the optimiser step (densify, prune, upsample); may replace the tensors of
+        ``optimizers[group]`` (and their state)."""
 
     def num_primitives(self) -> int:
+        """Gaussians, voxels...: the model's size for the record (default: the number of parameters)."""
         return sum(p.numel() for p in self.parameters())
 
     def export(self, path: str) -> None:
-        """Write the model in a format other tools read (PLY for Gaussians)."""
+        """Write the model in a format other tools read, to ``path`` (ends with :attr:`export_suffix`).
+        Default: nothing to export (``NotImplementedError``; the run goes on)."""
         raise NotImplementedError
 
 
 class Loss(nn.Module):
-    """Base class of loss terms: ``forward`` returns an unweighted scalar; the trainer weights it."""
+    """Base class of loss terms: :meth:`forward` returns an unweighted scalar; the trainer weights it.
+
+    Declared for the trainer (:func:`arcsem.train.losses.build_losses` checks them before any work): ``requires``,
+    the render outputs it reads (checked against the backbone's ``provides``); ``batch_modes``, the batches it
+    works on (``"image"``: whole views ``[C, H, W, 3]``, ``"rays"``: ``[R, 3]``); ``Config`` with ``weight`` and
+    ``start_step`` (0-based step from which it counts). Construction: ``cls(cfg, **runtime)`` (stage 1 passes
+    ``backbone=<name>`` and ``act``). What it reads from the batch: :class:`Batch` (images, masks, indices;
+    stage-2 targets in ``extras``, named in each stage-2 loss's docstring).
+    """
 
     name: ClassVar[str]
     requires: ClassVar[frozenset[str]] = frozenset({"rgb"})
+    batch_modes: ClassVar[frozenset[str]] = frozenset({"image", "rays"})
 
     @dataclass
     class Config:
@@ -109,4 +159,5 @@ class Loss(nn.Module):
         self.cfg = cfg
 
     def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
+        """The unweighted loss of render ``out`` on ``batch`` at 0-based ``step``: a scalar tensor."""
         raise NotImplementedError

@@ -6,7 +6,8 @@
   ``backbone.sh_degree=2`` works without ``+``, a mistyped key fails when the config is composed, and
   ``--cfg job`` and the run's ``config.yaml`` show every effective key.
 * **Search path.** A plugin package adds its YAML folder with an entry point in the group ``arcsem.conf``
-  (``my_plugin = "pkg://my_plugin.conf"``); :class:`EntryPointSearchPath` appends every such folder. It is
+  naming a package of config groups (``my_plugin = "my_plugin.conf"``); :class:`EntryPointSearchPath`
+  appends every such package (as ``pkg://my_plugin.conf``). It is
   registered with Hydra directly, so it works for editable installs too (Hydra's scan of the
   ``hydra_plugins`` namespace does not see packages installed with ``pip install -e``).
 
@@ -23,7 +24,7 @@ from hydra.plugins.search_path_plugin import SearchPathPlugin
 __all__ = ["CONFIG_GROUP", "CONF_GROUP", "EntryPointSearchPath", "backbone_schema", "setup"]
 
 CONFIG_GROUP = "arcsem.backbone_configs"  # backbone name -> "module:ConfigClass"
-CONF_GROUP = "arcsem.conf"  # plugin name -> "pkg://package.conf" (a folder of config groups)
+CONF_GROUP = "arcsem.conf"  # plugin name -> "package.conf" (a package of config groups)
 _done = False
 
 
@@ -32,7 +33,7 @@ class EntryPointSearchPath(SearchPathPlugin):
 
     def manipulate_search_path(self, search_path: ConfigSearchPath) -> None:
         for ep in sorted(metadata.entry_points(group=CONF_GROUP), key=lambda e: e.name):
-            search_path.append(provider=f"arcsem-plugin:{ep.name}", path=ep.value)
+            search_path.append(provider=f"arcsem-plugin:{ep.name}", path=f"pkg://{ep.module}")
 
 
 def backbone_schema(name: str, config: type) -> type:

@@ -96,7 +96,7 @@ def run_case(name, runs, renderer):
     o, d = o.reshape(-1, 3), d.reshape(-1, 3)
     target = sc.train.images.reshape(-1, 3)
     ids = torch.arange(len(cams)).repeat_interleave(cams.width * cams.height)
-    opts = bb.make_optimizers("geometry")
+    opts = bb.make_optimizers("geometry", bb.param_groups("geometry"))
     gen = torch.Generator().manual_seed(1)
 
     def fwd_bwd():

@@ -41,9 +41,10 @@ def loadable() -> list:
     """Every registered backbone. In-tree plugins must load; a broken third-party one is skipped."""
     from importlib import metadata
 
-    in_tree = {ep.name for ep in metadata.entry_points(group=BACKBONES.group) if ep.value.startswith("arcsem.")}
+    eps = metadata.entry_points(group=BACKBONES.group)
+    in_tree = {ep.name for ep in eps if ep.value.startswith("arcsem.")}
     params = []
-    for name in BACKBONES.names():
+    for name in sorted(ep.name for ep in eps):  # installed plugins (not test doubles registered in memory)
         try:
             BACKBONES.get(name)
             params.append(pytest.param(name, id=name))

@@ -118,10 +118,14 @@ def test_param_groups_and_learning_rates():
     assert sorted(col) == ["f_dc", "f_rest"] and not bb.model.means.requires_grad
     assert bb.model.sh_dc.requires_grad
     ext = scene.extent
-    lr0, lr_end, lr_mid = (bb.learning_rates(s)["xyz"] for s in (0, 30_000, 15_000))
+    from arcsem.train.optim import lr_at
+
+    rates = bb.learning_rates("geometry")
+    lr0, lr_end, lr_mid = (lr_at(rates["xyz"], s, 1) for s in (0, 30_000, 15_000))
     assert lr0 == pytest.approx(1.6e-4 * ext) and lr_end == pytest.approx(1.6e-6 * ext)
     assert lr_mid == pytest.approx(1.6e-5 * ext)  # log-linear: geometric mean halfway
-    lrs = bb.learning_rates(0)
+    lrs = {g: lr_at(r, 0, 1) for g, r in rates.items()}
+    assert sorted(bb.learning_rates("color")) == ["f_dc", "f_rest"]
     assert (lrs["f_dc"], lrs["f_rest"], lrs["opacity"], lrs["scaling"], lrs["rotation"]) == pytest.approx(
         (2.5e-3, 2.5e-3 / 20, 0.05, 0.005, 0.001))
     assert build("gs2d", scene).cfg.prune_opacity == 0.05 and bb.cfg.prune_opacity == 0.005

@@ -17,6 +17,7 @@ from arcsem.cameras import Cameras, look_at
 from arcsem.plugins import LOSSES
 from arcsem.registry import validate_config
 from arcsem.scene import Scene, Split
+from arcsem.train.optim import apply_schedules
 
 BOX = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])  # scale (half longest side) = 1
 
@@ -257,7 +258,7 @@ def test_upsample_schedule_resets_optimiser_and_state_dict_round_trip(tmp_path):
     scene = small_scene()
     bb = make(scene, prune="density", prune_density_thresh=1.0, upsample_every=10)
     with_ball(bb)
-    opts = bb.make_optimizers("geometry")
+    opts = bb.make_optimizers("geometry", bb.param_groups("geometry"))
     o, d = scene.train.cameras[:1].rays()
     out = bb.render_rays(o.reshape(-1, 3), d.reshape(-1, 3))
     out["rgb"].sum().backward()
@@ -276,7 +277,7 @@ def test_upsample_schedule_resets_optimiser_and_state_dict_round_trip(tmp_path):
     bb.post_backward(20, out, opts)  # last resolution reached: nothing changes
     assert bb.reso == [20, 20, 16]
     colour_only = make(scene, upsample_every=10)
-    colour_only.post_backward(10, out, colour_only.make_optimizers("color"))  # stage 2: grid kept
+    colour_only.post_backward(10, out, colour_only.make_optimizers("color", colour_only.param_groups("color")))  # stage 2: grid kept
     assert colour_only.reso == [12, 12, 12]
 
     fresh = make(scene)  # at the coarse resolution
@@ -305,11 +306,14 @@ def test_weight_pruning_keeps_visible_surface():
 
 
 def test_learning_rate_schedule_is_svox2s():
+    from arcsem.train.optim import lr_at
+
     bb = make(small_scene())
-    assert bb.learning_rate("density", 0) == pytest.approx(30 * 1e-2)  # delayed start: lr * delay_mult
-    assert bb.learning_rate("density", 250000) == pytest.approx(5e-2)
-    assert bb.learning_rate("sh", 0) == pytest.approx(1e-2)  # no delay for SH
-    assert bb.learning_rate("sh", 125000) == pytest.approx(math.sqrt(1e-2 * 5e-6))  # log-linear midpoint
+    rate = lambda g, step: lr_at(bb.learning_rates("geometry")[g], step, 1)
+    assert rate("density", 0) == pytest.approx(30 * 1e-2)  # delayed start: lr * delay_mult
+    assert rate("density", 250000) == pytest.approx(5e-2)
+    assert rate("sh", 0) == pytest.approx(1e-2)  # no delay for SH
+    assert rate("sh", 125000) == pytest.approx(math.sqrt(1e-2 * 5e-6))  # log-linear midpoint
     assert bb.param_groups("color") == {"sh": [bb.sh]}
 
 
@@ -322,7 +326,7 @@ def test_training_with_svox2_settings_fits_a_small_scene():
         gt.sh[:, 0, 0], gt.sh[:, 0, 2] = 1.0, -1.0  # an orange-ish ball
         imgs = gt.render(scene.train.cameras)["rgb"]
     bb = make(scene, reso=[[16, 16, 16]], lr_sigma_delay_steps=20, lr_sigma_decay_steps=300, lr_sh_decay_steps=300)
-    opts = bb.make_optimizers("geometry")
+    opts = bb.make_optimizers("geometry", bb.param_groups("geometry"))
     o, d = scene.train.cameras.rays()
     o, d, tgt = o.reshape(-1, 3), d.reshape(-1, 3), imgs.reshape(-1, 3)
     gen = torch.Generator().manual_seed(0)
@@ -330,7 +334,7 @@ def test_training_with_svox2_settings_fits_a_small_scene():
     with torch.no_grad():
         start = psnr()
     for step in range(100):
-        bb.update_learning_rates(opts, step)
+        apply_schedules(opts, bb.learning_rates("geometry"), step, 100)
         sel = torch.randint(0, o.shape[0], (500,), generator=gen)
         out = bb.render_rays(o[sel], d[sel])
         loss = ((out["rgb"] - tgt[sel]) ** 2).mean() + out["tv"]
@@ -363,4 +367,4 @@ def test_learned_background_fills_rays_that_miss_the_grid_and_is_trained():
     torch.testing.assert_close(bb.background_logit.grad, (miss * sig * (1 - sig)).expand(3), rtol=1e-4, atol=1e-6)
     assert set(bb.param_groups("geometry")) == {"density", "sh", "background"}
     assert set(bb.param_groups("color")) == {"sh"}
-    assert bb.learning_rate("background", 123) == bb.cfg.lr_background
+    assert bb.learning_rates("geometry")["background"].lr == bb.cfg.lr_background

@@ -72,7 +72,7 @@ def write_outputs(backbone, scene, run_dir: Path, cc, pseudo: torch.Tensor, vali
     out = {"colored_dir": str(run_dir / "colored")}
     if cc.eval.video:
         out["video"] = str(turntable(backbone, scene, run_dir / "colored_turntable", cc.eval.video_frames, cc.eval.fps))
-    suffix = getattr(backbone, "export_suffix", None) or (".npz" if backbone.batch_mode == "rays" else ".ply")
+    suffix = backbone.export_suffix
     try:
         backbone.export(str(run_dir / f"colored_model{suffix}"))
         out["export"] = str(run_dir / f"colored_model{suffix}")

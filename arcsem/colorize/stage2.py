@@ -189,7 +189,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     refs = load_references(scene, cc.references)  # validated against the dataset's views
     backbone, _ = load_stage1(ckpt, scene, cfg)  # (resizes the scene as stage 1 did, internally)
     scene = _prepare_scene(scene, ckpt, cc)
-    backbone.act = None  # stage 2 never uses ACT (the paper found it hurt colourisation)
+    backbone.set_act(None)  # stage 2 never uses ACT (the paper found it hurt colourisation)
     split = scene.train
     refs.images = _resize_images(refs.images, split.cameras.height, split.cameras.width)
     masks = specimen_masks(split, cc.masks, cc.mask_folder, cc.sam_checkpoint)

@@ -92,7 +92,7 @@ def _groups(backbone: nn.Module, act: nn.Module | None, stage: str) -> dict[str,
     groups = {g: list(ps) for g, ps in backbone.param_groups(stage).items() if len(list(ps))}
     if act is not None:
         seen = {id(p) for ps in groups.values() for p in ps}
-        extra = [p for p in act.parameters() if id(p) not in seen and p.requires_grad]  # closed-form ACT: none
+        extra = [p for p in act.parameters() if id(p) not in seen and p.requires_grad]
         if extra:
             groups["act"] = groups.get("act", []) + extra
     if not groups:
@@ -115,15 +115,12 @@ class _Run:
     def __init__(self, backbone, act, split, loop, optim, ckpt_dir, config):
         self.backbone, self.act, self.loop, self.config = backbone, act, loop, dict(config or {})
         self.path = Path(ckpt_dir) / "last.pt" if ckpt_dir is not None else None
-        self.sampler = make_sampler(split, getattr(backbone, "batch_mode", "image"), loop.batch_views,
+        self.sampler = make_sampler(split, backbone.batch_mode, loop.batch_views,
                                     loop.rays_per_batch, loop.seed, _device(backbone))
         self.optim = optim
         self.step, self.time_s, self.history, self.evals, self.resumed_from = 0, 0.0, [], [], None
         self.saved_step: int | None = None  # step of the checkpoint on disk (None: none written or loaded)
         self.act_separate = act is not None and not any(m is act for m in backbone.modules())
-        if getattr(act, "solver", "adam") == "closed_form" and getattr(backbone, "batch_mode", "image") != "image":
-            raise ConfigError(f"act.solver=closed_form fits whole views; backbone '{backbone.name}' trains on "
-                              f"'{backbone.batch_mode}' batches: use act.solver=adam")
 
     def build_optimizers(self, act_lr: float | None) -> None:
         groups = _groups(self.backbone, self.act, self.loop.stage)
@@ -205,10 +202,6 @@ def _step(run: _Run, losses: LossSet, batch_hook, step: int) -> tuple[float, flo
     bb.post_backward(step, out, run.optimizers)
     for o in run.optimizers.values():
         o.step()
-    if run.act is not None and getattr(run.act, "solver", "adam") == "closed_form":
-        run.act.fit_views(out["rgb"].detach(), out["alpha"].detach(), batch.images, batch.cameras.image_ids)
-        _check_finite(run, step, "after the closed-form ACT fit", {"act": [run.act.weight, run.act.bias]},
-                      "parameter group")
     params = {g: [p for pg in o.param_groups for p in pg["params"]] for g, o in run.optimizers.items()}
     _check_finite(run, step, "after the optimiser step", params, "parameter group")
     return float(total.detach()), batch_psnr(out["rgb"], batch.images), {k: float(v.detach()) for k, v in terms.items()}

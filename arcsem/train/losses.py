@@ -92,7 +92,7 @@ def build_losses(cfg: Mapping | None, provides: frozenset[str] | set[str], batch
             raise ConfigError(
                 f"{where}.{name}: loss '{plugin}' needs {sorted(missing)} which backbone '{backbone}' does not "
                 f"provide (it provides {sorted(provides)}); drop the term with {where}.{name}=null")
-        modes = getattr(loss, "batch_modes", frozenset({"image", "rays"}))
+        modes = loss.batch_modes
         if batch_mode not in modes:
             raise ConfigError(
                 f"{where}.{name}: loss '{plugin}' works on {sorted(modes)} batches but backbone '{backbone}' "

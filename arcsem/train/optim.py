@@ -1,20 +1,16 @@
 """Optimisers and learning-rate schedules from config, one optimiser per parameter group.
 
-Where the numbers come from (later wins):
+Where the rates come from: ``train.optim.groups.<group>`` (a :class:`GroupSchedule` override from a preset
+or the command line), else the backbone's declared :meth:`~arcsem.plugins.Backbone.learning_rates`; the
+``act`` group (the ACT module's parameters) uses ``act.lr``, constant.
 
-1. ``train.optim.groups.<group>`` (a :class:`GroupSchedule`): overrides from a preset or the command line;
-2. else the backbone's own schedule, the first of: ``backbone.learning_rates(step) -> {group: lr}``
-   (Gaussians), ``backbone.learning_rate(group, step) -> lr`` (Plenoxels),
-   ``backbone.optim_defaults(stage) -> {group: GroupSchedule fields}``, or Config fields
-   ``lr_<group>`` / ``lr_<group>_final``;
-3. the ``act`` group (the ACT module's parameters): ``act.lr`` (constant, Adam).
+Optimiser type: ``train.optim.type`` if set; else the backbone's :meth:`~arcsem.plugins.Backbone.make_optimizers`
+for the groups it returns (Plenoxels: RMSProp) and Adam for the rest. The result is ``{group: Optimizer}``: one
+optimiser per group, so densification code replaces tensors in ``optimizers[group]`` and its ``state``
+without touching the others.
 
-Optimiser type: ``train.optim.type`` if set; else the backbone's ``make_optimizers(stage)`` if it
-has one (Plenoxels: RMSProp); else Adam. The result is ``{group: Optimizer}``: one optimiser per
-group, so densification code replaces tensors in ``optimizers[group]`` and its ``state`` without
-touching the others.
-
-Schedules are pure functions of the step, so a resumed run sets exactly the same rates.
+Schedules are pure functions of the step (:func:`lr_at`, the one log-linear decay of the project), so a
+resumed run sets exactly the same rates.
 """
 from __future__ import annotations
 
@@ -62,21 +58,6 @@ def lr_at(s: Schedule, step: int, total_steps: int) -> float:
 Schedule = GroupSchedule | Callable[[int], float]
 
 
-def _from_backbone(backbone: nn.Module, stage: str, group: str) -> dict | Callable[[int], float]:
-    if hasattr(backbone, "learning_rates") and group in backbone.learning_rates(0):
-        return lambda step: float(backbone.learning_rates(step)[group])
-    if hasattr(backbone, "learning_rate"):
-        return lambda step: float(backbone.learning_rate(group, step))
-    if hasattr(backbone, "optim_defaults"):
-        return dict(backbone.optim_defaults(stage).get(group, {}))
-    cfg = getattr(backbone, "cfg", None)
-    out = {}
-    for key, field in (("lr", f"lr_{group}"), ("lr_final", f"lr_{group}_final")):
-        if cfg is not None and getattr(cfg, field, None) is not None:
-            out[key] = float(getattr(cfg, field))
-    return out
-
-
 def group_schedules(groups: dict[str, list], backbone: nn.Module, stage: str, optim: OptimConfig,
                     act_lr: float | None = None) -> dict[str, Schedule]:
     """The schedule of every group in ``groups`` (raises ConfigError naming a group without a rate)."""
@@ -84,22 +65,23 @@ def group_schedules(groups: dict[str, list], backbone: nn.Module, stage: str, op
     if unknown:
         raise ConfigError(f"train.optim.groups: unknown group(s) {sorted(unknown)}; "
                           f"stage '{stage}' has {sorted(groups)}")
-    out = {}
+    declared = backbone.learning_rates(stage)
+    out: dict[str, Schedule] = {}
     for g in groups:
         if g == "act" and act_lr is not None:
-            values = {"lr": act_lr}
-        elif optim.groups.get(g):
-            values = {}
+            out[g] = GroupSchedule(lr=act_lr)
+            continue
+        base = declared.get(g)
+        override = dict(optim.groups.get(g) or {})
+        if override:  # replaces the backbone's schedule of the group entirely
+            if "lr" not in override:
+                raise ConfigError(f"train.optim.groups.{g}: no lr")
+            out[g] = validate_config(GroupSchedule, override, where=f"train.optim.groups.{g}")
+        elif base is not None:
+            out[g] = base
         else:
-            values = _from_backbone(backbone, stage, g)
-            if callable(values):
-                out[g] = values
-                continue
-        values.update(optim.groups.get(g) or {})
-        if "lr" not in values:
-            raise ConfigError(f"no learning rate for parameter group '{g}' (stage '{stage}'); "
-                              f"set train.optim.groups.{g}.lr")
-        out[g] = validate_config(GroupSchedule, values, where=f"train.optim.groups.{g}")
+            raise ConfigError(f"no learning rate for parameter group '{g}' (stage '{stage}'): the backbone's "
+                              f"learning_rates() does not give one; set train.optim.groups.{g}.lr")
     return out
 
 
@@ -124,8 +106,8 @@ def make_optimizers(backbone: nn.Module, groups: dict[str, list[nn.Parameter]], 
                     optim: OptimConfig, stage: str) -> dict[str, torch.optim.Optimizer]:
     """Backbone's ``make_optimizers(stage)`` for its groups (unless ``optim.type`` is set), Adam for the rest."""
     out: dict[str, torch.optim.Optimizer] = {}
-    if optim.type is None and hasattr(backbone, "make_optimizers"):
-        out = dict(backbone.make_optimizers(stage))
+    if optim.type is None:
+        out = dict(backbone.make_optimizers(stage, {g: ps for g, ps in groups.items() if g != "act"}))
         unknown = set(out) - set(groups)
         if unknown:
             raise ConfigError(f"backbone.make_optimizers('{stage}') returned unknown group(s) {sorted(unknown)}")

@@ -122,8 +122,7 @@ def build_model(cfg: Any, scene: Scene, tc: TrainConfig | None = None):
     ac = act_config(cfg)
     act = None
     if ac.enabled:
-        act = ACT(len(scene.train), ac.mode, ac.init_noise, ac.solver, ac.fit_rate, ac.fit_prior,
-                  view_dirs=scene.train.cameras.forward, smooth_degree=ac.smooth_degree)
+        act = ACT(len(scene.train), ac.mode, ac.init_noise)
     backbone = BACKBONES.build(bcfg, scene=scene, **({"act": act} if act is not None else {}))
     device = torch.device(str(cfg.get("device", "cpu")))
     return backbone.to(device), (act.to(device) if act is not None else None)
@@ -147,7 +146,7 @@ def run_stage1(cfg: Any, scene: Scene, run_dir: str | Path) -> dict:
     backbone, act = build_model(cfg, scene, tc)
     name = backbone.name
     losses = stage1_losses(cfg, tc, act)
-    rays = tc.rays_per_batch or int(getattr(backbone.cfg, "batch_size", 5000))
+    rays = tc.rays_per_batch or int(backbone.rays_per_step)
     loop = LoopConfig(steps=tc.steps, stage="geometry", batch_views=tc.batch_views, rays_per_batch=rays,
                       log_every=tc.log_every, eval_every=tc.eval_every, checkpoint_every=tc.checkpoint_every,
                       resume=tc.resume, seed=int(cfg.get("seed", 0)), progress=tc.progress, desc=f"stage 1 ({name})")
@@ -211,8 +210,7 @@ def turntable(backbone, scene: Scene, path: Path, frames: int = 60, fps: int = 2
 
 
 def _export(backbone, run_dir: Path) -> str | None:
-    suffix = getattr(backbone, "export_suffix", None) or (".npz" if backbone.batch_mode == "rays" else ".ply")
-    path = run_dir / f"model{suffix}"
+    path = run_dir / f"model{backbone.export_suffix}"
     try:
         backbone.export(str(path))
     except NotImplementedError:

@@ -17,6 +17,7 @@ import torch
 from torch import Tensor, nn
 
 from arcsem.cameras import Cameras
+from arcsem.configs import GroupSchedule
 from arcsem.plugins import Backbone, RenderOutput
 
 from .config import GaussianConfig
@@ -98,14 +99,15 @@ class GaussianBackbone(Backbone):
             getattr(self.model, attr).requires_grad_(group in names)
         return {g: [getattr(self.model, GEOMETRY_GROUPS[g])] for g in names}
 
-    def learning_rates(self, step: int) -> dict[str, float]:
-        """Learning rate of every group at ``step``; position: log-linear from init to final x extent."""
-        c = self.cfg
-        t = min(max(step / max(c.lr_position_max_steps, 1), 0.0), 1.0)
-        ext = float(self.extent)
-        xyz = math.exp((1 - t) * math.log(c.lr_position_init * ext) + t * math.log(c.lr_position_final * ext))
-        return {"xyz": xyz, "f_dc": c.lr_feature, "f_rest": c.lr_feature_rest, "opacity": c.lr_opacity,
-                "scaling": c.lr_scaling, "rotation": c.lr_rotation}
+    def learning_rates(self, stage: str) -> dict[str, GroupSchedule]:
+        """The official rates of the groups of ``stage``; position: log-linear from init to final x extent over
+        ``lr_position_max_steps``, the others constant."""
+        c, ext = self.cfg, float(self.extent)
+        rates = {"xyz": GroupSchedule(c.lr_position_init * ext, c.lr_position_final * ext, c.lr_position_max_steps),
+                 "f_dc": GroupSchedule(c.lr_feature), "f_rest": GroupSchedule(c.lr_feature_rest),
+                 "opacity": GroupSchedule(c.lr_opacity), "scaling": GroupSchedule(c.lr_scaling),
+                 "rotation": GroupSchedule(c.lr_rotation)}
+        return {g: rates[g] for g in self.param_groups(stage)}
 
     def pre_backward(self, step: int, out: RenderOutput) -> None:
         """Nothing to do: the densification statistic is read from the 3-D means' gradient."""
@@ -113,7 +115,7 @@ class GaussianBackbone(Backbone):
     def post_backward(self, step: int, out: RenderOutput, optimizers) -> None:
         """Stage 1 only: SH degree, densification statistics, densify/prune/reset.
 
-        Learning rates are the trainer's (:func:`arcsem.train.optim.apply_schedules` reads
+        Learning rates are the trainer's (:func:`arcsem.train.optim.apply_schedules` follows
         :meth:`learning_rates` unless ``train.optim.groups`` overrides a group).
 
         Runs after the backward pass of 0-based ``step`` and before the optimiser step; changed

@@ -2,8 +2,8 @@
 
 Defaults are the paper's (ArCSEM: 128^3 growing to 304x304x128, 38,400 steps per resolution) and
 svox2's (batch 5000 rays, RMSProp beta 0.95, exponential lr decay, init sigma 0.1, SH 0, TV on 1%
-of the voxels). Optimisers are built from :meth:`Plenoxels.param_groups`; :meth:`make_optimizers`
-and :meth:`update_learning_rates` implement svox2's settings for a trainer that wants them.
+of the voxels). :meth:`Plenoxels.learning_rates` and :meth:`Plenoxels.make_optimizers` give the trainer svox2's
+schedules and RMSProp.
 """
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from ...configs import GroupSchedule
 from ...errors import ConfigError
 from ...plugins import BACKBONES, Backbone
 from .config import PlenoxelsConfig
@@ -23,17 +24,7 @@ from .render import GridData, render_grid
 from .tv import random_rows, tv_sparse
 from .upsample import max_weights, prune, resample
 
-__all__ = ["Plenoxels", "expon_lr"]
-
-
-def expon_lr(step: int, lr_init: float, lr_final: float, max_steps: int, delay_steps: int = 0,
-             delay_mult: float = 1.0) -> float:
-    """svox2's schedule: log-linear from ``lr_init`` to ``lr_final`` over ``max_steps``, with a sine warm-up."""
-    t = min(max(step / max(max_steps, 1), 0.0), 1.0)
-    lr = math.exp(math.log(lr_init) * (1 - t) + math.log(lr_final) * t)
-    if delay_steps > 0:
-        lr *= delay_mult + (1 - delay_mult) * math.sin(0.5 * math.pi * min(max(step / delay_steps, 0.0), 1.0))
-    return lr
+__all__ = ["Plenoxels"]
 
 
 @BACKBONES.register("plenoxels")
@@ -44,6 +35,7 @@ class Plenoxels(Backbone):
     batch_mode = "rays"
 
     Config = PlenoxelsConfig
+    export_suffix = ".npz"
 
     def __init__(self, cfg: Any, scene: Any = None, act: Any = None, **runtime: Any):
         super().__init__(cfg, scene)
@@ -157,27 +149,31 @@ class Plenoxels(Backbone):
             return {"sh": [self.sh]}
         raise ConfigError(f"backbone 'plenoxels': unknown stage '{stage}' (geometry|color)")
 
-    def learning_rate(self, group: str, step: int) -> float:
-        """svox2's exponential schedule for group ``density`` or ``sh`` at ``step`` (``background``: constant)."""
-        c = self.cfg
-        if group == "background":
-            return c.lr_background
-        if group == "density":
-            return expon_lr(step, c.lr_sigma, c.lr_sigma_final, c.lr_sigma_decay_steps, c.lr_sigma_delay_steps,
-                            c.lr_sigma_delay_mult)
-        return expon_lr(step, c.lr_sh, c.lr_sh_final, c.lr_sh_decay_steps, c.lr_sh_delay_steps, c.lr_sh_delay_mult)
+    @property
+    def rays_per_step(self) -> int:
+        """svox2's batch: ``batch_size`` rays per step."""
+        return int(self.cfg.batch_size)
 
-    def make_optimizers(self, stage: str) -> dict[str, torch.optim.Optimizer]:
-        """One RMSProp (beta ``rms_beta``) per parameter group, lr at step 0."""
+    def set_act(self, act: Any) -> None:
+        """ACT is owned (and checkpointed) by the trainer, not a submodule."""
+        self.__dict__["act"] = act
+
+    def learning_rates(self, stage: str) -> dict[str, GroupSchedule]:
+        """svox2's schedules: log-linear decay with a sine warm-up for ``density`` and ``sh``; ``background``
+        constant."""
+        c = self.cfg
+        rates = {"density": GroupSchedule(c.lr_sigma, c.lr_sigma_final, c.lr_sigma_decay_steps, c.lr_sigma_delay_steps,
+                                          c.lr_sigma_delay_mult),
+                 "sh": GroupSchedule(c.lr_sh, c.lr_sh_final, c.lr_sh_decay_steps, c.lr_sh_delay_steps, c.lr_sh_delay_mult),
+                 "background": GroupSchedule(c.lr_background)}
+        return {g: rates[g] for g in self.param_groups(stage)}
+
+    def make_optimizers(self, stage: str, groups: dict[str, list[nn.Parameter]]) -> dict[str, torch.optim.Optimizer]:
+        """One RMSProp (beta ``rms_beta``) per group (svox2); the trainer sets the rates every step."""
         if self.cfg.optimizer != "rmsprop":
             raise ConfigError(f"backbone 'plenoxels': optimizer '{self.cfg.optimizer}' unsupported (rmsprop)")
-        return {g: torch.optim.RMSprop(ps, lr=self.learning_rate(g, 0), alpha=self.cfg.rms_beta, eps=self.cfg.rms_eps)
-                for g, ps in self.param_groups(stage).items()}
-
-    def update_learning_rates(self, optimizers: dict[str, torch.optim.Optimizer], step: int) -> None:
-        for g, opt in optimizers.items():
-            for pg in opt.param_groups:
-                pg["lr"] = self.learning_rate(g, step)
+        return {g: torch.optim.RMSprop([{"params": list(ps), "name": g}], lr=0.0, alpha=self.cfg.rms_beta,
+                                       eps=self.cfg.rms_eps) for g, ps in groups.items()}
 
     def post_backward(self, step: int, out: dict, optimizers: dict[str, torch.optim.Optimizer]) -> None:
         """Upsample (and prune) every ``upsample_every`` steps until the last resolution.

@@ -1,14 +1,16 @@
 """A tiny backbone: one learnable colour everywhere, fully opaque, at a constant depth.
 
-Enough to exercise the plugin machinery (entry point, Config validation, YAML search path)."""
+It implements the hooks a backbone must (``render``, ``param_groups``) and one it may
+(``learning_rates``); every other hook keeps the default of :class:`arcsem.plugins.Backbone`."""
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import torch
 from torch import nn
 
+from arcsem.configs import GroupSchedule
 from arcsem.plugins import BACKBONES, Backbone
+
+from .config import ConstantConfig
 
 __all__ = ["ConstantBackbone"]
 
@@ -18,14 +20,9 @@ class ConstantBackbone(Backbone):
     """Renders one learnable colour: ``rgb [C,H,W,3]``, ``alpha`` 1, ``depth`` = ``Config.depth``."""
 
     provides = frozenset({"rgb", "alpha", "depth"})
+    Config = ConstantConfig
 
-    @dataclass
-    class Config:
-        value: float = 0.5  # initial grey level in [0, 1]
-        depth: float = 1.0  # z-depth reported for every pixel
-        lr: float = 1e-2  # learning rate of the colour
-
-    def __init__(self, cfg: Config, scene=None, **runtime):
+    def __init__(self, cfg: ConstantConfig, scene=None, **runtime):
         super().__init__(cfg, scene)
         self.color = nn.Parameter(torch.full((3,), float(cfg.value)))
 
@@ -35,4 +32,7 @@ class ConstantBackbone(Backbone):
         return {"rgb": ones * self.color, "alpha": ones, "depth": ones * self.cfg.depth}
 
     def param_groups(self, stage):
-        return {"color": [self.color]}
+        return {"color": [self.color]}  # the same group in stage 1 (grey) and stage 2 (colour)
+
+    def learning_rates(self, stage):
+        return {"color": GroupSchedule(lr=self.cfg.lr)}  # constant; GroupSchedule(lr, lr_final) decays

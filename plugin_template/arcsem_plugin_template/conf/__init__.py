@@ -1,1 +1,1 @@
-"""Hydra configs of this plugin package (added to the search path by hydra_plugins/)."""
+"""Hydra configs of this plugin package (arcsem adds them to its search path: entry point ``arcsem.conf``)."""

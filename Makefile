@@ -9,7 +9,7 @@ CPP     := $(wildcard backbones/gaussians/cpp/*.cpp backbones/gaussians/cpp/*.h)
 JOBS    ?= 2
 export PIP_DISABLE_PIP_VERSION_CHECK=1
 
-.PHONY: setup demo test bench clean-venv
+.PHONY: setup demo test clean-venv
 
 setup: $(EXT)
 

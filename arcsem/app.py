@@ -4,7 +4,7 @@
 
 * ``config.yaml``: the resolved config;
 * ``metrics.json``: seed, git revision, overrides, backbone, timings and whatever the stage returns
-  (atomic writes: a temporary file then ``os.replace``).
+  (atomic writes: :mod:`arcsem.files`).
 
 Stages: ``gray`` (:func:`arcsem.train.run_stage1`), ``color`` (:func:`arcsem.colorize.run_stage2`),
 ``all`` (both), ``check`` (load the scene and build the backbone, nothing trained: validates a
@@ -12,12 +12,10 @@ dataset/plugin/config combination in seconds).
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
 import random
 import subprocess
-import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -26,6 +24,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from .errors import ConfigError, Interrupted, PluginError
+from .files import write_json_atomic, write_text_atomic
 
 log = logging.getLogger(__name__)
 
@@ -35,44 +34,9 @@ __all__ = [
     "run",
     "run_directory",
     "seed_everything",
-    "write_json_atomic",
-    "write_text_atomic",
 ]
 
 STAGES = ("gray", "color", "all", "check")
-
-
-def write_text_atomic(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and ``os.replace``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600; results are meant to be shared
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def _jsonable(obj: Any) -> Any:
-    """Tensors/arrays/numpy scalars -> lists/floats; NaN/inf stay floats (written as NaN/Infinity)."""
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, Path):
-        return str(obj)
-    if hasattr(obj, "tolist"):  # torch / numpy
-        return _jsonable(obj.tolist())
-    return obj
-
-
-def write_json_atomic(path: str | Path, obj: Any) -> None:
-    """``json.dump`` of ``obj`` (tensors and arrays converted) to ``path``, atomically."""
-    write_text_atomic(path, json.dumps(_jsonable(obj), indent=2, sort_keys=False) + "\n")
 
 
 def git_revision() -> str:

@@ -79,7 +79,7 @@ class ActConfig:
 
     enabled: bool = False
     mode: str = checked("rgb", choices=ACT_MODES)  # rgb: the paper's text; scalar: the authors' code
-    lr: float = checked(1e-4, gt=0.0)  # constant Adam rate of the transforms
+    lr: float = checked(1e-4, ge=0.0)  # constant Adam rate of the transforms (0: held where they start)
     init_noise: float = checked(1e-3, ge=0.0)  # identity + N(0, init_noise)
 
 

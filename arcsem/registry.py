@@ -27,7 +27,20 @@ from omegaconf.errors import OmegaConfBaseException
 
 from .errors import ConfigError, PluginError
 
-__all__ = ["Registry", "check_fields", "checked", "validate_config"]
+__all__ = ["Registry", "check_fields", "checked", "plain", "validate_config"]
+
+
+def plain(cfg: Any) -> Any:
+    """A DictConfig/ListConfig as plain dicts and lists, interpolations resolved where they can be (an unresolvable
+    one, e.g. ``${hydra:...}`` outside a Hydra app, is kept as text); anything else as it is."""
+    from omegaconf import ListConfig
+
+    if isinstance(cfg, (DictConfig, ListConfig)):
+        try:
+            return OmegaConf.to_container(cfg, resolve=True)
+        except (OmegaConfBaseException, ValueError):
+            return OmegaConf.to_container(cfg, resolve=False)
+    return cfg
 
 
 class Registry:

@@ -30,6 +30,9 @@ from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
+from .files import write_json_atomic
+from .registry import plain
+
 __all__ = [
     "STAGE1_KEYS",
     "cache_root",
@@ -52,26 +55,11 @@ RESULT_FILE = "result.json"
 DONE_FILE = "DONE"
 
 
-def _plain(cfg: Any) -> Any:
-    """A DictConfig/dict as plain containers, interpolations resolved where possible."""
-    try:
-        from omegaconf import DictConfig, ListConfig, OmegaConf
-        from omegaconf.errors import OmegaConfBaseException
-    except ImportError:  # pragma: no cover - omegaconf is a dependency
-        return cfg
-    if isinstance(cfg, (DictConfig, ListConfig)):
-        try:
-            return OmegaConf.to_container(cfg, resolve=True)
-        except (OmegaConfBaseException, ValueError):  # e.g. ${hydra:...} outside a Hydra app: hash the unresolved text
-            return OmegaConf.to_container(cfg, resolve=False)
-    return cfg
-
-
 def cache_root(cfg: Mapping | None = None) -> Path:
     """The cache root: ``cfg.cache_dir``, ``$ARCSEM_CACHE`` or ``~/.cache/arcsem`` (first set)."""
     root = None
     if cfg is not None:
-        root = _plain(cfg).get("cache_dir") if hasattr(cfg, "get") else None
+        root = plain(cfg).get("cache_dir") if hasattr(cfg, "get") else None
     root = root or os.environ.get("ARCSEM_CACHE") or "~/.cache/arcsem"
     return Path(str(root)).expanduser()
 
@@ -80,8 +68,8 @@ def stage1_key(cfg: Mapping) -> str:
     """Hex digest (16 chars) of the stage-1-relevant part of ``cfg`` (order of keys irrelevant)."""
     from arcsem import __version__
 
-    plain = _plain(cfg)
-    part = {k: plain.get(k) for k in STAGE1_KEYS}
+    values = plain(cfg)
+    part = {k: values.get(k) for k in STAGE1_KEYS}
     if isinstance(part["train"], dict):
         part["train"] = {k: v for k, v in part["train"].items() if k not in TRAIN_IGNORED}
     part["arcsem_version"] = __version__
@@ -100,10 +88,8 @@ def stage1_dir(cfg: Mapping, create: bool = True) -> Path:
         path.mkdir(parents=True, exist_ok=True)
         desc = path / "key.json"
         if not desc.exists():
-            plain = _plain(cfg)
-            tmp = desc.with_suffix(f".tmp{os.getpid()}")
-            tmp.write_text(json.dumps({k: plain.get(k) for k in STAGE1_KEYS}, indent=2, default=str))
-            os.replace(tmp, desc)
+            values = plain(cfg)
+            write_json_atomic(desc, {k: values.get(k) for k in STAGE1_KEYS})
     return path
 
 
@@ -124,10 +110,7 @@ def is_done(path: str | os.PathLike) -> bool:
 
 def mark_done(path: str | os.PathLike, info: Mapping | None = None) -> None:
     """Mark ``path`` as holding a finished model (atomic write of ``DONE`` with optional info)."""
-    path = Path(path)
-    tmp = path / f"{DONE_FILE}.tmp{os.getpid()}"
-    tmp.write_text(json.dumps(dict(info or {}), default=str))
-    os.replace(tmp, path / DONE_FILE)
+    write_json_atomic(Path(path) / DONE_FILE, dict(info or {}), indent=None)
 
 
 def stage1_result(path: str | os.PathLike) -> dict | None:
@@ -152,8 +135,6 @@ def ensure_stage1(cfg: Mapping, train_fn: Callable[[Path], Any]) -> tuple[Path, 
             return path, False
         result = train_fn(path)
         if isinstance(result, dict):
-            tmp = path / f"{RESULT_FILE}.tmp{os.getpid()}"
-            tmp.write_text(json.dumps(result, default=str))
-            os.replace(tmp, path / RESULT_FILE)
+            write_json_atomic(path / RESULT_FILE, result, indent=None)
         mark_done(path, {"pid": os.getpid()})
         return path, True

@@ -1,4 +1,4 @@
-"""2DGS geometry regularisers as loss plugins (Huang et al. 2024; METHOD.md).
+"""2DGS geometry regularisers as loss plugins (Huang et al. 2024; docs/method.md).
 
 * ``normal_consistency``: ``1 - (sum w n) . (n_surface alpha)`` (2DGS), with ``n_surface`` the normal
   of the rendered depth unprojected to world points (central differences, cross product) and

@@ -127,7 +127,9 @@ def test_write_json_atomic(tmp_path):
     import numpy as np
     import torch
 
-    app.write_json_atomic(tmp_path / "a" / "m.json", {"x": torch.tensor([1.5, 2.0]), "y": np.float32(0.5),
+    from arcsem.files import write_json_atomic
+
+    write_json_atomic(tmp_path / "a" / "m.json", {"x": torch.tensor([1.5, 2.0]), "y": np.float32(0.5),
                                                        "z": float("nan"), "p": tmp_path})
     data = json.loads((tmp_path / "a" / "m.json").read_text())
     assert data["x"] == [1.5, 2.0] and data["y"] == 0.5 and np.isnan(data["z"]) and data["p"] == str(tmp_path)

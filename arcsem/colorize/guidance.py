@@ -156,11 +156,7 @@ class Guidance:
 
 
 def _atomic_savez(path: Path, arrays: dict) -> None:
-    import os
-    import tempfile
+    from ..files import atomic_open
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    with os.fdopen(fd, "wb") as f:
+    with atomic_open(path, "wb") as f:
         np.savez(f, **arrays)
-    os.replace(tmp, path)

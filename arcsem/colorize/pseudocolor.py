@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import hashlib
 import logging
-import os
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -173,16 +171,11 @@ def pseudo_key(depth_source, ref_images: Tensor, ref_names: list[str], radius: f
 
 def save_pseudo(path: Path, colors: Tensor, valid: Tensor) -> None:
     """Write atomically: valid bits packed, colours only where valid."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, shape=np.array(valid.shape), valid=np.packbits(valid.numpy().reshape(-1)),
-                     colors=colors[valid].float().numpy())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    from ..files import atomic_open
+
+    with atomic_open(path, "wb") as f:
+        np.savez(f, shape=np.array(valid.shape), valid=np.packbits(valid.numpy().reshape(-1)),
+                 colors=colors[valid].float().numpy())
 
 
 def load_pseudo(path: Path) -> tuple[Tensor, Tensor]:

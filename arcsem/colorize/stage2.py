@@ -18,11 +18,10 @@ from typing import Any
 
 import torch
 import torch.nn.functional as F
-from omegaconf import DictConfig, OmegaConf
 
 from ..errors import DataError
 from ..plugins import Batch
-from ..registry import validate_config
+from ..registry import plain, validate_config
 from .config import ColorizeConfig
 from .guidance import Guidance
 from .masks import specimen_masks
@@ -35,19 +34,15 @@ __all__ = ["ColorTargets", "check_stage1_model", "colorize_config", "colorize_lo
 log = logging.getLogger(__name__)
 
 
-def _plain(x: Any) -> Any:
-    return OmegaConf.to_container(x, resolve=True) if isinstance(x, DictConfig) else x
-
-
 def colorize_config(cfg: Any) -> ColorizeConfig:
-    return validate_config(ColorizeConfig, dict(_plain(cfg.get("colorize")) or {}), where="colorize")
+    return validate_config(ColorizeConfig, dict(plain(cfg.get("colorize")) or {}), where="colorize")
 
 
 def colorize_losses(cc: ColorizeConfig, backbone: Any):
     """The stage-2 :class:`LossSet` (terms with weight 0 dropped), checked against ``backbone`` (class or model)."""
     from ..train import build_losses
 
-    terms = {k: v for k, v in (_plain(cc.losses) or {}).items() if v is not None and float(v.get("weight", 1)) != 0}
+    terms = {k: v for k, v in (plain(cc.losses) or {}).items() if v is not None and float(v.get("weight", 1)) != 0}
     return build_losses(terms, backbone.provides, backbone.batch_mode, where="colorize.losses", backbone=backbone.name)
 
 
@@ -141,13 +136,12 @@ class ColorTargets:
 def _prepare_scene(scene, ckpt: Path, cc: ColorizeConfig):
     """The scene at the colourisation resolution (stage 1's unless ``colorize.downscale/width`` say otherwise)."""
     from ..train.checkpoint import load_checkpoint
-    from ..train.sampling import resize_split
+    from ..train.sampling import resize_scene
 
     saved = (load_checkpoint(ckpt).get("config") or {}).get("train") or {}
     down, width = (cc.downscale, cc.width) if (cc.downscale != 1.0 or cc.width) else \
         (float(saved.get("downscale", 1.0)), saved.get("width"))
-    return dataclasses.replace(scene, train=resize_split(scene.train, down, width),
-                               test=resize_split(scene.test, down, width))
+    return resize_scene(scene, down, width)
 
 
 def _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir):
@@ -210,7 +204,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
                       checkpoint_every=cc.checkpoint_every, resume=cc.resume, seed=int(cfg.get("seed", 0)),
                       progress=cc.progress, desc=f"stage 2 ({backbone.name})")
     res = train(backbone, split, losses, loop, optim=cc.optim, ckpt_dir=run_dir / "colorize" / "checkpoints",
-                config={"colorize": _plain(cfg.get("colorize")), "stage1": str(ckpt), "pseudo": pinfo["key"]},
+                config={"colorize": plain(cfg.get("colorize")), "stage1": str(ckpt), "pseudo": pinfo["key"]},
                 batch_hook=hook)
     backbone.eval()
     features = vgg.features_source if vgg is not None else "unused"

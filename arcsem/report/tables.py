@@ -43,7 +43,7 @@ def _ims(group: str, prefix: str) -> list[Column]:
             Column(group, "LPIPS", f"{prefix}.lpips", "min", 3)]
 
 
-PAPER_TABLE1 = {  # ArCSEM Table 1 (training views, 3072x2048, real pollen data), from METHOD.md
+PAPER_TABLE1 = {  # ArCSEM Table 1 (training views, 3072x2048, real pollen data), from the paper's Table 1
     "plenoxels": (30.94, 0.855, 0.556), "gs3d": (37.50, 0.902, 0.461),
     "gs2d": (35.25, 0.867, 0.511), "gs2d_act": (36.32, 0.890, 0.489),
 }

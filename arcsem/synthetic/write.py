@@ -151,7 +151,7 @@ def true_exposures(p: SceneParams) -> dict[str, tuple[float, float]]:
     """``{training view name: (contrast, brightness)}``: the drift the scene's training images were given.
 
     The observed image is ``clip(contrast * clean + brightness + noise)``; ACT should learn this up to one
-    affine map shared by all views (benchmarks/act_drift.py compares them).
+    affine map shared by all views (experiments/act/act_drift.py compares them).
     """
     views = arc_views(p.n_horizontal, p.n_vertical, p.test_every)
     return {v.name: exposure_drift(view_rng(p, i), drift_strength(p, v))

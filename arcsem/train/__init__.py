@@ -7,7 +7,7 @@ rebuilds a trained ``(backbone, act)`` from ``run_dir/checkpoints/last.pt``.
 from .checkpoint import load_checkpoint, save_checkpoint
 from .evaluate import evaluate_split
 from .loop import LoopConfig, TrainResult, render_batch, train
-from .losses import LossSet, build_losses, merge_loss_cfgs
+from .losses import LossSet, build_losses
 from .optim import GroupSchedule, OptimConfig
 from .stage1 import EvalConfig, TrainConfig, build_model, evaluate, load_stage1, prepare_scene, run_stage1
 
@@ -25,7 +25,6 @@ __all__ = [
     "evaluate_split",
     "load_checkpoint",
     "load_stage1",
-    "merge_loss_cfgs",
     "prepare_scene",
     "render_batch",
     "run_stage1",

@@ -16,10 +16,8 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import os
 import pickle
 import random
-import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -29,6 +27,7 @@ import torch
 from torch import nn
 
 from ..errors import OutputError, TrainingError
+from ..files import write_bytes_atomic
 
 __all__ = [
     "FORMAT",
@@ -110,18 +109,9 @@ def save_checkpoint(path: str | Path, state: dict) -> Path:
     path = Path(path)
     buf = io.BytesIO()
     torch.save({**state, "format": FORMAT}, buf)  # in memory: a failed write is an OSError with its errno
-    tmp = None
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        with os.fdopen(fd, "wb") as f:
-            f.write(buf.getbuffer())
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
+        write_bytes_atomic(path, buf.getbuffer())
     except OSError as exc:
-        if tmp is not None:
-            Path(tmp).unlink(missing_ok=True)
         kept = "the previous checkpoint is intact" if path.is_file() else "no checkpoint is on disk"
         raise OutputError(f"cannot write checkpoint {path}: {exc.strerror or exc} ({kept})") from None
     return path

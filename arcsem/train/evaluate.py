@@ -164,11 +164,11 @@ def write_views_csv(path: str | Path, rows: list[dict[str, Any]]) -> Path:
     cols: list[str] = []
     for r in rows:
         cols += [k for k in r if k not in cols]
+    from ..files import atomic_open
+
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="") as f:
+    with atomic_open(path, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=cols, restval="")
         w.writeheader()
         w.writerows(rows)
-    tmp.replace(path)
     return path

@@ -17,25 +17,13 @@ from collections.abc import Mapping
 from typing import Any
 
 import torch
-from omegaconf import DictConfig, OmegaConf
 from torch import Tensor, nn
 
 from ..errors import ConfigError
 from ..plugins import LOSSES, Batch, Loss, RenderOutput
+from ..registry import plain
 
-__all__ = ["LossSet", "build_losses", "merge_loss_cfgs"]
-
-
-def _plain(cfg: Any) -> Any:
-    return OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else cfg
-
-
-def merge_loss_cfgs(base: Mapping | None, override: Mapping | None) -> dict[str, dict | None]:
-    """``base`` updated by ``override`` term by term (``None`` in ``override`` removes a term)."""
-    out = {k: (dict(v) if v is not None else None) for k, v in (_plain(base) or {}).items()}
-    for k, v in (_plain(override) or {}).items():
-        out[k] = None if v is None else {**(out.get(k) or {}), **v}
-    return out
+__all__ = ["LossSet", "build_losses"]
 
 
 class LossSet(nn.Module):
@@ -75,7 +63,7 @@ def build_losses(cfg: Mapping | None, provides: frozenset[str] | set[str], batch
         ConfigError: a term needs an output the backbone does not provide, or a batch mode it lacks.
     """
     terms: dict[str, Loss] = {}
-    for name, term_cfg in (_plain(cfg) or {}).items():
+    for name, term_cfg in (plain(cfg) or {}).items():
         if term_cfg is None:
             continue
         term_cfg = dict(term_cfg)

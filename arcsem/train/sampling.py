@@ -12,7 +12,7 @@ from torch import Tensor
 from ..plugins import Batch
 from ..scene import Split
 
-__all__ = ["RaySampler", "ViewSampler", "make_sampler", "resize_split"]
+__all__ = ["RaySampler", "ViewSampler", "make_sampler", "resize_scene", "resize_split"]
 
 
 def _masks4(split: Split, idx: Tensor) -> Tensor | None:
@@ -121,3 +121,10 @@ def resize_split(split: Split, downscale: float = 1.0, width: int | None = None)
 
     return replace(split, cameras=cams, images=area(split.images), masks=near(split.masks), depths=near(split.depths),
                    normals=near(split.normals), colors=area(split.colors), clean=area(split.clean))
+
+
+def resize_scene(scene, downscale: float = 1.0, width: int | None = None):
+    """``scene`` with both splits at the resolution of :func:`resize_split` (stage 1 and stage 2 train there)."""
+    from dataclasses import replace
+
+    return replace(scene, train=resize_split(scene.train, downscale, width), test=resize_split(scene.test, downscale, width))

@@ -15,24 +15,23 @@ a loss set to ``null`` in ``train.losses`` is off.
 """
 from __future__ import annotations
 
-import dataclasses
 import logging
 from pathlib import Path
 from typing import Any
 
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import OmegaConf
 
 from ..configs import EvalConfig, TrainConfig
 from ..errors import TrainingError
 from ..plugins import BACKBONES
-from ..registry import validate_config
+from ..registry import plain, validate_config
 from ..scene import Scene
 from .checkpoint import load_checkpoint, load_module_state
 from .evaluate import evaluate_split, mean_metrics, to_uint8, write_views_csv
 from .loop import LoopConfig, loss_trend_warning, train
 from .losses import build_losses
-from .sampling import resize_split
+from .sampling import resize_scene
 from .video import arc_path, write_video
 
 __all__ = [
@@ -57,19 +56,15 @@ NON_SEMANTIC_KEYS = ("resume", "eval_every", "log_every", "checkpoint_every", "p
 """``train`` keys that do not change the trained model (ignored when deciding whether to resume)."""
 
 
-def _plain(x: Any) -> Any:
-    return OmegaConf.to_container(x, resolve=True) if isinstance(x, DictConfig) else x
-
-
 def train_config(cfg: Any) -> TrainConfig:
-    return validate_config(TrainConfig, dict(_plain(cfg.train) or {}), where="train")
+    return validate_config(TrainConfig, dict(plain(cfg.train) or {}), where="train")
 
 
 def stage1_config(cfg: Any, scene: Scene | None = None) -> dict:
     """The part of ``cfg`` that determines the stage-1 model (compared when resuming), with the dataset's
     :func:`~arcsem.scene.scene_fingerprint` when ``scene`` is given (stage 2 checks it)."""
-    train = {k: v for k, v in dict(_plain(cfg.train) or {}).items() if k not in NON_SEMANTIC_KEYS}
-    out = {"dataset": _plain(cfg.get("dataset")), "backbone": _plain(cfg.backbone), "act": _plain(cfg.get("act")),
+    train = {k: v for k, v in dict(plain(cfg.train) or {}).items() if k not in NON_SEMANTIC_KEYS}
+    out = {"dataset": plain(cfg.get("dataset")), "backbone": plain(cfg.backbone), "act": plain(cfg.get("act")),
            "train": train, "seed": int(cfg.get("seed", 0))}
     if scene is not None:
         from ..scene import scene_fingerprint
@@ -80,20 +75,19 @@ def stage1_config(cfg: Any, scene: Scene | None = None) -> dict:
 
 def prepare_scene(scene: Scene, tc: TrainConfig) -> Scene:
     """The scene at the training resolution (both splits resized alike)."""
-    return dataclasses.replace(scene, train=resize_split(scene.train, tc.downscale, tc.width),
-                               test=resize_split(scene.test, tc.downscale, tc.width))
+    return resize_scene(scene, tc.downscale, tc.width)
 
 
 def act_config(cfg: Any):
     """The validated ``act`` group (:class:`arcsem.act.ActConfig`)."""
     from ..configs import ActConfig
 
-    return validate_config(ActConfig, dict(_plain(cfg.get("act")) or {}), where="act")
+    return validate_config(ActConfig, dict(plain(cfg.get("act")) or {}), where="act")
 
 
 def backbone_config(cfg: Any) -> dict:
     """``cfg.backbone`` as a plain dict, checked against the plugin's ``Config`` (ranges too)."""
-    bcfg = dict(_plain(cfg.backbone))
+    bcfg = dict(plain(cfg.backbone))
     name = bcfg.get("name")
     cls = BACKBONES.get(str(name))
     validate_config(cls.Config, {k: v for k, v in bcfg.items() if k != "name"}, where=f"backbone '{name}'")

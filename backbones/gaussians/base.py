@@ -2,7 +2,7 @@
 
 Subclasses set ``num_scales`` (2 surfels / 3 ellipsoids), ``random_rotations`` and ``_rasterize``
 (the pure render function). Defaults are those of the official 3DGS/2DGS repositories (30k-step
-schedule); see ``shared/design/METHOD.md``.
+schedule); see docs/method.md.
 
 Step convention: ``post_backward(step, ...)`` is called after the backward pass of step ``step``
 (0-based) and prepares step ``step + 1`` (SH degree, position learning rate, densification), like the

@@ -20,6 +20,7 @@ import torch
 from torch import Tensor
 
 from arcsem.errors import DataError
+from arcsem.files import atomic_open
 
 __all__ = ["ply_properties", "read_ply", "write_ply"]
 
@@ -49,13 +50,9 @@ def write_ply(path: str | Path, params: dict[str, Tensor]) -> None:
     names = ply_properties(p["sh_rest"].shape[1], p["log_scales"].shape[1])
     header = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
     header += [f"property float {name}" for name in names] + ["end_header"]
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    with open(tmp, "wb") as f:
+    with atomic_open(path, "wb") as f:
         f.write(("\n".join(header) + "\n").encode("ascii"))
         f.write(np.ascontiguousarray(data).tobytes())
-    tmp.replace(path)
 
 
 _TYPES = {"float": "f4", "float32": "f4", "double": "f8", "float64": "f8", "uchar": "u1", "uint8": "u1",

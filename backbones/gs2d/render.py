@@ -1,6 +1,6 @@
 """2D Gaussian splat rendering (Huang et al. 2024) on the tile rasteriser, pinhole and orthographic.
 
-Ray-splat intersection via the homography ``T = P @ S`` (METHOD.md): ``S`` maps splat coordinates
+Ray-splat intersection via the homography ``T = P @ S`` (docs/method.md): ``S`` maps splat coordinates
 ``(u, v, 1)`` to homogeneous world points ``p + u t_u + v t_v`` and ``P`` (:func:`pixel_projection`)
 maps world points to ``(x w, y w, w, z)``; the rows of ``T`` are ``Tu, Tv, Tw`` and the depth row
 ``Tz``. For pixel ``(x, y)``: ``k = x Tw - Tu``, ``l = y Tw - Tv``, ``(u, v, 1) ~ k x l``. For an

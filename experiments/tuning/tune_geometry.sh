@@ -3,7 +3,7 @@
 # (table "Geometry regularisers" in benchmarks/results/README.md): 2DGS + ACT, quick preset, built-in
 # scene, seed 0, one stage-1 run per line, two at a time with one thread each (a 2-core machine).
 #
-#   benchmarks/results/tune_geometry.sh [OUT_DIR]        # default multirun/tune_geometry
+#   experiments/tuning/tune_geometry.sh [OUT_DIR]        # default multirun/tune_geometry
 #
 # Each run writes OUT_DIR/<name>/metrics.json (stage1.test.psnr, stage1.depth.test_mae_pct, ...).
 set -uo pipefail
@@ -23,7 +23,7 @@ declare -A RUNS=(
   [dist10_official]="$G.distortion.weight=10 $G.normal_consistency.official=true $G.normal_consistency.depth=expected"
   [dist10_official_median]="$G.distortion.weight=10 $G.normal_consistency.official=true $G.normal_consistency.depth=median"
 )
-source "benchmarks/results/tune_runs.sh"
+source "experiments/tuning/tune_runs.sh"
 # measured before the preset's low-pass filter, size and normal consistency changed: pinned explicitly
 COMMON="$PRESET_192 backbone.lowpass_sigma=0.7071067811865476"
 tune_runs

@@ -4,10 +4,10 @@
 # scene, seed 0, one stage-1 run per line, two at a time with one thread each (a 2-core machine).
 # Every run sets its sigma explicitly, so the table does not depend on the preset's current value.
 #
-#   benchmarks/results/tune_lowpass.sh [OUT_DIR]        # default multirun/tune_lowpass
-#   ONLY="sigma0.5 sigma0.354" benchmarks/results/tune_lowpass.sh    # a subset of the runs
+#   experiments/tuning/tune_lowpass.sh [OUT_DIR]        # default multirun/tune_lowpass
+#   ONLY="sigma0.5 sigma0.354" experiments/tuning/tune_lowpass.sh    # a subset of the runs
 #
-# Each run writes OUT_DIR/<name>/metrics.json; `benchmarks/error_breakdown.py OUT_DIR/<name> --surfels`
+# Each run writes OUT_DIR/<name>/metrics.json; `experiments/error_breakdown.py OUT_DIR/<name> --surfels`
 # says where its surfels sit.
 set -uo pipefail
 cd "$(dirname "$0")/../.."
@@ -27,6 +27,6 @@ declare -A RUNS=(
   [sigma0.354_nc0.2_from750]="$B=0.35355339059327373 $G.normal_consistency.weight=0.2 $G.normal_consistency.start_step=750"
   [sigma0.354_nc0.2_from1100]="$B=0.35355339059327373 $G.normal_consistency.weight=0.2 $G.normal_consistency.start_step=1100"
 )
-source "benchmarks/results/tune_runs.sh"
+source "experiments/tuning/tune_runs.sh"
 COMMON=$PRESET_192  # measured at 192 px with normal consistency 0.05 (the preset then)
 tune_runs

@@ -4,8 +4,8 @@
 # training width (same grain, cameras and noise level), seed 0, two runs at a time with one thread each.
 # The 1 % of the grain's diameter that issue #4 asks for is 0.92 px at 192 px, 1.38 px at 288 px.
 #
-#   benchmarks/results/tune_resolution.sh [OUT_DIR]           # default multirun/tune_resolution
-#   ONLY="w240 w288" benchmarks/results/tune_resolution.sh    # a subset of the runs
+#   experiments/tuning/tune_resolution.sh [OUT_DIR]           # default multirun/tune_resolution
+#   ONLY="w240 w288" experiments/tuning/tune_resolution.sh    # a subset of the runs
 set -uo pipefail
 cd "$(dirname "$0")/../.."
 BIN=${BIN:-.venv/bin}
@@ -19,5 +19,5 @@ declare -A RUNS=(
   [w384]="$(size 384 256) $NC=0.05"
   [w288_nc0.1]="$(size 288 192) $NC=0.1"   # the quick preset since
 )
-source "benchmarks/results/tune_runs.sh"
+source "experiments/tuning/tune_runs.sh"
 tune_runs

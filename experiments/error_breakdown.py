@@ -136,7 +136,7 @@ def surfels(backbone, split, cfg, scale: float, scale_name: str) -> None:
     print("splat centres, distance to the surface (weighted by blending weight on the specimen; 10/25/50/75/90 %): "
           + " ".join(f"{100 * v / scale:+.2f}" for v in q) + f" % of {scale_name}")
     if m.scales.shape[1] == 2:
-        from arcsem.backbones.gaussians.raster_camera import quat_to_rotmat
+        from arcsem.rotations import quat_to_rotmat
 
         with torch.no_grad():
             n = quat_to_rotmat(m.quats.detach().double())[:, :, 2]

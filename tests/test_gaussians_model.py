@@ -7,13 +7,14 @@ import math
 import pytest
 import torch
 from arcsem.backbones.gaussians.init import init_gaussians, knn_scales
-from arcsem.backbones.gaussians.model import active_sh_degree_at, quat_to_rotmat
+from arcsem.backbones.gaussians.model import active_sh_degree_at
 from arcsem.backbones.gaussians.sh import C0, eval_sh
 
 from arcsem.act import ACT
 from arcsem.cameras import Cameras, look_at
 from arcsem.plugins import BACKBONES
 from arcsem.registry import validate_config
+from arcsem.rotations import quat_to_rotmat
 from arcsem.scene import Scene, Split
 
 SHAPES = {"rgb": 3, "alpha": 1, "depth": 1, "median_depth": 1, "normal": 3, "distortion": 1}

@@ -3,10 +3,12 @@ import math
 
 import torch
 from arcsem.backbones.gaussians.raster import Segments, bin_tiles, composite, tile_rects
-from arcsem.backbones.gaussians.raster_camera import pixel_projection, quat_to_rotmat
+from arcsem.backbones.gaussians.raster_camera import pixel_projection
 from arcsem.backbones.gaussians.raster_scenes import orbit_cameras, random_splats
 from arcsem.backbones.gs2d.render import footprint_2dgs, splat_homographies
 from arcsem.backbones.gs3d.render import footprint_3dgs, project_gaussians
+
+from arcsem.rotations import quat_to_rotmat
 
 
 def one_segment(n):

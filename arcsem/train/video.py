@@ -16,34 +16,9 @@ import torch
 from torch import Tensor
 
 from ..cameras import Cameras
+from ..rotations import quat_to_rotmat, rotmat_to_quat
 
-__all__ = ["arc_path", "quat_to_rotmat", "rotmat_to_quat", "slerp", "write_video"]
-
-
-def rotmat_to_quat(R: Tensor) -> Tensor:
-    """Rotation matrices ``[N,3,3]`` -> unit quaternions ``[N,4]`` (w, x, y, z), w >= 0."""
-    R = R.double()
-    m = [[R[:, i, j] for j in range(3)] for i in range(3)]
-    cands = torch.stack([
-        torch.stack([1 + m[0][0] + m[1][1] + m[2][2], m[2][1] - m[1][2], m[0][2] - m[2][0], m[1][0] - m[0][1]], -1),
-        torch.stack([m[2][1] - m[1][2], 1 + m[0][0] - m[1][1] - m[2][2], m[0][1] + m[1][0], m[0][2] + m[2][0]], -1),
-        torch.stack([m[0][2] - m[2][0], m[0][1] + m[1][0], 1 - m[0][0] + m[1][1] - m[2][2], m[1][2] + m[2][1]], -1),
-        torch.stack([m[1][0] - m[0][1], m[0][2] + m[2][0], m[1][2] + m[2][1], 1 - m[0][0] - m[1][1] + m[2][2]], -1),
-    ], 1)  # [N, 4 candidates, 4]; candidate k is 4 * q_k * q
-    best = torch.stack([cands[:, k, k] for k in range(4)], -1).argmax(-1)  # largest diagonal term: stable
-    q = cands[torch.arange(R.shape[0]), best]
-    q = q / q.norm(dim=-1, keepdim=True)
-    return torch.where(q[:, :1] < 0, -q, q)
-
-
-def quat_to_rotmat(q: Tensor) -> Tensor:
-    """Quaternions ``[N,4]`` (w, x, y, z) -> rotation matrices ``[N,3,3]``."""
-    w, x, y, z = (q / q.norm(dim=-1, keepdim=True)).unbind(-1)
-    return torch.stack([
-        torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        torch.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        torch.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)
+__all__ = ["arc_path", "slerp", "write_video"]
 
 
 def slerp(a: Tensor, b: Tensor, t: Tensor) -> Tensor:

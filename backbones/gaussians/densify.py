@@ -27,8 +27,9 @@ import torch
 from torch import Tensor
 
 from arcsem.cameras import Cameras
+from arcsem.rotations import quat_to_rotmat
 
-from .model import GaussianModel, quat_to_rotmat
+from .model import GaussianModel
 
 __all__ = [
     "DensifyStats",

@@ -22,10 +22,11 @@ import torch
 from torch import Tensor, nn
 
 from arcsem.cameras import Cameras
+from arcsem.rotations import quat_to_rotmat
 
 from .sh import eval_sh, num_sh_coeffs
 
-__all__ = ["PARAM_NAMES", "GaussianModel", "active_sh_degree_at", "quat_to_rotmat"]
+__all__ = ["PARAM_NAMES", "GaussianModel", "active_sh_degree_at"]
 
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
 
@@ -33,16 +34,6 @@ PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_re
 def active_sh_degree_at(step: int, max_degree: int, every: int = 1000) -> int:
     """SH degree in use at ``step``: ``min(max_degree, step // every)`` (official: +1 every 1000)."""
     return min(max_degree, max(0, step) // every)
-
-
-def quat_to_rotmat(q: Tensor) -> Tensor:
-    """Quaternions ``[N, 4]`` (w, x, y, z; any norm) -> rotation matrices ``[N, 3, 3]``."""
-    w, x, y, z = torch.nn.functional.normalize(q, dim=-1).unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], -1).reshape(*q.shape[:-1], 3, 3)
 
 
 class GaussianModel(nn.Module):

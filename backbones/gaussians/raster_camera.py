@@ -11,19 +11,7 @@ from torch import Tensor
 
 from arcsem.cameras import Cameras
 
-__all__ = ["camera_facing_normals", "pixel_projection", "quat_to_rotmat"]
-
-
-def quat_to_rotmat(quats: Tensor) -> Tensor:
-    """``[N, 4]`` quaternions ``(w, x, y, z)``, not necessarily normalised -> rotations ``[N, 3, 3]``."""
-    q = quats / quats.norm(dim=-1, keepdim=True)
-    w, x, y, z = q.unbind(-1)
-    rows = [
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ]
-    return torch.stack(rows, -1).reshape(*q.shape[:-1], 3, 3)
+__all__ = ["camera_facing_normals", "pixel_projection"]
 
 
 def pixel_projection(cams: Cameras) -> Tensor:

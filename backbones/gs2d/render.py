@@ -18,10 +18,11 @@ from arcsem.backbones.gaussians.raster import (
     screen_position_leaf,
     tile_rects,
 )
-from arcsem.backbones.gaussians.raster_camera import camera_facing_normals, pixel_projection, quat_to_rotmat
+from arcsem.backbones.gaussians.raster_camera import camera_facing_normals, pixel_projection
 from torch import Tensor
 
 from arcsem.cameras import Cameras
+from arcsem.rotations import quat_to_rotmat
 
 __all__ = ["DIST_FAR", "DIST_NEAR", "LOWPASS_SIGMA", "distortion_depth", "footprint_2dgs", "render_2dgs",
            "splat_homographies"]

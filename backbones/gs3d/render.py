@@ -17,11 +17,12 @@ from arcsem.backbones.gaussians.raster import (
     screen_position_leaf,
     tile_rects,
 )
-from arcsem.backbones.gaussians.raster_camera import pixel_projection, quat_to_rotmat
+from arcsem.backbones.gaussians.raster_camera import pixel_projection
 from arcsem.backbones.gs2d.render import _resolve
 from torch import Tensor
 
 from arcsem.cameras import Cameras
+from arcsem.rotations import quat_to_rotmat
 
 __all__ = ["COV2D_BLUR", "footprint_3dgs", "project_gaussians", "render_3dgs"]
 

@@ -13,9 +13,9 @@ export PIP_DISABLE_PIP_VERSION_CHECK=1
 
 setup: $(EXT)
 
-$(STAMP): pyproject.toml constraints.txt
+$(STAMP): pyproject.toml constraints.txt examples/mip_splatting/pyproject.toml
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
-	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test]"
+	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test]" -e examples/mip_splatting
 	@touch $(STAMP)
 
 # JIT-build the fused C++ rasteriser once (about a minute); failure is not fatal: PyTorch path is used.

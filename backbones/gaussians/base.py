@@ -77,11 +77,19 @@ class GaussianBackbone(Backbone):
             colors = self.act.apply(colors, cams.image_ids)
         if background is None:
             background = torch.tensor(self.cfg.background, dtype=m.means.dtype, device=m.means.device)
-        out = self._rasterize(m.means, m.quats, m.scales, m.opacities, colors, cams, background=background,
+        means, quats, scales, opacities = self.splat_params()
+        out = self._rasterize(means, quats, scales, opacities, colors, cams, background=background,
                               tile=self.cfg.tile, chunk_tiles=self.cfg.chunk_tiles, impl=self.cfg.rasterizer)
         if torch.is_grad_enabled():
             self._last_cams = cams  # the cameras whose gradient post_backward reads
         return out
+
+    def splat_params(self) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """What the rasteriser draws: means ``[N, 3]``, quaternions ``[N, 4]``, scales ``[N, S]``, opacities ``[N]``
+        (differentiable functions of the model's parameters). A Gaussian variant overrides this to filter them
+        (e.g. Mip-Splatting's 3-D smoothing filter, examples/mip_splatting); default: the model's own."""
+        m = self.model
+        return m.means, m.quats, m.scales, m.opacities
 
     # ------------------------------------------------------------------ optimisation
     def param_groups(self, stage: str) -> dict[str, list[nn.Parameter]]:

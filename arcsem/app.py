@@ -8,7 +8,8 @@
 
 Stages: ``gray`` (:func:`arcsem.train.run_stage1`), ``color`` (:func:`arcsem.colorize.run_stage2`),
 ``all`` (both), ``check`` (load the scene and build the backbone, nothing trained: validates a
-dataset/plugin/config combination in seconds).
+dataset/plugin/config combination in seconds and prints a summary), ``render`` (orbit videos of the
+finished run ``render.run``: :mod:`arcsem.export.render`).
 """
 from __future__ import annotations
 
@@ -36,7 +37,7 @@ __all__ = [
     "write_text_atomic",
 ]
 
-STAGES = ("gray", "color", "all", "check")
+STAGES = ("gray", "color", "all", "check", "render")
 
 
 def write_text_atomic(path: str | Path, text: str) -> None:
@@ -127,7 +128,8 @@ def set_threads(threads: Any) -> None:
 
 
 def _stage_function(stage: str) -> Callable[..., dict]:
-    module, func = {"gray": ("arcsem.train", "run_stage1"), "color": ("arcsem.colorize", "run_stage2")}[stage]
+    module, func = {"gray": ("arcsem.train", "run_stage1"), "color": ("arcsem.colorize", "run_stage2"),
+                    "render": ("arcsem.export.render", "run_render_stage")}[stage]
     import importlib
 
     try:
@@ -156,12 +158,15 @@ def _gray_stage(cfg: DictConfig, scene: Any, run_dir: Path) -> dict:
 
 def _check_stage(cfg: DictConfig, scene: Any, run_dir: Path) -> dict:
     """Build the backbone and ACT as stage 1 would (validates dataset, plugin and their configs); trains nothing."""
+    from .check_summary import check_summary
     from .plugins import BACKBONES
     from .train.stage1 import build_model
 
     model, act = build_model(cfg, scene)
-    return {"backbone_origin": BACKBONES.origin(cfg.backbone.name), "primitives": int(model.num_primitives()),
-            "act": act is not None}
+    result = {"backbone_origin": BACKBONES.origin(cfg.backbone.name), "primitives": int(model.num_primitives()),
+              "act": act is not None}
+    print(check_summary(cfg, scene, result))
+    return result
 
 
 def _scene_summary(scene: Any) -> dict:
@@ -189,10 +194,12 @@ def run(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
         "timings": {},
     }
     t0 = time.perf_counter()
-    scene = load_scene(cfg.dataset)
+    scene = load_scene(cfg.dataset) if stage != "render" else None  # render: the run's own dataset
     metrics["timings"]["load_scene_s"] = time.perf_counter() - t0
-    metrics["dataset"].update(root=scene.root, **_scene_summary(scene))
-    stages = {"gray": ["gray"], "color": ["color"], "all": ["gray", "color"], "check": ["check"]}[stage]
+    if scene is not None:
+        metrics["dataset"].update(root=scene.root, **_scene_summary(scene))
+    stages = {"gray": ["gray"], "color": ["color"], "all": ["gray", "color"], "check": ["check"],
+              "render": ["render"]}[stage]
     metrics["stages"] = {}
     for name in stages:
         func = {"check": _check_stage, "gray": _gray_stage}.get(name) or _stage_function(name)

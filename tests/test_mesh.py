@@ -99,7 +99,7 @@ def test_keep_components_drops_small_pieces():
     verts = np.concatenate([big, small])
     faces = np.array([[0, 1, 2], [1, 3, 2], [4, 5, 6]])
     cols = np.zeros((7, 3))
-    v, f, c, info = keep_components(verts, faces, cols, 0.6)  # the small one has 1/2 of the big one's faces
+    v, f, _, info = keep_components(verts, faces, cols, 0.6)  # the small one has 1/2 of the big one's faces
     assert info == {"components": 2, "kept": 1, "faces_removed": 1}
     assert len(v) == 4 and f.max() == 3 and (v == big).all()
     assert len(keep_components(verts, faces, cols, 0.5)[1]) == 3
@@ -114,8 +114,6 @@ def test_make_grid_respects_the_voxel_budget():
 
 def test_chamfer_of_a_shifted_sphere():
     # sample two spheres whose radii differ by 0.01: every distance is 0.01 (up to sampling)
-    from arcsem.mesh.tsdf import extract_mesh as mc  # noqa: F401  (the same module under test)
-
     rng = np.random.default_rng(0)
     gt = rng.normal(size=(200_000, 3))
     gt = R * gt / np.linalg.norm(gt, axis=1, keepdims=True)

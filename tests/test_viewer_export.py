@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pytest
 import torch
+from arcsem.backbones.gaussians.inria import THIN_RATIO, bake_act
 from plyfile import PlyData
+from test_backbone_contract import tiny_scene
 
 from arcsem.act import ACT
-from arcsem.backbones.gaussians.inria import THIN_RATIO, bake_act
 from arcsem.plugins import BACKBONES
-from test_backbone_contract import tiny_scene
 
 # what the INRIA reference viewer / SIBR / common web viewers read from every vertex
 VIEWER_FIELDS = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
@@ -82,7 +82,7 @@ def test_cameras_json(tmp_path, model):
         if model == "pinhole":
             assert e["fx"] == pytest.approx(f) and "model" not in e
         else:  # the pinhole with the same footprint at the centre: fx = f_ortho * distance
-            dist = float(((centre.double() - cams.centers[i].double()) @ cams.forward[i].double()))
+            dist = float((centre.double() - cams.centers[i].double()) @ cams.forward[i].double())
             assert e["model"] == "orthographic" and e["fx_orthographic"] == pytest.approx(f)
             assert e["fx"] == pytest.approx(f * dist, rel=1e-6)
 

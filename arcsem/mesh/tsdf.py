@@ -40,7 +40,7 @@ class Grid:
     def centres(self, start: int, stop: int) -> Tensor:
         """World centres ``[stop - start, 3]`` of the voxels with flat indices ``start..stop`` (C order)."""
         idx = torch.arange(start, stop, dtype=torch.long)
-        X, Y, Z = self.shape
+        _, Y, Z = self.shape
         ijk = torch.stack([idx // (Y * Z), (idx // Z) % Y, idx % Z], -1)
         return self.origin + ijk.to(torch.float64) * self.voxel
 

@@ -6,6 +6,8 @@ returned dict into ``metrics.json``). It writes into ``run_dir``:
 * ``checkpoints/last.pt``: the stage-1 checkpoint (resumed automatically, see ``train.resume``);
   :func:`load_stage1` rebuilds ``(backbone, act)`` from it for the colourisation stage;
 * ``model.ply`` (Gaussians) / ``model.npz`` (grids): ``backbone.export``;
+* ``mesh.ply`` / ``mesh.glb`` (TSDF fusion, ``mesh`` config) and ``viewer/`` (Gaussians: the folder
+  layout 3DGS viewers load): :func:`arcsem.train.products.write_products`;
 * ``views.csv``, ``renders/{train,test}/<name>.png`` and ``<name>_depth.png``, ``turntable.mp4``
   (``.gif`` without ffmpeg), ``train_history.csv``.
 
@@ -34,8 +36,9 @@ from .evaluate import evaluate_split, mean_metrics, to_uint8, write_views_csv
 from .loop import LoopConfig, train
 from .losses import build_losses, merge_loss_cfgs
 from .optim import OptimConfig
+from .products import write_products
 from .sampling import resize_split
-from .video import arc_path, write_video
+from .video import write_video
 
 __all__ = [
     "NON_SEMANTIC_KEYS",
@@ -59,7 +62,7 @@ class EvalConfig:
 
     lpips: bool = True  # LPIPS (AlexNet); NaN + reason when its ImageNet weights are missing
     renders: bool = True  # write renders/{train,test}/<name>.png and <name>_depth.png
-    video: bool = True  # turntable video of novel views along the training arcs
+    video: bool = True  # turntable.mp4: novel views on a full orbit around the specimen
     video_frames: int = 60
     fps: int = 20
     max_train_views: int | None = None  # score at most this many training views (None: all, the paper)
@@ -166,6 +169,7 @@ def run_stage1(cfg: Any, scene: Scene, run_dir: str | Path) -> dict:
     backbone.eval()
     result = evaluate(backbone, scene, run_dir, tc.eval)
     export = _export(backbone, run_dir)
+    result.update(write_products(cfg, backbone, scene, run_dir, iteration=res.steps, progress=tc.progress))
     return {"stage1": {**result, "steps": res.steps, "time_s": res.time_s, "steps_per_s": res.steps_per_s,
                        "resumed_from": res.resumed_from, "num_primitives": int(backbone.num_primitives()),
                        "image_size": [scene.train.cameras.width, scene.train.cameras.height],
@@ -203,9 +207,11 @@ def evaluate(backbone, scene: Scene, run_dir: str | Path | None, ec: EvalConfig 
 
 
 def turntable(backbone, scene: Scene, path: Path, frames: int = 60, fps: int = 20) -> Path:
-    """Render ``frames`` novel views along the training arcs (mean ACT) and write a video."""
-    center = scene.bounds.float().mean(0)
-    cams = arc_path(scene.train.cameras, frames, center)
+    """Render ``frames`` novel views on a full orbit around the specimen (mean ACT; :mod:`arcsem.orbit`,
+    20 degrees above the orbit plane) and write a video."""
+    from ..orbit import OrbitConfig, orbit_cameras
+
+    cams = orbit_cameras(scene.train.cameras, scene.bounds, OrbitConfig(frames=frames))
     images = []
     with torch.no_grad():
         for k in range(frames):

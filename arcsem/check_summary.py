@@ -50,8 +50,7 @@ def check_summary(cfg: Any, scene: Any, result: dict) -> str:
         f"  colour     {len(scene.references)} artist reference image(s); presets: {refs}",
         f"  bounds     {_box(scene.bounds)}",
         f"  errors     relative to the {scale_name}, {scale:.3g} scene units",
-        f"  backbone   {name} ({result.get('backbone_origin', '?')}), {result.get('primitives', '?'):,} primitives "
-        f"at start",
+        f"  backbone   {name} ({result.get('backbone_origin', '?')}), {result.get('primitives', 0):,} at start",
         f"  ACT        {'on' if result.get('act') else 'off'}",
         f"  stage 1    {steps} steps at {size}; losses: {_terms(losses1)}",
         f"  stage 2    {cc.steps} steps, references '{cc.references}'; losses: {_terms(cc.losses)}",

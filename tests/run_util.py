@@ -50,10 +50,11 @@ def _set_sphere(backbone, colours: torch.Tensor) -> None:
 
 def make_run(root: Path, backbone: str = "gs2d", colored: bool = True, camera: str | None = None) -> Path:
     """Write the scene under ``root/scene`` and the run folder ``root/run``; returns the run folder."""
+    from test_config import compose_with
+
     from arcsem.data import load_scene
     from arcsem.train.checkpoint import save_checkpoint
     from arcsem.train.stage1 import build_model, prepare_scene, stage1_config, train_config
-    from test_config import compose_with
 
     top = {"aabb": [[-0.6] * 3, [0.6] * 3]}
     if camera == "orthographic":

@@ -50,7 +50,7 @@ def rotmat_to_wxyz(R: np.ndarray) -> np.ndarray:
 def state_cameras(s: ViewState, height: int, model: str = "pinhole") -> Cameras:
     """One float32 camera of ``height`` pixels (width from the aspect) for the view ``s``."""
     height = max(int(height), 8)
-    width = max(int(round(height * s.aspect)), 8)
+    width = max(round(height * s.aspect), 8)
     c2w = np.eye(4)
     c2w[:3, :3] = wxyz_to_rotmat(s.wxyz)
     c2w[:3, 3] = s.position

@@ -2,8 +2,10 @@
 
 The orbit's frame is derived from the training cameras, so it works for any dataset:
 
-* ``up``: the mean image-up direction of the training cameras (camera ``-y`` in world), which for
-  SEM arcs (and for the built-in scene, whose world ``z`` is up) is the stage's vertical;
+* ``up``: the direction most orthogonal to the training cameras' image-right axes (cameras without
+  roll keep their x axis horizontal, so for SEM arcs, and the built-in scene whose world ``z`` is up,
+  this is the stage's vertical), signed like their mean image-up (camera ``-y``); when all right
+  axes are parallel (a single vertical arc), the mean image-up made orthogonal to them;
 * ``centre``: the centre of the scene bounds;
 * azimuth ``0``: the mean viewing direction of the training cameras, projected on the plane
   orthogonal to ``up`` (the orbit starts in front of the specimen, as the operator saw it);
@@ -25,7 +27,8 @@ from torch import Tensor
 from .cameras import Cameras, look_at
 from .errors import ConfigError
 
-__all__ = ["OrbitConfig", "OrbitFrame", "orbit_cameras", "orbit_frame", "view_cameras"]
+__all__ = ["OrbitConfig", "OrbitFrame", "camera_angles", "orbit_cameras", "orbit_frame", "orbit_on_frame",
+           "view_cameras"]
 
 
 @dataclass
@@ -70,12 +73,22 @@ class OrbitFrame:
     size: float
 
 
+def _up(right: Tensor, mean_up: Tensor) -> Tensor:
+    """Unit vector most orthogonal to the rows of ``right [C, 3]``, on the side of ``mean_up [3]``."""
+    evals, evecs = torch.linalg.eigh(right.T @ right)
+    up = evecs[:, 0]
+    if evals[1] < 1e-6 * evals[2]:  # every right axis parallel: any vector orthogonal to them fits
+        r = right[0] / right[0].norm()
+        up = mean_up - (mean_up @ r) * r
+    up = up / up.norm().clamp_min(1e-12)
+    return -up if float(up @ mean_up) < 0 else up
+
+
 def orbit_frame(train: Cameras, bounds: Tensor) -> OrbitFrame:
     """The orbit frame of training cameras ``train`` around the box ``bounds [2, 3]``."""
     c2w = train.cam_to_world.double()
     centre = bounds.double().mean(0)
-    up = -c2w[:, :3, 1].mean(0)
-    up = up / up.norm().clamp_min(1e-12)
+    up = _up(c2w[:, :3, 0], -c2w[:, :3, 1].mean(0))
     front = -c2w[:, :3, 2].mean(0)  # from the specimen towards the cameras
     front = front - (front @ up) * up
     if front.norm() < 1e-6:  # all cameras look along `up`: any horizontal direction
@@ -85,6 +98,16 @@ def orbit_frame(train: Cameras, bounds: Tensor) -> OrbitFrame:
     dist = (train.centers.double() - centre).norm(dim=-1).mean()
     radius = float(dist) if not train.is_ortho else 2.0 * size
     return OrbitFrame(centre, up, front, radius, size)
+
+
+def camera_angles(cams: Cameras, frame: OrbitFrame) -> tuple[Tensor, Tensor]:
+    """Azimuth and elevation ``[C]`` (degrees) of cameras on the orbit ``frame`` (their viewing
+    direction, reversed: where they look from)."""
+    d = -cams.forward.double()
+    side = torch.linalg.cross(frame.up, frame.front)
+    el = torch.rad2deg(torch.asin((d @ frame.up).clamp(-1, 1)))
+    az = torch.rad2deg(torch.atan2(d @ side, d @ frame.front))
+    return az, el
 
 
 def view_cameras(frame: OrbitFrame, azimuth: Tensor, elevation: Tensor, template: Cameras,
@@ -117,6 +140,12 @@ def orbit_cameras(train: Cameras, bounds: Tensor, cfg: OrbitConfig | None = None
     """``cfg.frames`` float32 cameras on the orbit (``image_ids = -1``: the mean ACT)."""
     cfg = (cfg or OrbitConfig()).validate()
     frame = orbit_frame(train, bounds)
+    return orbit_on_frame(frame, train, cfg)
+
+
+def orbit_on_frame(frame: OrbitFrame, train: Cameras, cfg: OrbitConfig) -> Cameras:
+    """:func:`orbit_cameras` on a given frame."""
+    cfg = cfg.validate()
     n = int(cfg.frames)
     a0, a1 = (float(a) for a in cfg.azimuth)
     closed = math.isclose(abs(a1 - a0) % 360.0, 0.0) and a1 != a0

@@ -112,16 +112,31 @@ def test_make_grid_respects_the_voxel_budget():
     assert (g.origin <= 0).all() and (g.origin + (torch.tensor(g.shape) - 1) * g.voxel >= 1).all()
 
 
-def test_chamfer_of_a_shifted_sphere():
-    # sample two spheres whose radii differ by 0.01: every distance is 0.01 (up to sampling)
+class Sphere:
+    """A "grain" whose SDF is a sphere's (what :func:`chamfer` asks of a grain: ``sdf`` and ``size``)."""
+
+    size = 2 * R
+
+    def sdf(self, p):
+        return p.norm(dim=-1) - R
+
+
+def test_chamfer_of_a_larger_sphere():
+    # a mesh sphere 0.01 larger than the ground truth: every distance is 0.01 (up to the facets)
+    from skimage.measure import marching_cubes
+
+    x = np.linspace(-0.8, 0.8, 81)
+    vol = np.linalg.norm(np.stack(np.meshgrid(x, x, x, indexing="ij"), -1), axis=-1) - (R + 0.01)
+    verts, faces, _, _ = marching_cubes(vol, 0.0, spacing=(0.02,) * 3)
+    verts -= 0.8
     rng = np.random.default_rng(0)
-    gt = rng.normal(size=(200_000, 3))
+    gt = rng.normal(size=(50_000, 3))
     gt = R * gt / np.linalg.norm(gt, axis=1, keepdims=True)
-    mesh = (R + 0.01) * gt[:100_000] / R
-    out = chamfer(mesh, gt, gt[gt[:, 2] > 0], size=2 * R)
+    out = chamfer(Sphere(), verts, faces, gt[gt[:, 2] > 0], n_mesh=200_000, n_accuracy=50_000)
     assert out["accuracy"] == pytest.approx(0.01, abs=1e-3)
-    assert out["completeness"] == pytest.approx(0.01, abs=2e-3)
+    assert out["completeness"] == pytest.approx(0.01, abs=1.5e-3)
     assert out["chamfer_pct"] == pytest.approx(100 * 0.01 / (2 * R), rel=0.15)
+    assert out["gt_seen_points"] == int((gt[:, 2] > 0).sum())
 
 
 def test_sample_mesh_is_uniform_by_area():

@@ -2,7 +2,8 @@
 
 :func:`export_mesh` is what stage 1 (grey mesh), stage 2 (coloured mesh) and ``arcsem-export RUN
 --mesh`` call. Views: every training view plus ``orbit_frames`` views on orbits around the specimen
-(:mod:`arcsem.orbit`) at ``orbit_elevations``, all rendered with the mean ACT. Foreground: the
+(:mod:`arcsem.orbit`) at ``orbit_elevations``, by default only over the azimuths and elevations the
+training cameras span (``orbit_in_range``), all rendered with the mean ACT. Foreground: the
 dataset's specimen masks on training views where ``use_masks`` and the dataset has them, else the
 rendered alpha >= ``alpha_min``; the rest of each image clears space (``carve``).
 
@@ -38,12 +39,15 @@ class MeshConfig:
     max_voxels: int = 1 << 24  # 16.8 M voxels, ~340 MB while fusing
     orbit_frames: int = 24  # views per orbit elevation, besides the training views (0: training views only)
     orbit_elevations: list[float] = field(default_factory=lambda: [20.0, 50.0])
+    # orbits only over the azimuths and elevations the training cameras span (what the model saw);
+    # false: full turns (views of sides no training view saw add the model's guesses to the mesh)
+    orbit_in_range: bool = True
     alpha_min: float = 0.5  # rendered alpha that counts as surface (views without masks)
     use_masks: bool = True  # the dataset's specimen masks decide foreground on training views
     carve: bool = True  # background pixels clear the space in front of them
     min_component: float = 0.05  # drop components with fewer faces than this x the largest's
     formats: list[str] = field(default_factory=lambda: ["ply", "glb"])
-    chamfer_points: int = 1_000_000  # samples per surface for the Chamfer distance (built-in scene)
+    chamfer_points: int = 1_000_000  # mesh samples for the Chamfer distance (built-in scene; see groundtruth.py)
 
 
 def mesh_config(raw: Any) -> MeshConfig:
@@ -77,14 +81,20 @@ def _views(scene, cfg: MeshConfig):
     """``[(cameras [1], mask [H, W] or None)]``: training views, then orbit views (mean ACT)."""
     import dataclasses
 
-    from ..orbit import OrbitConfig, orbit_cameras
+    from ..orbit import OrbitConfig, camera_angles, orbit_frame, orbit_on_frame
 
     train = scene.train
     cams = dataclasses.replace(train.cameras, image_ids=torch.full_like(train.cameras.image_ids, -1))
     masks = train.masks if cfg.use_masks else None
     views = [(cams[i:i + 1], None if masks is None else masks[i]) for i in range(len(train))]
-    for el in cfg.orbit_elevations if cfg.orbit_frames > 0 else []:
-        orbit = orbit_cameras(train.cameras, scene.bounds, OrbitConfig(frames=cfg.orbit_frames, elevation=el))
+    frame = orbit_frame(train.cameras, scene.bounds)
+    az, el = camera_angles(train.cameras, frame)
+    azimuth = (float(az.min()), float(az.max())) if cfg.orbit_in_range else (0.0, 360.0)
+    for elev in cfg.orbit_elevations if cfg.orbit_frames > 0 else []:
+        if cfg.orbit_in_range:
+            elev = min(max(float(elev), float(el.min())), float(el.max()))
+        orbit = orbit_on_frame(frame, train.cameras, OrbitConfig(frames=cfg.orbit_frames, elevation=elev,
+                                                                 azimuth=azimuth))
         views += [(orbit[i:i + 1], None) for i in range(len(orbit))]
     return views
 
@@ -152,15 +162,14 @@ def export_mesh(backbone, scene, out_stem: str | Path, cfg: MeshConfig | None = 
 
 def ground_truth_chamfer(scene, verts: np.ndarray, faces: np.ndarray, n: int) -> dict | None:
     """Chamfer distance of the mesh to the built-in grain (None for other datasets)."""
-    from .groundtruth import chamfer, sample_mesh, scene_grain, surface_samples, visible_samples
+    from .groundtruth import chamfer, scene_grain, surface_samples, visible_samples
 
     grain = scene_grain(scene)
     split = scene.train
     if grain is None or split.depths is None:
         return None
-    gt = surface_samples(grain, n)
+    gt = surface_samples(grain)
     tol = 2.0 * pixel_footprint(split.cameras, scene.bounds.double().mean(0))
-    seen = gt[visible_samples(gt, split, tol)]
-    out = chamfer(sample_mesh(verts, faces, n), gt, seen, grain.size)
+    out = chamfer(grain, verts, faces, gt[visible_samples(gt, split, tol)], n_mesh=n)
     out["visible_tol"] = tol
     return out

@@ -63,6 +63,11 @@ class TSDFVolume:
     def __init__(self, grid: Grid, trunc: float, chunk: int = 1 << 21):
         n = grid.shape[0] * grid.shape[1] * grid.shape[2]
         self.grid, self.trunc, self.chunk = grid, float(trunc), int(chunk)
+        # voxel centres relative to the grid's centre, float32 (12 bytes a voxel): projecting relative
+        # coordinates keeps float32 exact enough for cameras tens of specimen sizes away
+        self.middle = grid.origin + (torch.tensor(grid.shape, dtype=torch.float64) - 1) / 2 * grid.voxel
+        self.points = torch.cat([grid.centres(i, min(i + self.chunk, n)) - self.middle
+                                 for i in range(0, n, self.chunk)]).float()
         self.tsdf = torch.ones(n, dtype=torch.float32)
         self.weight = torch.zeros(n, dtype=torch.float32)
         self.color = torch.zeros(n, 3, dtype=torch.float32)
@@ -72,15 +77,15 @@ class TSDFVolume:
                   background: Tensor | None = None) -> None:
         """Fuse one view: ``depth [H, W]`` z-depth, ``valid [H, W]`` bool (where ``depth`` is the
         surface), ``rgb [H, W, 3]`` or None, ``background [H, W]`` bool pixels that clear space, or None."""
-        cam = cam[:1].to(dtype=torch.float64)
+        cam = _recentred(cam[:1], self.middle)
         H, W = depth.shape
-        depth, valid = depth.double().reshape(-1), valid.reshape(-1).bool()
+        depth, valid = depth.float().reshape(-1), valid.reshape(-1).bool()
         bg = background.reshape(-1).bool() if background is not None else None
         rgb = rgb.float().reshape(-1, 3) if rgb is not None else None
         n = self.tsdf.numel()
         for start in range(0, n, self.chunk):
             stop = min(start + self.chunk, n)
-            uv, z = cam.project(self.grid.centres(start, stop))
+            uv, z = cam.project(self.points[start:stop])
             u, v, z = uv[0, :, 0].floor().long(), uv[0, :, 1].floor().long(), z[0]
             inside = (u >= 0) & (u < W) & (v >= 0) & (v < H) & ((z > 0) | cam.is_ortho)
             pix = (v.clamp(0, H - 1) * W + u.clamp(0, W - 1))
@@ -110,6 +115,15 @@ class TSDFVolume:
         """``tsdf [X, Y, Z]``, ``weight [X, Y, Z]``, ``color [X, Y, Z, 3]`` as numpy arrays."""
         s = self.grid.shape
         return self.tsdf.reshape(s).numpy(), self.weight.reshape(s).numpy(), self.color.reshape(*s, 3).numpy()
+
+
+def _recentred(cam: Cameras, middle: Tensor) -> Cameras:
+    """float32 camera of points given relative to ``middle [3]`` (the translation absorbs the offset)."""
+    from dataclasses import replace
+
+    w2c = cam.world_to_cam.double().clone()
+    w2c[:, :3, 3] += (w2c[:, :3, :3] @ middle.double()[:, None])[..., 0]
+    return replace(cam, world_to_cam=w2c.float(), K=cam.K.float())
 
 
 def _observed_cells(weight: np.ndarray) -> np.ndarray:

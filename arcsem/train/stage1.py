@@ -32,7 +32,7 @@ from ..plugins import BACKBONES
 from ..registry import validate_config
 from ..scene import Scene
 from .checkpoint import load_checkpoint, load_module_state
-from .evaluate import evaluate_split, mean_metrics, to_uint8, write_views_csv
+from .evaluate import DEPTH_SPAN, evaluate_split, mean_metrics, to_uint8, write_views_csv
 from .loop import LoopConfig, train
 from .losses import build_losses, merge_loss_cfgs
 from .optim import OptimConfig
@@ -196,7 +196,8 @@ def evaluate(backbone, scene: Scene, run_dir: str | Path | None, ec: EvalConfig 
         result[sname] = summary
     if depth:
         source = "median_depth" if "median_depth" in backbone.provides else "depth"
-        depth.update(length_scale=scene.scale[0], length_scale_name=scene.scale[1], source=source)
+        depth.update(length_scale=scene.scale[0], length_scale_name=scene.scale[1], source=source,
+                     micrometres_per_unit=scene.micrometres_per_unit, display_span=DEPTH_SPAN * scene.scale[0])
     result["depth"] = depth
     result["all_views"] = mean_metrics(rows) if rows else {}
     if run_dir is not None:

@@ -15,6 +15,8 @@ import time
 import urllib.request
 from pathlib import Path
 
+from typing_extensions import Self
+
 CHROMIUM = next((p for p in (shutil.which("chromium"), shutil.which("chromium-browser"),
                              shutil.which("google-chrome")) if p), None)
 SKIP_REASON = "headless Chromium is not installed (apt-get install chromium); `make test` installs it as root"
@@ -27,7 +29,7 @@ class Browser:
         self.width, self.height, self.timeout = width, height, timeout
         self._id = 0
 
-    def __enter__(self) -> Browser:
+    def __enter__(self) -> Self:
         from websockets.sync.client import connect
 
         self._dir = tempfile.TemporaryDirectory(prefix="arcsem-chromium-")

@@ -61,8 +61,8 @@ def test_model_switch_keeps_the_footprint():
     torch.testing.assert_close(az.float(), torch.tensor([-10.0, 10.0]), atol=1e-4, rtol=0)  # open range: ends kept
 
 
-@pytest.mark.parametrize("bad", [dict(frames=0), dict(elevation=95.0), dict(camera="fisheye"), dict(width=3),
-                                 dict(zoom=0.0)])
+@pytest.mark.parametrize("bad", [{"frames": 0}, {"elevation": 95.0}, {"camera": "fisheye"}, {"width": 3},
+                                 {"zoom": 0.0}])
 def test_bad_orbits_are_config_errors(bad):
     with pytest.raises(ConfigError, match="orbit"):
         orbit_cameras(arc_cameras(), BOUNDS, OrbitConfig(**bad))

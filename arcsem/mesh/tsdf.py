@@ -11,8 +11,8 @@ written here in PyTorch + scikit-image; ``docs/mesh.md`` gives the measured comp
   ``trunc`` of the surface;
 * ``carve``: a pixel that the view marks as background (no specimen) clears the voxels that project
   onto it (observation ``+1``), which removes floaters that one view sees and others see through;
-* marching cubes (scikit-image) at level 0 where a voxel and its neighbours were all observed
-  (unobserved space makes no surface), vertex colours trilinear from the colour grid;
+* marching cubes (scikit-image) at level 0, triangles kept in cells whose 8 corners were all
+  observed (unobserved space makes no surface), vertex colours trilinear from the colour grid;
 * clean-up: connected components with fewer than ``min_component`` x the largest one's faces are
   dropped.
 """
@@ -127,29 +127,40 @@ def _recentred(cam: Cameras, middle: Tensor) -> Cameras:
 
 
 def _observed_cells(weight: np.ndarray) -> np.ndarray:
-    """``[X, Y, Z]`` bool: the voxel and its 26 neighbours were observed.
-
-    Marching cubes reads a cell's 8 corners; an unobserved corner (tsdf 1) next to observed inside
-    values (< 0) would make a spurious surface at the back of the truncation band. Requiring the
-    whole 3x3x3 neighbourhood is safe whichever corner scikit-image's ``mask`` is read at.
-    """
-    from scipy.ndimage import binary_erosion
-
-    return binary_erosion(weight > 0, structure=np.ones((3, 3, 3), bool), border_value=0)
+    """``[X-1, Y-1, Z-1]`` bool: the cell between voxels ``(i..i+1, j..j+1, k..k+1)`` has all 8 corners observed."""
+    w = weight > 0
+    cell = w[:-1, :-1, :-1].copy()
+    for dx, dy, dz in ((1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (1, 0, 1), (0, 1, 1), (1, 1, 1)):
+        cell &= w[dx:w.shape[0] - 1 + dx, dy:w.shape[1] - 1 + dy, dz:w.shape[2] - 1 + dz]
+    return cell
 
 
 def extract_mesh(vol: TSDFVolume) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Marching cubes of the fused TSDF: vertices ``[V, 3]`` (world), faces ``[F, 3]`` (int64, outward
-    normals), vertex colours ``[V, 3]`` in [0, 1]. Empty arrays when no surface was observed."""
+    normals), vertex colours ``[V, 3]`` in [0, 1]. Empty arrays when no surface was observed.
+
+    Triangles are kept only in cells whose 8 corners were all observed: an unobserved corner (tsdf
+    1) next to observed inside values would make a spurious surface at the back of the truncation band.
+    """
     from scipy.ndimage import map_coordinates
     from skimage.measure import marching_cubes
 
     tsdf, weight, color = vol.volumes()
-    mask = _observed_cells(weight)
-    if not mask.any() or tsdf[weight > 0].min() >= 0 or tsdf[weight > 0].max() <= 0:
-        return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 3))
+    cells = _observed_cells(weight)
+    empty = np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 3))
+    if not cells.any() or tsdf[weight > 0].min() >= 0 or tsdf[weight > 0].max() <= 0:
+        return empty
     # scikit-image's default ("descent") orients the faces outwards for tsdf < 0 inside (tested)
-    verts, faces, _, _ = marching_cubes(tsdf, level=0.0, mask=mask, allow_degenerate=False)
+    verts, faces, _, _ = marching_cubes(tsdf, level=0.0, allow_degenerate=False)
+    cell = np.floor(verts[faces].mean(1)).astype(np.int64)  # the cell each triangle lies in
+    cell = np.minimum(cell, np.array(cells.shape) - 1)
+    faces = faces[cells[cell[:, 0], cell[:, 1], cell[:, 2]]]
+    if len(faces) == 0:
+        return empty
+    used = np.unique(faces)
+    remap = np.full(len(verts), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    verts, faces = verts[used], remap[faces]
     seen = (vol.color_weight.reshape(tsdf.shape) > 0).numpy().astype(np.float32)
     den = map_coordinates(seen, verts.T, order=1, mode="nearest")
     cols = np.stack([map_coordinates(color[..., c] * seen, verts.T, order=1, mode="nearest") for c in range(3)], -1)

@@ -147,7 +147,9 @@ def _lpips_notes(values: list[str], any_nan: bool) -> list[str]:
     bad = [no_paths(p) for p in parts if is_bad(p)]
     good = sorted({Path(p).name for p in parts if not is_bad(p)})
     notes = []
-    if bad or (any_nan and not parts):
+    if bad and all(b.lower() == "skipped" for b in bad):
+        notes.append("LPIPS: n/a: not computed (the run set eval.lpips=false).")
+    elif bad or (any_nan and not parts):
         notes.append("LPIPS: n/a: weights missing (" + "; ".join(bad or ["not recorded"]) + "). To get LPIPS, "
                      f"fetch the ImageNet weights on a machine with network ({FETCH_COMMAND}) and run the job "
                      "again: a number made with random weights is never shown.")
@@ -176,6 +178,10 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
     else:
         notes.append("non-ref. train views: training views that are not colour references; held-out: test "
                      "views; metrics against ground-truth colour.")
+    if any(c.key == CHAMFER.key for c in columns):
+        notes.append("mesh Chamfer %: the TSDF mesh (mesh.ply) against the built-in grain's true surface: mean of "
+                     "accuracy (mesh to surface) and completeness (surface seen by a training view to mesh), % of "
+                     "the grain's diameter.")
     ran = nums[nums["status"] != "missing"] if len(nums) else nums
     lp_nan = any(math.isnan(v) for c in columns if c.label == "LPIPS" and not c.key.startswith("paper.")
                  for v in ran.get(c.key, []))

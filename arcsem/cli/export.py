@@ -1,6 +1,6 @@
 """``arcsem-export RUN [--mesh] [--viewer] [--out DIR]``: a mesh and a viewer folder from a finished run.
 
-``--mesh``: TSDF fusion of the model's rendered depth over the training views and an orbit
+``--mesh``: TSDF fusion of the model's rendered depth over the training views
 (:mod:`arcsem.mesh`), written as ``mesh.ply`` and ``mesh.glb`` (coloured: ``colored_mesh.*`` when
 the run has a stage-2 model); ``--voxel`` and ``--trunc`` override the derived scale. ``--viewer``:
 the folder layout 3DGS viewers load (``viewer/point_cloud/iteration_N/point_cloud.ply`` +
@@ -49,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--viewer", action="store_true", help="folder layout that 3DGS viewers load")
     parser.add_argument("--out", default=None, help="output folder (default RUN/export)")
     parser.add_argument("--voxel", type=float, default=None, help="voxel size in scene units (default: derived)")
-    parser.add_argument("--trunc", type=float, default=None, help="truncation in voxels (default 4)")
+    parser.add_argument("--trunc", type=float, default=None, help="truncation in voxels (default 6)")
     parser.add_argument("--debug", action="store_true", help="show tracebacks")
     args = parser.parse_args(argv)
     mesh, viewer = (args.mesh, args.viewer) if (args.mesh or args.viewer) else (True, True)

@@ -83,7 +83,7 @@ def open3d(m, cfg_json: str, python: str, tmp: Path) -> dict:
     subprocess.run([python, "-c", O3D_SCRIPT, str(src), str(dst)], check=True)
     elapsed = time.perf_counter() - t0
     d = np.load(dst)
-    v, f, c, comp = keep_components(d["verts"], d["faces"].astype(np.int64), d["colors"], cfg.min_component)
+    v, f, _, _ = keep_components(d["verts"], d["faces"].astype(np.int64), d["colors"], cfg.min_component)
     info = {"faces": len(f), "gt": ground_truth_chamfer(m.scene, v, f, cfg.chamfer_points)}
     return {"method": f"open3d {cfg_json}", "time_s": elapsed, **_summary(info)}
 

@@ -105,3 +105,19 @@ def test_report_of_a_real_run_in_chromium(tmp_path):
         assert any(p.startswith("self-check: broken") for p in problems) and any(".png" in p for p in problems)
         assert browser.evaluate("document.getElementById('check').textContent").startswith("This page is incomplete")
     assert rows > 10
+
+
+def test_weights_command_reports_each_file(tmp_path, monkeypatch, capsys):
+    """``python -m arcsem.weights`` (the command the report gives for LPIPS): found / not to be had."""
+    import torch
+
+    from arcsem.weights import main
+
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path))
+    monkeypatch.setenv("ARCSEM_OFFLINE", "1")
+    assert main(["alexnet-owt-7be5be79.pth"]) == 1
+    assert "alexnet-owt-7be5be79.pth: FAILED:" in capsys.readouterr().out
+    (tmp_path / "hub" / "checkpoints").mkdir(parents=True)
+    torch.save({"w": torch.zeros(1)}, tmp_path / "hub" / "checkpoints" / "alexnet-owt-7be5be79.pth")
+    assert main(["alexnet-owt-7be5be79.pth"]) == 0
+    assert "alexnet-owt-7be5be79.pth: ok" in capsys.readouterr().out

@@ -5,8 +5,8 @@ browser, the frames :class:`~.session.Session` renders: previews at an adaptive 
 camera moves, the full resolution once it rests. GUI: display mode (grey: the stage-1 model with
 the mean ACT; colour: the stage-2 model where the run has one; depth: turbo map of the surface
 depth over the frame's range, near red; normal: camera-space normals), camera model (pinhole |
-orthographic), and the training cameras as frusta (drawn at most 3 specimen sizes from the centre,
-on their true lines of sight).
+orthographic), and the training cameras as frusta (drawn at most 2 scene sizes from the centre, on
+their true lines of sight).
 """
 from __future__ import annotations
 
@@ -88,21 +88,22 @@ class Viewer:
     def _frusta(self) -> None:
         cams = self.scene.train.cameras
         centre = self.frame.centre.numpy()
-        for i, (wxyz, pos, fov, aspect) in enumerate(frustum_poses(cams, centre, self.frame.size)):
+        for i, (wxyz, pos, fov, aspect) in enumerate(frustum_poses(cams, centre, self.frame.size, far=2.0)):
             self.server.scene.add_camera_frustum(f"/train/{self.scene.train.names[i]}", fov=fov, aspect=aspect,
-                                                 scale=0.08 * self.frame.size, wxyz=wxyz, position=pos,
+                                                 scale=0.05 * self.frame.size, wxyz=wxyz, position=pos,
                                                  color=(40, 90, 200))
 
     def initial_view(self) -> tuple[np.ndarray, np.ndarray, float]:
-        """``(wxyz, position, fov)``: in front of the specimen, 20 degrees up, framing it."""
+        """``(wxyz, position, fov)``: in front of the specimen (30 degrees right and up, off the lines of
+        sight of the usual SEM arcs), farther than the frusta, framing the specimen."""
         import math
 
         import torch
 
         from ..orbit import view_cameras
 
-        dist = 2.2 * self.frame.size
-        cam = view_cameras(self.frame, torch.tensor([0.0]), torch.tensor([20.0]), self.scene.train.cameras[0],
+        dist = 3.5 * self.frame.size
+        cam = view_cameras(self.frame, torch.tensor([30.0]), torch.tensor([30.0]), self.scene.train.cameras[0],
                            64, 64, "pinhole", radius=dist)
         c2w = cam.cam_to_world[0].double().numpy()
         return rotmat_to_wxyz(c2w[:3, :3]), c2w[:3, 3], 2 * math.atan(0.5 * self.frame.size / dist) * 1.3

@@ -7,7 +7,8 @@ given as JSON (``MeshConfig`` fields), and optionally Open3D's TSDF on the same 
 Open3D is not a dependency: ``--open3d-python`` names the interpreter of a separate venv with
 ``open3d-cpu`` (``python3 -m venv /tmp/o3d-venv && /tmp/o3d-venv/bin/pip install open3d-cpu``). The
 training views are rendered here (median depth, masked as arcsem masks them), saved to an ``.npz``,
-fused by Open3D's ``ScalableTSDFVolume`` with the same voxel and truncation in that interpreter, and
+fused by Open3D's ``UniformTSDFVolume`` with the same voxel and truncation in that interpreter (its
+``ScalableTSDFVolume``, which 2DGS's code uses, extracted nothing with open3d-cpu 0.20.0 here), and
 its mesh is cleaned and scored here exactly as arcsem's own (pinhole cameras only: Open3D has no
 orthographic camera). Results in docs/mesh.md.
 """
@@ -27,8 +28,10 @@ import torch
 O3D_SCRIPT = r"""
 import sys, numpy as np, open3d as o3d
 d = np.load(sys.argv[1])
-vol = o3d.pipelines.integration.ScalableTSDFVolume(voxel_length=float(d["voxel"]), sdf_trunc=float(d["trunc"]),
-    color_type=o3d.pipelines.integration.TSDFVolumeColorType.RGB8)
+# UniformTSDFVolume over the scene bounds: ScalableTSDFVolume (what 2DGS's code uses) extracted nothing
+# at all with open3d-cpu 0.20.0 here, not even a plane in front of an identity camera
+vol = o3d.pipelines.integration.UniformTSDFVolume(length=float(d["length"]), resolution=int(d["resolution"]),
+    sdf_trunc=float(d["trunc"]), color_type=o3d.pipelines.integration.TSDFVolumeColorType.RGB8, origin=d["origin"])
 for k in range(len(d["depth"])):
     K = d["K"][k]
     intr = o3d.camera.PinholeCameraIntrinsic(int(d["width"]), int(d["height"]), K[0, 0], K[1, 1], K[0, 2] - 0.5,
@@ -76,9 +79,12 @@ def open3d(m, cfg_json: str, python: str, tmp: Path) -> dict:
         depth.append(torch.where(ok, lay["depth"][0], torch.zeros_like(lay["depth"][0])).numpy().astype(np.float32))
         rgb.append((lay["rgb"][0].numpy() * 255 + 0.5).astype(np.uint8))
     src, dst = tmp / "views.npz", tmp / "o3d_mesh.npz"
+    lo, hi = m.scene.bounds[0].double().numpy(), m.scene.bounds[1].double().numpy()
+    length = float((hi - lo).max()) + 2 * (cfg.trunc + 1) * voxel  # a cube around the bounds, as ours pads
     np.savez(src, depth=np.stack(depth), rgb=np.stack(rgb), K=cams.K.double().numpy(),
              w2c=cams.world_to_cam.double().numpy(), width=cams.width, height=cams.height, voxel=voxel,
-             trunc=cfg.trunc * voxel)
+             trunc=cfg.trunc * voxel, length=length, resolution=int(np.ceil(length / voxel)),
+             origin=(lo + hi) / 2 - length / 2)
     t0 = time.perf_counter()
     subprocess.run([python, "-c", O3D_SCRIPT, str(src), str(dst)], check=True)
     elapsed = time.perf_counter() - t0

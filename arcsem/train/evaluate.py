@@ -29,7 +29,7 @@ from torch import nn
 
 from ..scene import Split
 
-__all__ = ["depth_display", "depth_error", "depth_image", "evaluate_split", "mean_metrics", "render_view", "to_uint8",
+__all__ = ["depth_display", "depth_error", "evaluate_split", "mean_metrics", "render_view", "to_uint8",
            "write_views_csv"]
 
 METRICS = ("psnr", "ssim", "lpips")
@@ -41,22 +41,6 @@ specimen's diameter: the depth of the hemisphere a view sees)."""
 def to_uint8(img: torch.Tensor) -> np.ndarray:
     """``[H,W,3]`` in [0,1] -> uint8 array."""
     return (img.detach().clamp(0, 1).cpu().numpy() * 255.0 + 0.5).astype(np.uint8)
-
-
-def depth_image(depth: torch.Tensor, valid: torch.Tensor, lo: float | None = None, hi: float | None = None) -> np.ndarray:
-    """Depth ``[H,W]`` -> uint8 ``[H,W,3]``: near bright, far dark (inverted grey), invalid black.
-
-    ``lo``/``hi`` fix the range (e.g. from the ground truth) so renders and GT are comparable.
-    """
-    d = depth.detach().cpu().double()
-    v = valid.cpu().bool() & torch.isfinite(d)
-    if not bool(v.any()):
-        return np.zeros((*d.shape, 3), np.uint8)
-    lo = float(d[v].min()) if lo is None else lo
-    hi = float(d[v].max()) if hi is None else hi
-    x = 1.0 - ((d - lo) / max(hi - lo, 1e-12)).clamp(0, 1)
-    x = torch.where(v, 0.15 + 0.85 * x, torch.zeros_like(x))
-    return (x[..., None].expand(-1, -1, 3).numpy() * 255 + 0.5).astype(np.uint8)
 
 
 def depth_error(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:

@@ -9,7 +9,7 @@ CPP     := $(wildcard backbones/gaussians/cpp/*.cpp backbones/gaussians/cpp/*.h)
 JOBS    ?= 2
 export PIP_DISABLE_PIP_VERSION_CHECK=1
 
-.PHONY: setup demo test clean-venv
+.PHONY: setup demo test clean-venv browser
 
 setup: $(EXT)
 
@@ -26,7 +26,15 @@ $(EXT): $(STAMP) $(CPP)
 demo: $(EXT)
 	$(BIN)/arcsem experiment=demo
 
-test: $(EXT)
+# Headless Chromium for the page tests (viewer, report): Debian's package, installed when missing and
+# apt runs as root (CI); elsewhere those tests are skipped and say why.
+browser:
+	@command -v chromium >/dev/null 2>&1 || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && \
+	  echo "installing chromium (apt) for the browser tests" && apt-get update -qq >/dev/null && \
+	  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; } || \
+	  echo "chromium not installed: the browser tests will be skipped (apt-get install chromium)"
+
+test: $(EXT) browser
 	$(BIN)/python -m pytest -q -n $(JOBS) --dist loadgroup
 
 clean-venv:

@@ -8,7 +8,8 @@
 
 Stages: ``gray`` (:func:`arcsem.train.run_stage1`), ``color`` (:func:`arcsem.colorize.run_stage2`),
 ``all`` (both), ``check`` (load the scene and build the backbone, nothing trained: validates a
-dataset/plugin/config combination in seconds).
+dataset/plugin/config combination in seconds and prints a summary), ``render`` (orbit videos of the
+finished run ``render.run``: :mod:`arcsem.export.render`).
 """
 from __future__ import annotations
 
@@ -36,7 +37,7 @@ __all__ = [
     "seed_everything",
 ]
 
-STAGES = ("gray", "color", "all", "check")
+STAGES = ("gray", "color", "all", "check", "render")
 
 
 def git_revision() -> str:
@@ -94,7 +95,8 @@ def set_threads(threads: Any) -> None:
 
 
 def _stage_function(stage: str) -> Callable[..., dict]:
-    module, func = {"gray": ("arcsem.train", "run_stage1"), "color": ("arcsem.colorize", "run_stage2")}[stage]
+    module, func = {"gray": ("arcsem.train", "run_stage1"), "color": ("arcsem.colorize", "run_stage2"),
+                    "render": ("arcsem.export.render", "run_render_stage")}[stage]
     import importlib
 
     try:
@@ -123,12 +125,15 @@ def _gray_stage(cfg: DictConfig, scene: Any, run_dir: Path) -> dict:
 
 def _check_stage(cfg: DictConfig, scene: Any, run_dir: Path) -> dict:
     """Build the backbone and ACT as stage 1 would (validates dataset, plugin and their configs); trains nothing."""
+    from .check_summary import check_summary
     from .plugins import BACKBONES
     from .train.stage1 import build_model
 
     model, act = build_model(cfg, scene)
-    return {"backbone_origin": BACKBONES.origin(cfg.backbone.name), "primitives": int(model.num_primitives()),
-            "act": act is not None}
+    result = {"backbone_origin": BACKBONES.origin(cfg.backbone.name), "primitives": int(model.num_primitives()),
+              "act": act is not None}
+    print(check_summary(cfg, scene, result))
+    return result
 
 
 def _scene_summary(scene: Any) -> dict:
@@ -197,15 +202,19 @@ def run(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
             "backbone": str(cfg.backbone.name), "dataset": {"kind": str(cfg.dataset.kind)}, "status": "running",
             "completed_stages": [], "warnings": [], "timings": {}, "stages": {},
         }
-        t0 = time.perf_counter()
-        scene = load_scene(cfg.dataset)
-        metrics["timings"]["load_scene_s"] = time.perf_counter() - t0
-        metrics["dataset"].update(root=scene.root, **_scene_summary(scene))
-        for warning in check_scene(cfg, scene, stage, run_dir):
-            log.warning(warning)
-            metrics["warnings"].append(warning)
-        stages = ("check",) if stage == "check" else STAGE_PLAN[stage]
-        files, folders = _inputs(scene)
+        scene, files, folders = None, [], []
+        if stage == "render":  # renders a finished run (its own dataset and models): that run is an input
+            folders = [str(Path(str(cfg.render.run)).expanduser().resolve())]
+        else:
+            t0 = time.perf_counter()
+            scene = load_scene(cfg.dataset)
+            metrics["timings"]["load_scene_s"] = time.perf_counter() - t0
+            metrics["dataset"].update(root=scene.root, **_scene_summary(scene))
+            for warning in check_scene(cfg, scene, stage, run_dir):
+                log.warning(warning)
+                metrics["warnings"].append(warning)
+            files, folders = _inputs(scene)
+        stages = {"check": ("check",), "render": ("render",)}.get(stage) or STAGE_PLAN[stage]
         with protect(allowed_roots(run_dir, cache_root(cfg)), inputs=files, input_dirs=folders,
                      own=[run_dir, cache_root(cfg)]):
             _run_stages(cfg, scene, run_dir, stages, metrics, t_start)

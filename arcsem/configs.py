@@ -47,7 +47,7 @@ class EvalConfig:
 
     lpips: bool = True  # LPIPS (AlexNet); NaN + reason when its ImageNet weights are missing
     renders: bool = True  # write renders/{train,test}/<name>.png and <name>_depth.png
-    video: bool = True  # turntable video of novel views along the training arcs
+    video: bool = True  # turntable.mp4: novel views on a full orbit around the specimen
     video_frames: int = checked(60, ge=1)
     fps: int = checked(20, ge=1)
     max_train_views: int | None = checked(None, ge=1)  # score at most this many training views (None: all, the paper)

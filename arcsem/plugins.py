@@ -133,6 +133,12 @@ class Backbone(nn.Module):
         Default: nothing to export (``NotImplementedError``; the run goes on)."""
         raise NotImplementedError
 
+    def export_viewer(self, folder: str, cams: Cameras, names: list[str], centre: Tensor,
+                      iteration: int) -> dict[str, str]:
+        """Write the folder layout that common 3DGS viewers load (``point_cloud/iteration_N/point_cloud.ply``
+        and ``cameras.json`` of ``cams`` named ``names``); returns the paths. Gaussians only."""
+        raise NotImplementedError(f"{self.name}: no viewer export")
+
 
 class Loss(nn.Module):
     """Base class of loss terms: :meth:`forward` returns an unweighted scalar; the trainer weights it.

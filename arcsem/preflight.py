@@ -19,7 +19,8 @@ from .errors import ConfigError, DataError
 
 __all__ = ["MIN_IMAGE_SIZE", "STAGE_PLAN", "check_config", "check_device", "check_scene"]
 
-STAGE_PLAN = {"gray": ("gray",), "color": ("color",), "all": ("gray", "color"), "check": ("gray", "color")}
+STAGE_PLAN = {"gray": ("gray",), "color": ("color",), "all": ("gray", "color"), "check": ("gray", "color"),
+              "render": ("render",)}
 """The training stages each ``stage`` value runs or, for ``check``, validates (stage 2's references and model
 only where it can: their problems are warnings, since a dataset may be meant for stage 1 alone)."""
 
@@ -77,6 +78,17 @@ def _check_color(cfg: Any) -> None:
             raise DataError(f"colorize.references: file or folder not found: {f}")
 
 
+def _check_render(cfg: Any) -> None:
+    from .export.render import render_config
+
+    rc = render_config(cfg.get("render"))
+    if not rc.run:
+        raise ConfigError("render.run: set it to the finished run folder to render (stage=render render.run=...)")
+    run = Path(rc.run).expanduser()
+    if not (run / "config.yaml").is_file():
+        raise DataError(f"render.run: {run} is not a finished arcsem run folder (no config.yaml)")
+
+
 def check_config(cfg: Any, stage: str) -> None:
     """Validate the config of every stage ``stage`` runs (see the module docstring); reads no data."""
     from .app import STAGES
@@ -85,7 +97,7 @@ def check_config(cfg: Any, stage: str) -> None:
         raise ConfigError(f"stage: unknown stage '{stage}'; available: {', '.join(STAGES)}")
     _check_top_level(cfg)
     for name in STAGE_PLAN[stage]:
-        {"gray": _check_gray, "color": _check_color}[name](cfg)
+        {"gray": _check_gray, "color": _check_color, "render": _check_render}[name](cfg)
 
 
 def _check_sizes(cfg: Any, scene: Any, stages: tuple[str, ...]) -> list[str]:

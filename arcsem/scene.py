@@ -82,6 +82,8 @@ class Scene:
         reference_sets: named presets -> list of training-view names (``five``, ``four``, ...).
         specimen_size: the specimen's diameter in world units when the dataset states it (transforms
             key ``specimen_size``; the synthetic grain's ``grain_size``), else None: see :attr:`scale`.
+        micrometres_per_unit: the physical length of one world unit when the dataset gives its images'
+            pixel size (transforms key ``pixel_size_um``), else None (lengths stay in scene units).
         extent: scene extent used by Gaussian learning rates (see :attr:`extent`).
     """
 
@@ -94,6 +96,7 @@ class Scene:
     references: dict[str, Tensor] = field(default_factory=dict)
     reference_sets: dict[str, list[str]] = field(default_factory=dict)
     specimen_size: float | None = None
+    micrometres_per_unit: float | None = None
 
     @property
     def extent(self) -> float:

@@ -12,7 +12,11 @@ import socket
 from pathlib import Path
 from urllib.parse import urlparse
 
-__all__ = ["KNOWN_URLS", "find_hub_weights", "hub_checkpoint_dir", "load_state_dict_from_hub", "network_available"]
+__all__ = ["FETCH_COMMAND", "KNOWN_URLS", "find_hub_weights", "hub_checkpoint_dir", "load_state_dict_from_hub", "main",
+           "network_available"]
+
+FETCH_COMMAND = "python -m arcsem.weights"
+"""Downloads every known checkpoint into the hub cache (on a machine with network); printed by reports."""
 
 # torchvision's ImageNet checkpoints (file names carry the hash prefix checked by torch.hub).
 KNOWN_URLS = {
@@ -82,3 +86,21 @@ def load_state_dict_from_hub(url_or_filename: str) -> tuple[dict | None, str]:
         return torch.load(found, map_location="cpu", weights_only=True), str(found)
     except Exception as exc:  # noqa: BLE001 (any unreadable checkpoint)
         return None, f"{found} is unreadable: {exc!r}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m arcsem.weights [FILE...]``: put the ImageNet checkpoints (default: all of
+    :data:`KNOWN_URLS`) into the torch hub cache, so LPIPS and TCM/CCM use real weights."""
+    import sys
+
+    names = list(argv if argv is not None else sys.argv[1:]) or list(KNOWN_URLS)
+    failed = 0
+    for name in names:
+        sd, source = load_state_dict_from_hub(name)
+        print(f"{name}: {'ok, ' + source if sd is not None else 'FAILED: ' + source}")
+        failed += sd is None
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

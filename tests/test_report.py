@@ -145,7 +145,7 @@ def test_html_page_links_exist_and_grids(gray_sweep, ref_sweep, tmp_path):
     parser = _Refs()
     parser.feed(page.read_text())
     parser.close()
-    assert parser.tags.count("table") == 2 and parser.tags.count("video") == 3
+    assert parser.tags.count("table") == 4 and parser.tags.count("video") == 3  # 2 studies + their files tables
     files = [r for r in parser.refs if not r.startswith("#")]
     assert any(r.endswith(".png") for r in files) and any(r.endswith(".mp4") for r in files)
     for ref in files:
@@ -256,13 +256,20 @@ def test_ground_truth_rendered_from_the_runs_dataset(tmp_path, tiny_transforms):
     assert not (tmp_path / "rep" / "grids" / "gt" / "depth_view_01.png").exists()  # no GT depth in this dataset
 
 
+FIX = (" To get LPIPS, fetch the ImageNet weights on a machine with network (python -m arcsem.weights) and run the "
+       "job again: a number made with random weights is never shown.")
+
+
 @pytest.mark.parametrize("values, nan, expected", [
     (["/hub/checkpoints/alexnet-owt-7be5be79.pth"], False, ["LPIPS: AlexNet v0.1, ImageNet weights alexnet-owt-7be5be79.pth."]),
-    (["missing: no file; skipped"], True, ["LPIPS: n/a: weights missing (missing: no file; skipped)."]),
-    ([], True, ["LPIPS: n/a: weights missing (not recorded)."]),
+    (["missing: no file; skipped"], True, ["LPIPS: n/a: weights missing (missing: no file; skipped)." + FIX]),
+    ([], True, ["LPIPS: n/a: weights missing (not recorded)." + FIX]),
     ([], False, ["LPIPS weights: not recorded."]),
     (["a/alexnet.pth", "missing: offline"], True,
-     ["LPIPS: n/a: weights missing (missing: offline).", "LPIPS: AlexNet v0.1, ImageNet weights alexnet.pth."]),
+     ["LPIPS: n/a: weights missing (missing: offline)." + FIX, "LPIPS: AlexNet v0.1, ImageNet weights alexnet.pth."]),
+    (["missing: alexnet-owt-7be5be79.pth not in /root/.cache/torch/hub/checkpoints and no network"], True,
+     ["LPIPS: n/a: weights missing (missing: alexnet-owt-7be5be79.pth not in the torch hub cache and no network)."
+      + FIX]),
 ])
 def test_lpips_notes(values, nan, expected):
     from arcsem.report.tables import _lpips_notes

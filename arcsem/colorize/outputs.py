@@ -1,4 +1,5 @@
-"""Stage-2 outputs: colour metrics against ground truth, coloured views, previews, video, export."""
+"""Stage-2 outputs: colour metrics against ground truth, coloured views, previews, video, export,
+coloured mesh and viewer folder."""
 from __future__ import annotations
 
 import dataclasses
@@ -6,7 +7,7 @@ from pathlib import Path
 
 import torch
 
-__all__ = ["colour_split", "evaluate_colour", "write_outputs"]
+__all__ = ["colour_split", "evaluate_colour", "write_colored_products", "write_outputs"]
 
 
 def colour_split(split, idx: list[int]):
@@ -79,3 +80,10 @@ def write_outputs(backbone, scene, run_dir: Path, cc, pseudo: torch.Tensor, vali
     except NotImplementedError:
         out["export"] = None
     return out
+
+
+def write_colored_products(cfg, backbone, scene, run_dir: Path, steps: int, progress: bool) -> dict:
+    """The coloured mesh (``colored_mesh.*``) and viewer folder (``colored_viewer/``)."""
+    from ..train.products import write_products
+
+    return write_products(cfg, backbone, scene, run_dir, prefix="colored_", iteration=steps, progress=progress)

@@ -5,7 +5,8 @@
 ``lambda_pc * pseudo + lambda_tcm * TCM + lambda_cc * CCM`` (each switchable, ``weight: 0`` = off).
 It writes into ``run_dir``: ``colored/<name>.png`` for every training view (input names),
 ``colorize/pseudo/<name>.png`` (pseudo-colour previews), ``colored_turntable.mp4``, the coloured
-model (``colored_model.ply`` for Gaussians), ``colorize/views.csv``, and returns the metrics
+model (``colored_model.ply`` for Gaussians), the coloured mesh (``colored_mesh.ply``/``.glb``) and
+viewer folder (``colored_viewer/``), ``colorize/views.csv``, and returns the metrics
 against ground-truth colour (where the dataset has it) plus ``features: imagenet|random``.
 """
 from __future__ import annotations
@@ -174,7 +175,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     from ..share import cache_root
     from ..train import LoopConfig, load_stage1, train
     from ..train.loop import loss_trend_warning
-    from .outputs import evaluate_colour, write_outputs
+    from .outputs import evaluate_colour, write_colored_products, write_outputs
     from .vgg import get_vgg
 
     run_dir = Path(run_dir)
@@ -210,6 +211,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     features = vgg.features_source if vgg is not None else "unused"
     result = evaluate_colour(backbone, scene, refs, run_dir, cc)
     result.update(write_outputs(backbone, scene, run_dir, cc, pseudo, valid))
+    result.update(write_colored_products(cfg, backbone, scene, run_dir, res.steps, cc.progress))
     result.update(
         features=features, references=refs.names, losses=sorted(losses.terms), steps=res.steps, time_s=res.time_s,
         steps_per_s=res.steps_per_s, stage1_checkpoint=str(ckpt), image_size=[split.cameras.width, split.cameras.height],

@@ -7,6 +7,9 @@ Schema (``*`` marks arcsem extensions); intrinsics may sit at the top level or i
 * ``*camera_model``: ``PINHOLE`` (default; ``SIMPLE_PINHOLE`` and ``OPENCV`` with zero distortion
   are accepted) or ``ORTHOGRAPHIC`` (``fl_x`` = pixels per world unit);
 * ``*aabb`` ``[[min], [max]]`` scene bounds; ``ply_file_path``: initial point cloud;
+  ``*pixel_size_um``: the images' pixel size in micrometres (SEM metadata) at ``w x h``, which
+  gives lengths in micrometres (``Scene.micrometres_per_unit``: ``fl_x x pixel_size_um``, divided by
+  the camera distance to the scene centre for pinhole cameras);
   ``*reference_sets`` ``{"five": [view names], ...}``;
 * frames: ``file_path`` (extension optional, relative to the json), ``transform_matrix``
   (camera-to-world, OpenGL axes), optional ``mask_path``, ``*split`` (train/test),
@@ -169,8 +172,25 @@ def read_transforms(path: str | Path, opts: ReaderOptions | None = None) -> Scen
     sets = data.get("reference_sets") or {}
     if not isinstance(sets, dict) or not all(isinstance(v, list) for v in sets.values()):
         raise DataError(f"{file}: 'reference_sets' must map names to lists of view names")
-    return assemble_scene(file.parent, views, opts, bounds=data.get("aabb"), points=points,
-                          point_colors=colors, reference_sets=sets, specimen_size=_specimen_size(file, data))
+    scene = assemble_scene(file.parent, views, opts, bounds=data.get("aabb"), points=points,
+                           point_colors=colors, reference_sets=sets, specimen_size=_specimen_size(file, data))
+    scene.micrometres_per_unit = _micrometres_per_unit(file, data, scene, opts.downscale)
+    return scene
+
+
+def _micrometres_per_unit(file: Path, data: dict, scene: Scene, downscale: float) -> float | None:
+    """Micrometres per world unit from ``pixel_size_um`` (None without it); see the module docstring."""
+    size = data.get("pixel_size_um")
+    if size is None:
+        return None
+    if not isinstance(size, (int, float)) or not size > 0:
+        raise DataError(f"{file}: 'pixel_size_um' must be a positive number (micrometres), got {size!r}")
+    cams = scene.train.cameras
+    px_per_unit = cams.K[:, 0, 0].double() * float(downscale)  # at the json's resolution
+    if not cams.is_ortho:
+        centre = scene.bounds.double().mean(0)
+        px_per_unit = px_per_unit / cams.to(dtype=torch.float64).to_camera(centre[None])[:, 0, 2].abs()
+    return float(px_per_unit.median()) * float(size)
 
 
 def _specimen_size(file: Path, data: dict) -> float | None:

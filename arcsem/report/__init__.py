@@ -1,7 +1,7 @@
 """Reports from run folders: collect ``metrics.json`` files, write tables, image grids and one HTML page.
 
 ``build_report(paths, out)`` is what ``arcsem-report`` runs; the pieces live in ``collect``,
-``tables``, ``grids`` and ``html``.
+``tables``, ``grids``, ``curves`` (training curves) and ``html``.
 """
 from __future__ import annotations
 
@@ -30,9 +30,10 @@ def build_report(paths: list[str | Path], out: str | Path | None = None) -> Path
     """
     from ..errors import DataError
     from .collect import collect
+    from .curves import training_curves
     from .grids import study_grids
     from .groundtruth import GroundTruth
-    from .html import copy_videos, write_page
+    from .html import copy_videos, files_table, write_page
     from .tables import write_tables
 
     paths = [Path(p) for p in paths]
@@ -43,10 +44,12 @@ def build_report(paths: list[str | Path], out: str | Path | None = None) -> Path
     out.mkdir(parents=True, exist_ok=True)
     coll = collect(paths, exclude=out)
     tables = write_tables(coll, out)
-    grids, videos = {}, {}
+    grids, videos, curves, files = {}, {}, {}, {}
     gt = GroundTruth(out / "grids" / "gt")
     for study in tables:
         runs = representative_runs(coll, study)
         grids[study] = study_grids(study, runs, out / "grids", gt)
         videos[study] = copy_videos(study, runs, out)
-    return write_page(out, tables, grids, videos, [str(p) for p in paths], len(coll.runs))
+        curves[study] = training_curves(runs, out / "curves" / f"{study}.png")
+        files[study] = files_table(runs, out)
+    return write_page(out, tables, grids, videos, [str(p) for p in paths], len(coll.runs), curves, files)

@@ -144,6 +144,27 @@ def identify(overrides: dict[str, str], choices: dict[str, str], config: dict | 
     return name, (None if row is None else str(row))
 
 
+BACKBONE_LABELS = {"gs2d": "2DGS", "gs3d": "3DGS", "plenoxels": "Plenoxels"}
+
+
+def method_label(run: Path, metrics: dict, config: dict, overrides: dict[str, str], choices: dict[str, str]) -> str:
+    """A row name for a run of no study: the method (``2DGS + ACT``), the experiment it ran
+    (``demo``) and the dataset when it is not the built-in scene (folder name, never a full path);
+    runs that recorded no backbone keep their folder's last two parts."""
+    backbone = metrics.get("backbone") or (config.get("backbone") or {}).get("name")
+    if not backbone:
+        return "/".join(run.parts[-2:])
+    label = BACKBONE_LABELS.get(str(backbone), str(backbone))
+    if ((config.get("act") or {}).get("enabled")):
+        label += " + ACT"
+    extra = [overrides.get("experiment") or choices.get("experiment")]
+    ds = config.get("dataset") or {}
+    if ds.get("kind") not in (None, "synthetic"):
+        extra.append(Path(str(ds.get("path") or ds.get("kind"))).name)
+    extra = [str(e) for e in extra if e]
+    return f"{label} ({', '.join(extra)})" if extra else label
+
+
 def read_run(run: Path) -> dict[str, Any]:
     """One flattened record of the run folder ``run`` (which must hold ``metrics.json``)."""
     try:
@@ -152,8 +173,9 @@ def read_run(run: Path) -> dict[str, Any]:
         raise DataError(f"{run / 'metrics.json'}: not valid JSON ({err.msg}, line {err.lineno})") from None
     config = _read_yaml(run / "config.yaml") or _read_yaml(run / ".hydra" / "config.yaml") or {}
     ovr = parse_overrides(_job_overrides(run, metrics))
-    study, row = identify(ovr, _choices(run), config)
-    row = row if study != OTHER else "/".join(run.parts[-2:])
+    choices = _choices(run)
+    study, row = identify(ovr, choices, config)
+    row = row if study != OTHER else method_label(run, metrics, config, ovr, choices)
     rec: dict[str, Any] = {"run_dir": str(run), "study": study, "row": row,
                            "seed": metrics.get("seed", config.get("seed")),
                            "git": metrics.get("git", metrics.get("git_revision"))}

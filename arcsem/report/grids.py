@@ -3,7 +3,8 @@
 Files read from a run folder (names as the trainer and the colouriser write them):
 
 - ``renders/test/<view>.png``        stage-1 render of a held-out view (``renders/train/`` if none)
-- ``renders/test/<view>_depth.png``  its depth visualisation
+- ``renders/test/<view>_depth.png``  its depth visualisation (turbo, below the nearest GT point,
+  masked like the ground truth; the colour bar's scale comes from ``metrics.json``)
 - ``renders/test/<view>_gt.png``     ground-truth grey image (optional; else the dataset folder)
 - ``renders/test/<view>_depth_gt.png`` ground-truth depth visualisation (optional)
 - ``colored/<view>.png``             stage-2 coloured training view
@@ -167,6 +168,34 @@ def _pick(dirs: list[Path], folders: tuple[str, ...], suffix: str) -> tuple[str,
     return folders[0], []
 
 
+def depth_scale(run: Path) -> tuple[float, str] | None:
+    """``(span, unit)`` of the run's depth images (:func:`arcsem.train.evaluate.depth_display`:
+    ``0 .. span`` below the nearest ground-truth point): micrometres where the dataset gives a pixel
+    size, else scene units; None when the run did not record it."""
+    import json
+
+    try:
+        depth = ((json.loads((Path(run) / "metrics.json").read_text()).get("stage1") or {}).get("depth") or {})
+    except (FileNotFoundError, ValueError):
+        return None
+    span = depth.get("display_span")
+    if not isinstance(span, (int, float)):
+        return None
+    um = depth.get("micrometres_per_unit")
+    return (span * um, "micrometres") if isinstance(um, (int, float)) and um > 0 else (span, "scene units")
+
+
+def _depth_bar(runs: list[Path], out: Path, study: str) -> Path | None:
+    """The colour bar under a depth grid (its first run's scale), or None."""
+    from ..visual import colour_bar
+
+    scale = next((s for r in runs if (s := depth_scale(r)) is not None), None)
+    if scale is None:
+        return None
+    bar = colour_bar(0.0, scale[0], scale[1], width=420, label="depth below the nearest ground-truth point")
+    return _write(bar[..., ::-1].copy(), out / f"{study}_depth_bar.png")
+
+
 def study_grids(study: str, runs: Mapping[str, Path], out: Path,
                 gt: GroundTruth | None = None) -> list[tuple[str, Path]]:
     """Grids of one study: ``runs`` maps row label -> one run folder. Returns ``[(title, png)]``.
@@ -188,4 +217,7 @@ def study_grids(study: str, runs: Mapping[str, Path], out: Path,
         where = " (held-out views)" if folder.endswith("renders/test") else (
             " (training views)" if folder.endswith("renders/train") else "")
         grids.append((f"{study}: {title}{where}", _write(img, out / f"{study}_{kind}.png")))
+        bar = _depth_bar(dirs, out, study) if kind == "depth" else None
+        if bar is not None:
+            grids.append((f"{study}: depth colour scale (both columns show the ground truth's pixels)", bar))
     return grids

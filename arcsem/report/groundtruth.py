@@ -66,10 +66,11 @@ def _image(scene, name: str, kind: str) -> np.ndarray | None:
         if kind == "depth":
             if split.depths is None:
                 return None
-            from ..train.evaluate import depth_image  # the trainer's depth colouring, so tiles compare
+            from ..train.evaluate import DEPTH_SPAN, depth_display  # the trainer's colouring: tiles compare
 
             gt = split.depths[i]
-            return depth_image(gt, gt > 0)
+            mask = split.masks[i] if split.masks is not None else None
+            return depth_display(gt, gt, mask, gt > 0, DEPTH_SPAN * scene.scale[0])[1]
         src = split.colors if kind == "color" else (split.clean if split.clean is not None else split.images)
         if src is None:
             return None

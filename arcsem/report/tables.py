@@ -53,15 +53,16 @@ PAPER_COLUMNS = [Column("paper Table 1", n, f"paper.{n.lower()}", b, d)
 # "a|b": the first key a run has (the trainer writes held-out depth error as depth.test_mae[_pct])
 DEPTH_PCT = "stage1.depth.test_mae_pct|stage1.depth.median_abs_pct"
 DEPTH_ABS = "stage1.depth.test_mae|stage1.depth.median_abs"
+CHAMFER = Column("mesh", "Chamfer %", "stage1.mesh.gt.chamfer_pct", "min", 2)  # built-in scene only
 
 LAYOUTS: dict[str, list[Column]] = {
     "grayscale_comparison": _ims("train views", "stage1.train") + _ims("held-out", "stage1.test") + [
         Column("depth (held-out)", "err. %", DEPTH_PCT, "min", 2),
-        Column("depth (held-out)", "err.", DEPTH_ABS, "min", 4)] + PAPER_COLUMNS,
+        Column("depth (held-out)", "err.", DEPTH_ABS, "min", 4), CHAMFER] + PAPER_COLUMNS,
     "colorization_ablation": _ims("non-ref. train views", "stage2.train_nonref") + _ims("held-out", "stage2.test"),
     "reference_count": _ims("non-ref. train views", "stage2.train_nonref") + _ims("held-out", "stage2.test"),
     "runs": _ims("grey train", "stage1.train") + _ims("grey held-out", "stage1.test") + [
-        Column("depth", "err. %", DEPTH_PCT, "min", 2)]
+        Column("depth", "err. %", DEPTH_PCT, "min", 2), CHAMFER]
     + _ims("colour non-ref.", "stage2.train_nonref") + _ims("colour held-out", "stage2.test"),
 }
 ROW_HEADER = {"grayscale_comparison": "Model", "colorization_ablation": "Variant",
@@ -121,17 +122,37 @@ def _per_run(df: pd.DataFrame, suffix: str) -> pd.Series:
     return df[cols].bfill(axis=1).iloc[:, 0] if cols else pd.Series([], dtype=object)
 
 
+def no_paths(text: str) -> str:
+    """``text`` with machine paths cut to what they name: the torch hub folder by that name, other
+    folders and files by their last part (``/root/.cache/torch/hub/checkpoints`` -> ``the torch hub
+    cache``, ``/x/y/alexnet.pth`` -> ``alexnet.pth``); URLs are kept."""
+    import re
+
+    def short(m: re.Match) -> str:
+        path = m.group(0)
+        return "the torch hub cache" if path.rstrip("/").endswith("hub/checkpoints") else Path(path).name
+    return re.sub(r"(?<![\w:/.])(?:~|/)[^\s;,()'\"]*", short, text)
+
+
 def _lpips_notes(values: list[str], any_nan: bool) -> list[str]:
     """Notes on the LPIPS weights from the recorded ``lpips_weights`` values ("; "-joined lists allowed).
 
     A value is a checkpoint path or name (weights found) or ``missing: <reason>`` / ``skipped``.
+    Missing weights get the command that fetches them (``python -m arcsem.weights``).
     """
+    from ..weights import FETCH_COMMAND
+
     parts = sorted({p.strip() for v in values for p in v.split(";") if p.strip()})
-    bad = [p for p in parts if p.lower().startswith(("missing", "skipped", "random"))]
-    good = sorted({Path(p).name for p in parts if p not in bad})
+    is_bad = lambda p: p.lower().startswith(("missing", "skipped", "random"))
+    bad = [no_paths(p) for p in parts if is_bad(p)]
+    good = sorted({Path(p).name for p in parts if not is_bad(p)})
     notes = []
-    if bad or (any_nan and not parts):
-        notes.append("LPIPS: n/a: weights missing (" + "; ".join(bad or ["not recorded"]) + ").")
+    if bad and all(b.lower() == "skipped" for b in bad):
+        notes.append("LPIPS: n/a: not computed (the run set eval.lpips=false).")
+    elif bad or (any_nan and not parts):
+        notes.append("LPIPS: n/a: weights missing (" + "; ".join(bad or ["not recorded"]) + "). To get LPIPS, "
+                     f"fetch the ImageNet weights on a machine with network ({FETCH_COMMAND}) and run the job "
+                     "again: a number made with random weights is never shown.")
     if good:
         notes.append("LPIPS: AlexNet v0.1, ImageNet weights " + ", ".join(good) + ".")
     elif not (bad or any_nan):
@@ -157,6 +178,10 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
     else:
         notes.append("non-ref. train views: training views that are not colour references; held-out: test "
                      "views; metrics against ground-truth colour.")
+    if any(c.key == CHAMFER.key for c in columns):
+        notes.append("mesh Chamfer %: the TSDF mesh (mesh.ply) against the built-in grain's true surface: mean of "
+                     "accuracy (mesh to surface) and completeness (surface seen by a training view to mesh), % of "
+                     "the grain's diameter.")
     ran = nums[nums["status"] != "missing"] if len(nums) else nums
     lp_nan = any(math.isnan(v) for c in columns if c.label == "LPIPS" and not c.key.startswith("paper.")
                  for v in ran.get(c.key, []))
@@ -176,7 +201,7 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
         notes.append(f"seeds: {', '.join(seeds)}; several runs per row are shown as mean ± std.")
     notes += _paired_notes(df, study, columns)
     for m in missing:
-        where = m.job_dir or f"{m.sweep_dir} (job never started)"
+        where = "/".join(Path(m.job_dir).parts[-2:]) if m.job_dir else f"{Path(m.sweep_dir).name} (job never started)"
         why = f" ({m.reason})" if m.reason else ""
         notes.append(f"missing job: {' '.join(m.overrides)} -- {where}{why}")
     return notes

@@ -29,31 +29,18 @@ from torch import nn
 
 from ..scene import Split
 
-__all__ = ["depth_error", "depth_image", "evaluate_split", "mean_metrics", "render_view", "to_uint8",
+__all__ = ["depth_display", "depth_error", "evaluate_split", "mean_metrics", "render_view", "to_uint8",
            "write_views_csv"]
 
 METRICS = ("psnr", "ssim", "lpips")
+DEPTH_SPAN = 0.5
+"""Depth images span ``0 .. DEPTH_SPAN x length_scale`` below the nearest ground-truth point (half the
+specimen's diameter: the depth of the hemisphere a view sees)."""
 
 
 def to_uint8(img: torch.Tensor) -> np.ndarray:
     """``[H,W,3]`` in [0,1] -> uint8 array."""
     return (img.detach().clamp(0, 1).cpu().numpy() * 255.0 + 0.5).astype(np.uint8)
-
-
-def depth_image(depth: torch.Tensor, valid: torch.Tensor, lo: float | None = None, hi: float | None = None) -> np.ndarray:
-    """Depth ``[H,W]`` -> uint8 ``[H,W,3]``: near bright, far dark (inverted grey), invalid black.
-
-    ``lo``/``hi`` fix the range (e.g. from the ground truth) so renders and GT are comparable.
-    """
-    d = depth.detach().cpu().double()
-    v = valid.cpu().bool() & torch.isfinite(d)
-    if not bool(v.any()):
-        return np.zeros((*d.shape, 3), np.uint8)
-    lo = float(d[v].min()) if lo is None else lo
-    hi = float(d[v].max()) if hi is None else hi
-    x = 1.0 - ((d - lo) / max(hi - lo, 1e-12)).clamp(0, 1)
-    x = torch.where(v, 0.15 + 0.85 * x, torch.zeros_like(x))
-    return (x[..., None].expand(-1, -1, 3).numpy() * 255 + 0.5).astype(np.uint8)
 
 
 def depth_error(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
@@ -95,7 +82,8 @@ def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test
         summary: means over views (NaN-aware), pooled-median depth error, ``lpips_weights``.
         errors: the per-view absolute depth errors (for pooling across calls).
     Writes ``out_dir/renders/<split_name>/<name>.png``, ``<name>_depth.png`` and the ground truth
-    ``<name>_gt.png`` / ``<name>_depth_gt.png`` (same depth range as the render) when ``out_dir`` is set.
+    ``<name>_gt.png`` / ``<name>_depth_gt.png`` when ``out_dir`` is set (depth: :func:`depth_display`,
+    ``0 .. DEPTH_SPAN x length_scale`` below the nearest ground-truth point, the same pixels in both).
     """
     n = len(split)
     views = range(n) if not max_views or max_views >= n else np.linspace(0, n - 1, max_views).round().astype(int)
@@ -117,7 +105,7 @@ def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test
             row["depth_mae_pct"] = 100.0 * row["depth_mae"] / length_scale
         rows.append(row)
         if render_dir is not None:
-            _write_view(render_dir, split, i, out, depth)
+            _write_view(render_dir, split, i, out, depth, DEPTH_SPAN * length_scale)
     summary = mean_metrics(rows)
     if errors:
         pooled = torch.cat(errors)
@@ -127,7 +115,25 @@ def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test
     return rows, summary, errors
 
 
-def _write_view(render_dir: Path, split: Split, i: int, out: dict, depth: torch.Tensor | None) -> None:
+def depth_display(depth: torch.Tensor, gt: torch.Tensor | None, mask: torch.Tensor | None,
+                  valid: torch.Tensor, span: float) -> tuple[np.ndarray, np.ndarray | None, float]:
+    """Depth ``[H, W]`` (and its ground truth) as images that compare: turbo colour map of the depth
+    below the nearest ground-truth point, ``0 .. span`` scene units (near red, far blue).
+
+    Both images show the same pixels: the ground truth's (``gt > 0`` inside ``mask``) where there is a
+    ground truth, else the render's ``valid`` ones. Returns ``(render, gt or None, lo)`` with ``lo``
+    the depth shown as 0.
+    """
+    from ..visual import depth_rgb
+
+    shown = valid.bool() if gt is None else (gt > 0) & (mask.bool() if mask is not None else True)
+    ref = depth if gt is None else gt
+    lo = float(ref[shown].min()) if bool(shown.any()) else 0.0
+    pred = depth_rgb(depth, shown & torch.isfinite(depth), lo, lo + span)
+    return pred, (None if gt is None else depth_rgb(gt, shown, lo, lo + span)), lo
+
+
+def _write_view(render_dir: Path, split: Split, i: int, out: dict, depth: torch.Tensor | None, span: float) -> None:
     """``<name>.png``, ``<name>_depth.png`` and the ground truth beside them (``_gt``, ``_depth_gt``)."""
     import imageio.v2 as imageio
 
@@ -137,14 +143,15 @@ def _write_view(render_dir: Path, split: Split, i: int, out: dict, depth: torch.
     imageio.imwrite(out_path(render_dir, name, ".png"), to_uint8(out["rgb"]))
     target = split.clean if split.clean is not None else split.images
     imageio.imwrite(out_path(render_dir, name, "_gt.png"), to_uint8(target[i]))
+    if depth is None:
+        return
     gt = split.depths[i] if split.depths is not None else None
-    lo = hi = None
-    if gt is not None and bool((gt > 0).any()):
-        lo, hi = float(gt[gt > 0].min()), float(gt[gt > 0].max())
-        imageio.imwrite(out_path(render_dir, name, "_depth_gt.png"), depth_image(gt, gt > 0, lo, hi))
-    if depth is not None:
-        valid = out["alpha"][..., 0] > 0.5 if "alpha" in out else torch.ones_like(depth[..., 0], dtype=torch.bool)
-        imageio.imwrite(out_path(render_dir, name, "_depth.png"), depth_image(depth[..., 0], valid, lo, hi))
+    mask = split.masks[i] if split.masks is not None else None
+    valid = out["alpha"][..., 0] > 0.5 if "alpha" in out else torch.ones_like(depth[..., 0], dtype=torch.bool)
+    pred, gt_img, _ = depth_display(depth[..., 0], gt, mask, valid, span)
+    imageio.imwrite(out_path(render_dir, name, "_depth.png"), pred)
+    if gt_img is not None:
+        imageio.imwrite(out_path(render_dir, name, "_depth_gt.png"), gt_img)
 
 
 def mean_metrics(rows: Iterable[dict[str, Any]]) -> dict[str, float]:

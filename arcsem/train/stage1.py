@@ -6,6 +6,8 @@ returned dict into ``metrics.json``). It writes into ``run_dir``:
 * ``checkpoints/last.pt``: the stage-1 checkpoint (resumed automatically, see ``train.resume``);
   :func:`load_stage1` rebuilds ``(backbone, act)`` from it for the colourisation stage;
 * ``model.ply`` (Gaussians) / ``model.npz`` (grids): ``backbone.export``;
+* ``mesh.ply`` / ``mesh.glb`` (TSDF fusion, ``mesh`` config) and ``viewer/`` (Gaussians: the folder
+  layout 3DGS viewers load): :func:`arcsem.train.products.write_products`;
 * ``views.csv``, ``renders/{train,test}/<name>.png`` and ``<name>_depth.png``, ``turntable.mp4``
   (``.gif`` without ffmpeg), ``train_history.csv``.
 
@@ -28,11 +30,12 @@ from ..plugins import BACKBONES
 from ..registry import plain, validate_config
 from ..scene import Scene
 from .checkpoint import load_checkpoint, load_module_state
-from .evaluate import evaluate_split, mean_metrics, to_uint8, write_views_csv
+from .evaluate import DEPTH_SPAN, evaluate_split, mean_metrics, to_uint8, write_views_csv
 from .loop import LoopConfig, loss_trend_warning, train
 from .losses import build_losses
+from .products import write_products
 from .sampling import resize_scene
-from .video import arc_path, write_video
+from .video import write_video
 
 __all__ = [
     "NON_SEMANTIC_KEYS",
@@ -108,7 +111,7 @@ def stage1_losses(cfg: Any, tc: TrainConfig, act: Any = None):
 
 
 def build_model(cfg: Any, scene: Scene, tc: TrainConfig | None = None):
-    """``(backbone, act)`` as configured (``per_backbone`` overrides applied), on ``cfg.device``."""
+    """``(backbone, act)`` as configured, on ``cfg.device``."""
     from ..act import ACT
 
     tc = tc or train_config(cfg)
@@ -155,6 +158,7 @@ def run_stage1(cfg: Any, scene: Scene, run_dir: str | Path) -> dict:
     backbone.eval()
     result = evaluate(backbone, scene, run_dir, tc.eval)
     export = _export(backbone, run_dir)
+    result.update(write_products(cfg, backbone, scene, run_dir, iteration=res.steps, progress=tc.progress))
     return {"stage1": {**result, "steps": res.steps, "time_s": res.time_s, "steps_per_s": res.steps_per_s,
                        "resumed_from": res.resumed_from, "num_primitives": int(backbone.num_primitives()),
                        "image_size": [scene.train.cameras.width, scene.train.cameras.height],
@@ -182,7 +186,8 @@ def evaluate(backbone, scene: Scene, run_dir: str | Path | None, ec: EvalConfig 
         result[sname] = summary
     if depth:
         source = "median_depth" if "median_depth" in backbone.provides else "depth"
-        depth.update(length_scale=scene.scale[0], length_scale_name=scene.scale[1], source=source)
+        depth.update(length_scale=scene.scale[0], length_scale_name=scene.scale[1], source=source,
+                     micrometres_per_unit=scene.micrometres_per_unit, display_span=DEPTH_SPAN * scene.scale[0])
     result["depth"] = depth
     result["all_views"] = mean_metrics(rows) if rows else {}
     if run_dir is not None:
@@ -193,9 +198,11 @@ def evaluate(backbone, scene: Scene, run_dir: str | Path | None, ec: EvalConfig 
 
 
 def turntable(backbone, scene: Scene, path: Path, frames: int = 60, fps: int = 20) -> Path:
-    """Render ``frames`` novel views along the training arcs (mean ACT) and write a video."""
-    center = scene.bounds.float().mean(0)
-    cams = arc_path(scene.train.cameras, frames, center)
+    """Render ``frames`` novel views on a full orbit around the specimen (mean ACT; :mod:`arcsem.orbit`,
+    20 degrees above the orbit plane) and write a video."""
+    from ..orbit import OrbitConfig, orbit_cameras
+
+    cams = orbit_cameras(scene.train.cameras, scene.bounds, OrbitConfig(frames=frames))
     images = []
     with torch.no_grad():
         for k in range(frames):

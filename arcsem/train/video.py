@@ -60,14 +60,15 @@ def arc_path(cams: Cameras, frames: int, center: Tensor) -> Cameras:
 
 
 def write_video(path: str | Path, frames: list[np.ndarray], fps: int = 20) -> Path:
-    """Write ``uint8 [H,W,3]`` frames as MP4 (imageio-ffmpeg, H.264); falls back to GIF. Returns the path."""
+    """Write ``uint8 [H,W,3]`` frames as MP4 (imageio-ffmpeg, H.264, yuv420p); falls back to GIF. Returns the path."""
     import imageio.v2 as imageio
 
     path = Path(path)
     h, w = frames[0].shape[:2]
     even = [np.pad(f, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge") for f in frames]  # yuv420p needs even sizes
     try:
-        imageio.mimwrite(path.with_suffix(".mp4"), even, fps=fps, codec="libx264", quality=8, macro_block_size=1)
+        imageio.mimwrite(path.with_suffix(".mp4"), even, fps=fps, codec="libx264", quality=8, macro_block_size=1,
+                         pixelformat="yuv420p")  # what browsers play
         return path.with_suffix(".mp4")
     except Exception:  # noqa: BLE001  (no ffmpeg binary / codec: a GIF always works)
         path.with_suffix(".mp4").unlink(missing_ok=True)

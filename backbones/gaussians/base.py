@@ -171,6 +171,13 @@ class GaussianBackbone(Backbone):
         """Write a PLY that common 3DGS viewers read (2DGS: two scales, see ply.py)."""
         write_ply(path, self.model.params())
 
+    def export_viewer(self, folder: str, cams: Cameras, names: list[str], centre: Tensor,
+                      iteration: int) -> dict[str, str]:
+        """The INRIA folder layout with the mean ACT baked into the colours (see inria.py)."""
+        from .inria import write_viewer_folder
+
+        return write_viewer_folder(folder, self.model.params(), cams, names, centre, iteration, self.act)
+
     def load_ply(self, path: str) -> None:
         """Replace the Gaussians by those of a PLY written by :meth:`export` or the official code."""
         params = read_ply(path)

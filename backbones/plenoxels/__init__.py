@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import importlib
 
-__all__ = ["Plenoxels", "PlenoxelsConfig", "expon_lr"]
+__all__ = ["Plenoxels", "PlenoxelsConfig"]
 
-_WHERE = {"Plenoxels": "backbone", "expon_lr": "backbone", "PlenoxelsConfig": "config"}
+_WHERE = {"Plenoxels": "backbone", "PlenoxelsConfig": "config"}
 
 
 def __getattr__(name: str):

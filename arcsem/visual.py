@@ -1,0 +1,113 @@
+"""What a person looks at: a model's colour, depth and normal layers as images, and a colour bar.
+
+One implementation shared by the videos (``stage=render``), the viewer (``arcsem-view``), the
+evaluation renders and the report:
+
+* :func:`render_layers` renders cameras and returns the layers: ``rgb``, the surface ``depth``
+  (``median_depth`` where the backbone provides it, else the expected depth), ``valid`` (alpha >=
+  ``alpha_min``) and world ``normal`` (the backbone's where it provides them, else from the depth
+  map by :func:`depth_normals`);
+* :func:`depth_rgb` colours depth with OpenCV's *turbo* map over a fixed range (near = red, far =
+  blue), pixels outside ``valid`` in a flat background colour;
+* :func:`normal_rgb` shows camera-space normals (``(n_x, -n_y, -n_z)`` mapped to RGB: a surface
+  facing the camera is blue);
+* :func:`colour_bar` draws a labelled horizontal bar of the same map.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .cameras import Cameras
+
+__all__ = ["BACKGROUND", "colour_bar", "depth_normals", "depth_rgb", "normal_rgb", "render_layers", "to_uint8"]
+
+BACKGROUND = (255, 255, 255)  # RGB of pixels with no surface in depth and normal images
+
+
+def to_uint8(img: Tensor) -> np.ndarray:
+    """``[H, W, 3]`` in [0, 1] -> uint8 ``[H, W, 3]``."""
+    return (img.detach().clamp(0, 1).cpu().numpy() * 255.0 + 0.5).astype(np.uint8)
+
+
+def depth_normals(cams: Cameras, depth: Tensor) -> Tensor:
+    """World normals ``[C, H, W, 3]`` of depth maps ``[C, H, W]`` (central differences of the
+    unprojected points, facing the camera); zero where a neighbour is missing."""
+    pts = cams.unproject(depth)
+    dx = torch.zeros_like(pts)
+    dy = torch.zeros_like(pts)
+    dx[:, :, 1:-1] = pts[:, :, 2:] - pts[:, :, :-2]
+    dy[:, 1:-1] = pts[:, 2:] - pts[:, :-2]
+    n = torch.nn.functional.normalize(torch.cross(dy, dx, dim=-1), dim=-1)
+    facing = (n * cams.forward[:, None, None, :].to(n)).sum(-1, keepdim=True)
+    return torch.where(facing > 0, -n, n)
+
+
+def render_layers(backbone, cams: Cameras, alpha_min: float = 0.5, normals: bool = True) -> dict[str, Tensor]:
+    """Render ``cams`` (no gradients): ``rgb [C,H,W,3]``, ``depth [C,H,W]``, ``valid [C,H,W]`` bool,
+    ``alpha [C,H,W]`` and, with ``normals``, world ``normal [C,H,W,3]`` (unit, zero where invalid)."""
+    with torch.no_grad():
+        out = backbone.render(cams)
+    depth = out.get("median_depth", out["depth"])[..., 0].float()
+    alpha = out["alpha"][..., 0].float() if "alpha" in out else torch.ones_like(depth)
+    valid = (alpha >= alpha_min) & torch.isfinite(depth) & (depth > 0 if not cams.is_ortho else True)
+    layers = {"rgb": out["rgb"].float().clamp(0, 1), "depth": depth, "valid": valid, "alpha": alpha}
+    if normals:
+        n = out.get("normal")
+        n = torch.nn.functional.normalize(n.float(), dim=-1) if n is not None else depth_normals(
+            cams.to(dtype=depth.dtype), torch.where(valid, depth, torch.zeros_like(depth)))
+        layers["normal"] = torch.where(valid[..., None], n, torch.zeros_like(n))
+    return {k: v.detach().cpu() for k, v in layers.items()}
+
+
+def depth_rgb(depth: Tensor, valid: Tensor, lo: float | None = None, hi: float | None = None,
+              background: tuple[int, int, int] = BACKGROUND) -> np.ndarray:
+    """Depth ``[H, W]`` -> uint8 RGB ``[H, W, 3]`` (turbo; ``lo`` red .. ``hi`` blue; default: the valid range)."""
+    import cv2
+
+    d = depth.detach().cpu().double().numpy()
+    v = valid.detach().cpu().numpy().astype(bool) & np.isfinite(d)
+    out = np.empty((*d.shape, 3), np.uint8)
+    out[:] = background
+    if not v.any():
+        return out
+    lo = float(d[v].min()) if lo is None else lo
+    hi = float(d[v].max()) if hi is None else hi
+    x = 1.0 - np.clip((d - lo) / max(hi - lo, 1e-12), 0, 1)  # near -> 1 -> red end of turbo
+    mapped = cv2.applyColorMap((x * 255 + 0.5).astype(np.uint8), cv2.COLORMAP_TURBO)[..., ::-1]
+    out[v] = mapped[v]
+    return out
+
+
+def normal_rgb(normal: Tensor, cams: Cameras, valid: Tensor | None = None,
+               background: tuple[int, int, int] = BACKGROUND) -> np.ndarray:
+    """World normals ``[H, W, 3]`` of one camera ``cams`` -> uint8 RGB of the camera-space normal."""
+    R = cams.world_to_cam[0, :3, :3].to(normal)
+    n = normal @ R.T * normal.new_tensor([1.0, -1.0, -1.0])
+    img = to_uint8(n * 0.5 + 0.5)
+    v = (normal.norm(dim=-1) > 0) if valid is None else valid.bool()
+    img[~v.cpu().numpy()] = background
+    return img
+
+
+def colour_bar(lo: float, hi: float, unit: str, width: int = 360, label: str = "depth") -> np.ndarray:
+    """uint8 RGB ``[52, width, 3]``: the turbo bar of :func:`depth_rgb` from ``lo`` (near) to ``hi`` (far)."""
+    import cv2
+
+    bar_h, pad = 16, 8
+    img = np.full((52, width, 3), 255, np.uint8)
+    x = 1.0 - np.linspace(0, 1, width - 2 * pad)
+    row = cv2.applyColorMap((x * 255 + 0.5).astype(np.uint8)[None], cv2.COLORMAP_TURBO)[0, :, ::-1]
+    img[4:4 + bar_h, pad:width - pad] = row[None]
+    font, col = cv2.FONT_HERSHEY_SIMPLEX, (0, 0, 0)
+    for frac in (0.0, 0.5, 1.0):
+        val = lo + frac * (hi - lo)
+        text = f"{val:.3g}"
+        xpos = pad + int(frac * (width - 2 * pad - 1))
+        cv2.line(img, (xpos, 4 + bar_h), (xpos, 4 + bar_h + 4), col, 1)
+        (tw, _), _ = cv2.getTextSize(text, font, 0.4, 1)
+        cv2.putText(img, text, (min(max(xpos - tw // 2, 0), width - tw), 36), font, 0.4, col, 1, cv2.LINE_AA)
+    caption = f"{label} [{unit}]  (near = red, far = blue)"
+    cv2.putText(img, caption, (pad, 49), font, 0.38, col, 1, cv2.LINE_AA)
+    return img

@@ -1,4 +1,4 @@
-"""File readers shared by the dataset readers: images, masks, arrays, PLY point clouds.
+"""File readers shared by the dataset readers: images, masks, arrays (PLY point clouds: :mod:`.ply`).
 
 Every failure raises :class:`~arcsem.errors.DataError` naming the file.
 """
@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError
+from .ply import read_points, write_points
 
 __all__ = [
     "IMAGE_EXTS",
@@ -20,6 +21,8 @@ __all__ = [
     "resolve_file",
     "write_ply",
 ]
+
+read_ply, write_ply = read_points, write_points  # the point-cloud names the readers use (arcsem.data.ply)
 
 IMAGE_EXTS = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".exr")
 
@@ -101,84 +104,3 @@ def resize(arr: np.ndarray, size_wh: tuple[int, int], nearest: bool = False) -> 
         return arr
     out = cv2.resize(arr, size_wh, interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_AREA)
     return out.reshape(size_wh[1], size_wh[0], *arr.shape[2:])
-
-
-_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
-              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-              "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
-
-
-def _ply_header(f, path: Path) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]]]:
-    if f.readline().strip() != b"ply":
-        raise DataError(f"{path}: not a PLY file")
-    fmt, elements = None, []
-    while True:
-        line = f.readline()
-        if not line:
-            raise DataError(f"{path}: PLY header has no end_header")
-        tok = line.decode("ascii", "replace").split()
-        if not tok or tok[0] in ("comment", "obj_info"):
-            continue
-        if tok[0] == "end_header":
-            return fmt, elements
-        if tok[0] == "format":
-            fmt = tok[1]
-        elif tok[0] == "element":
-            elements.append((tok[1], int(tok[2]), []))
-        elif tok[0] == "property":
-            if tok[1] == "list":
-                if elements[-1][0] == "vertex":
-                    raise DataError(f"{path}: list properties in vertices are not supported")
-                elements[-1][2].append((tok[-1], "list"))
-            else:
-                elements[-1][2].append((tok[2], _PLY_TYPES[tok[1]]))
-
-
-def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
-    """PLY vertices -> points ``[P, 3]`` float32 and colours ``[P, 3]`` in [0, 1] (or None).
-
-    Reads ``x, y, z`` and optional ``red, green, blue`` (uchar, or float in [0, 1]) of the ``vertex``
-    element; ascii and binary little/big endian. The vertex element must come first.
-    """
-    with open(path, "rb") as f:
-        fmt, elements = _ply_header(f, path)
-        if not elements or elements[0][0] != "vertex":
-            raise DataError(f"{path}: PLY has no leading 'vertex' element")
-        _, count, props = elements[0]
-        if fmt == "ascii":
-            data = np.loadtxt(f, dtype=np.float64, max_rows=count, ndmin=2)
-            cols = {name: data[:, i] for i, (name, _) in enumerate(props)}
-            types = dict(props)
-        else:
-            endian = "<" if fmt == "binary_little_endian" else ">"
-            dtype = np.dtype([(name, endian + t) for name, t in props])
-            rec = np.frombuffer(f.read(dtype.itemsize * count), dtype=dtype, count=count)
-            cols, types = {n: rec[n] for n in rec.dtype.names}, dict(props)
-    if not all(k in cols for k in "xyz"):
-        raise DataError(f"{path}: PLY vertices lack x, y, z")
-    pts = np.stack([cols[k] for k in "xyz"], -1).astype(np.float32)
-    colors = None
-    if all(k in cols for k in ("red", "green", "blue")):
-        colors = np.stack([cols[k] for k in ("red", "green", "blue")], -1).astype(np.float32)
-        if types["red"] in ("u1", "i1") or colors.max() > 1.0:
-            colors = colors / 255.0
-    return pts, colors
-
-
-def write_ply(path: Path, points: np.ndarray, colors: np.ndarray | None = None) -> None:
-    """Binary little-endian PLY with ``x, y, z`` float and optional ``red, green, blue`` uchar."""
-    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
-    if colors is not None:
-        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
-    rec = np.zeros(len(points), dtype=fields)
-    for i, k in enumerate("xyz"):
-        rec[k] = points[:, i]
-    if colors is not None:
-        c = np.clip(np.round(np.asarray(colors) * 255), 0, 255).astype(np.uint8)
-        rec["red"], rec["green"], rec["blue"] = c[:, 0], c[:, 1], c[:, 2]
-    names = {"<f4": "float", "u1": "uchar"}
-    header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(points)}"]
-    header += [f"property {names[t]} {n}" for n, t in fields] + ["end_header"]
-    with open(path, "wb") as f:
-        f.write(("\n".join(header) + "\n").encode("ascii"))
-        f.write(rec.tobytes())

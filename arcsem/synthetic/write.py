@@ -18,6 +18,7 @@ import numpy as np
 import torch
 from PIL import Image
 
+from ..data.ply import write_points
 from .cameras import ViewSpec, arc_cameras, arc_views
 from .render import RenderConfig, ViewImages, render_views
 from .sdf import make_grain
@@ -108,7 +109,7 @@ def generate_scene(out_dir, *, progress: bool | None = None, **params) -> Path:
                     clouds.append(_sample_points(r, np.random.default_rng([p.seed, i, 7]), 20_000 // n_train))
     pts = np.concatenate([c[0] for c in clouds])
     cols = np.repeat(np.concatenate([c[1] for c in clouds])[:, None], 3, 1)
-    _write_ply(out / "points3d.ply", pts, cols)
+    write_points(out / "points3d.ply", pts, cols / 255.0)  # uint8 grey -> [0, 1] -> written back as uchar
     meta = _transforms(p, cams, frames, refs, grain, distance)
     (out / "transforms.json").write_text(json.dumps(meta, indent=1))
     if p.camera == "pinhole":
@@ -197,23 +198,6 @@ def _progress(items: list, show: bool):
     from tqdm import tqdm
 
     return tqdm(items, desc="synthetic scene", unit="group")
-
-
-def _write_ply(path: Path, pts: np.ndarray, cols: np.ndarray) -> None:
-    """Binary little-endian PLY with ``x, y, z`` float and ``red, green, blue`` uchar."""
-    rec = np.empty(len(pts), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
-                                    ("red", "u1"), ("green", "u1"), ("blue", "u1")])
-    for k, a in zip("xyz", pts.T):
-        rec[k] = a
-    for k, a in zip(("red", "green", "blue"), cols.T):
-        rec[k] = a
-    header = ("ply\nformat binary_little_endian 1.0\n"
-              f"element vertex {len(pts)}\n"
-              "property float x\nproperty float y\nproperty float z\n"
-              "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
-    with open(path, "wb") as f:
-        f.write(header.encode("ascii"))
-        f.write(rec.tobytes())
 
 
 def _readme(p: SceneParams) -> str:

@@ -19,8 +19,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from arcsem.data.ply import read_vertices, write_vertices
 from arcsem.errors import DataError
-from arcsem.files import atomic_open
 
 __all__ = ["ply_properties", "read_ply", "write_ply"]
 
@@ -35,7 +35,7 @@ def ply_properties(num_rest: int, num_scales: int) -> list[str]:
 
 
 def write_ply(path: str | Path, params: dict[str, Tensor]) -> None:
-    """Write raw Gaussian parameters (see :mod:`.model`) to ``path``.
+    """Write raw Gaussian parameters (see :mod:`.model`) to ``path`` (float32 properties, :func:`ply_properties`).
 
     Args:
         params: means ``[N,3]``, quats ``[N,4]``, log_scales ``[N,S]``, opacity_logits ``[N]``,
@@ -48,61 +48,14 @@ def write_ply(path: str | Path, params: dict[str, Tensor]) -> None:
             p["log_scales"], p["quats"]]
     data = torch.cat(cols, 1).numpy().astype("<f4")
     names = ply_properties(p["sh_rest"].shape[1], p["log_scales"].shape[1])
-    header = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
-    header += [f"property float {name}" for name in names] + ["end_header"]
-    with atomic_open(path, "wb") as f:
-        f.write(("\n".join(header) + "\n").encode("ascii"))
-        f.write(np.ascontiguousarray(data).tobytes())
-
-
-_TYPES = {"float": "f4", "float32": "f4", "double": "f8", "float64": "f8", "uchar": "u1", "uint8": "u1",
-          "char": "i1", "int8": "i1", "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
-          "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4"}
-
-
-def _read_header(f, path) -> tuple[int, list[tuple[str, str]], str]:
-    if f.readline().strip() != b"ply":
-        raise DataError(f"{path}: not a PLY file")
-    fmt, n, props, in_vertex = None, None, [], False
-    while True:
-        line = f.readline()
-        if not line:
-            raise DataError(f"{path}: PLY header has no end_header")
-        words = line.decode("ascii", "replace").split()
-        if not words:
-            continue
-        if words[0] == "format":
-            fmt = words[1]
-        elif words[0] == "element":
-            in_vertex = words[1] == "vertex"
-            if in_vertex:
-                n = int(words[2])
-            elif n is None:
-                raise DataError(f"{path}: PLY element '{words[1]}' before 'vertex' is not supported")
-        elif words[0] == "property" and in_vertex:
-            if words[1] == "list" or words[1] not in _TYPES:
-                raise DataError(f"{path}: unsupported vertex property '{' '.join(words[1:])}'")
-            props.append((words[2], _TYPES[words[1]]))
-        elif words[0] == "end_header":
-            break
-    if fmt not in ("binary_little_endian", "binary_big_endian") or n is None:
-        raise DataError(f"{path}: need a binary PLY with a vertex element (format {fmt})")
-    return n, props, "<" if fmt == "binary_little_endian" else ">"
+    write_vertices(path, {name: data[:, j] for j, name in enumerate(names)})
 
 
 def read_ply(path: str | Path) -> dict[str, Tensor]:
     """Read a 3DGS/2DGS PLY back into raw parameters (float32 tensors, shapes as in :func:`write_ply`)."""
-    path = Path(path)
-    if not path.is_file():
-        raise DataError(f"{path}: no such PLY file")
-    with open(path, "rb") as f:
-        n, props, endian = _read_header(f, path)
-        dtype = np.dtype([(name, endian + t) for name, t in props])
-        buf = f.read(n * dtype.itemsize)
-    if len(buf) < n * dtype.itemsize:
-        raise DataError(f"{path}: truncated PLY ({len(buf)} of {n * dtype.itemsize} bytes of vertex data)")
-    arr = np.frombuffer(buf, dtype=dtype, count=n)
-    names = set(arr.dtype.names)
+    arr = read_vertices(path)
+    names = set(arr)
+    n = len(arr["x"]) if "x" in arr else 0
 
     def cols(prefix: str, count: int | None = None) -> np.ndarray:
         keys = sorted((k for k in names if k.startswith(prefix) and k[len(prefix):].isdigit()),

@@ -5,7 +5,7 @@ start without importing torch until something needs it.
 """
 from __future__ import annotations
 
-import importlib
+from .lazy import lazy_getattr
 
 __all__ = [
     "BACKBONES",
@@ -36,7 +36,4 @@ _WHERE = {
 }
 
 
-def __getattr__(name: str):
-    if name in _WHERE:
-        return getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
-    raise AttributeError(f"module 'arcsem' has no attribute '{name}'")
+__getattr__ = lazy_getattr(__name__, _WHERE)

@@ -54,12 +54,8 @@ def run_folder_lock(folder: str | os.PathLike) -> Iterator[Path]:
     except Timeout:
         raise OutputError(f"run folder {folder} is in use by another arcsem run ({_owner(folder)}); wait for it "
                           "to finish or choose another folder (hydra.run.dir=...)") from None
-    try:
-        _write_owner(folder)
+    with _holding(folder, lock):
         yield folder
-    finally:
-        (folder / _OWNER).unlink(missing_ok=True)
-        lock.release()
 
 
 @contextlib.contextmanager
@@ -78,9 +74,16 @@ def waiting_lock(path: str | os.PathLike, what: str) -> Iterator[Path]:
         t0 = time.perf_counter()
         lock.acquire()
         log.info("lock on %s acquired after %.0f s", folder, time.perf_counter() - t0)
+    with _holding(folder, lock):
+        yield folder
+
+
+@contextlib.contextmanager
+def _holding(folder: Path, lock) -> Iterator[None]:
+    """While an acquired ``lock`` is held: an owner note in ``folder`` (named in other runs' messages); then release."""
     try:
         _write_owner(folder)
-        yield folder
+        yield
     finally:
         (folder / _OWNER).unlink(missing_ok=True)
         lock.release()

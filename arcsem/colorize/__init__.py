@@ -4,6 +4,8 @@ Heavy modules import lazily: ``import arcsem.colorize`` does no work.
 """
 from __future__ import annotations
 
+from ..lazy import lazy_getattr
+
 __all__ = [
     "ColorTargets",
     "ColorizeConfig",
@@ -28,9 +30,4 @@ _WHERE = {
 }
 
 
-def __getattr__(name: str):
-    if name in _WHERE:
-        import importlib
-
-        return getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
-    raise AttributeError(f"module 'arcsem.colorize' has no attribute '{name}'")
+__getattr__ = lazy_getattr(__name__, _WHERE)

@@ -1,15 +1,12 @@
-"""Plenoxels backbone (``plenoxels``): a sparse SH voxel grid, ray marching, coarse-to-fine (svox2). ``backbone.py`` registers it (entry point ``arcsem.backbones.plenoxels.backbone``), ``config.py``
-holds its settings, importable without torch (the Hydra schema). Names below import lazily."""
+"""Plenoxels (``plenoxels``), a sparse SH voxel grid (svox2): ``backbone.py`` registers it (entry point),
+``config.py`` holds its settings (no torch: the Hydra schema). Names import lazily."""
 from __future__ import annotations
 
-import importlib
+from arcsem.lazy import lazy_getattr
 
 __all__ = ["Plenoxels", "PlenoxelsConfig"]
 
 _WHERE = {"Plenoxels": "backbone", "PlenoxelsConfig": "config"}
 
 
-def __getattr__(name: str):
-    if name in _WHERE:
-        return getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_getattr(__name__, _WHERE)

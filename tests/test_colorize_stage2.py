@@ -33,13 +33,14 @@ def test_stage2_end_to_end(tmp_path, monkeypatch):
         "seed": 0, "device": "cpu", "cache_dir": str(tmp_path / "cache"),
         "train": {"steps": 3, "progress": False, "checkpoint_every": 0, "eval": ev},
         "colorize": {"steps": 4, "progress": False, "tcm_downscale": 1, "ccm_downscale": 4, "checkpoint_every": 0,
-                     "eval": ev}})
+                     "eval": ev, "features": "vgg16"}})
     run = tmp_path / "run"
     run_stage1(cfg, scene, run)
     before = load_checkpoint(run / "checkpoints" / "last.pt")["model"]
     r = run_stage2(cfg, scene, run)
     s2 = r["stage2"]
-    assert r["features"] == "random" and s2["features"] == "random"
+    assert r["features"] == "vgg16-random" and s2["features"] == "vgg16-random"
+    assert s2["feature_extractor"]["tcm_space"] == "features"
     assert sorted(s2["losses"]) == ["ccm", "pseudo_color", "reference_l1", "tcm"] and s2["steps"] == 4
     for part in ("train_nonref", "train_ref", "test"):
         assert {"psnr", "ssim", "psnr_masked"} <= set(s2[part]) and s2[part]["psnr"] > 0

@@ -44,7 +44,7 @@ def split_psnr(pred: Tensor, gt: Tensor, masks: Tensor, covered: Tensor) -> dict
     from ..metrics import psnr
 
     N, H, W = masks.shape
-    flat = lambda x: x.reshape(N * H, W, *x.shape[3:])  # noqa: E731
+    flat = lambda x: x.reshape(N * H, W, *x.shape[3:])
     m, c = masks.bool(), covered.bool() & masks.bool()
     n = int(m.sum())
     return {"psnr_covered": psnr(flat(pred), flat(gt), flat(c)) if bool(c.any()) else float("nan"),

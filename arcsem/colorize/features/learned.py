@@ -75,7 +75,7 @@ class SceneCNN(nn.Module):
 
 def sample_features(feat: Tensor, uv: Tensor, stride: int) -> Tensor:
     """Bilinear features ``[M, D]`` of one map ``[D, h, w]`` at pixel coordinates ``uv [M, 2]`` of its input."""
-    D, h, w = feat.shape
+    _, h, w = feat.shape
     fx = (uv[:, 0] - stride / 2.0) / stride  # cell j is centred on pixel coordinate s*j + s/2
     fy = (uv[:, 1] - stride / 2.0) / stride
     grid = torch.stack([2 * fx / max(w - 1, 1) - 1, 2 * fy / max(h - 1, 1) - 1], -1)

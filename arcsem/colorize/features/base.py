@@ -35,9 +35,9 @@ __all__ = ["DEFAULT_WITHOUT_IMAGENET", "FEATURES", "ColourSpace", "Extractor", "
 log = logging.getLogger(__name__)
 
 FEATURES = ("auto", "vgg16", "vgg19", "daisy", "learned")
-# The extractor `auto` takes where no ImageNet VGG weights exist: the best held-out colour PSNR outside the
-# pseudo-colour coverage in benchmarks/results/features/ (benchmarks/feature_comparison.py).
-DEFAULT_WITHOUT_IMAGENET = "learned"
+# The extractor `auto` takes where no ImageNet VGG weights exist: the best measured without them
+# (benchmarks/results/features/README.md: benchmarks/feature_matching.py and benchmarks/feature_comparison.py).
+DEFAULT_WITHOUT_IMAGENET = "daisy"
 _ANNOUNCED: set[tuple[str, str]] = set()
 
 

@@ -44,8 +44,9 @@ class LearnedConfig:
     steps: int = 300
     lr: float = 2e-3
     points: int = 256       # correspondences per step
-    crop: int = 96          # crop size (pixels of the TCM input) that bounds a step's cost
-    neighbours: int = 4     # partner view b among the nearest views of a
+    crop: int = 40          # crop size (pixels of the TCM input): bounds a step's cost; smaller than the image, so
+                            # the CNN cannot tell image positions (measured: benchmarks/feature_matching.py)
+    neighbours: int = 10    # partner view b among the nearest views of a (wider baselines than 4 matched better)
     tau: float = 0.1        # InfoNCE temperature
 
 
@@ -166,7 +167,7 @@ def train_scene_cnn(gray: Tensor, cams, depths: Tensor, masks: Tensor, cfg: Lear
         opt.zero_grad()
         loss.backward()
         opt.step()
-        losses.append(float(loss))
+        losses.append(float(loss.detach()))
     net.eval().requires_grad_(False)
     if not losses:
         from ...errors import DataError

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs behind benchmarks/results/features/ (see README.md there): for each dataset and seed, the TCM/CCM
 # ablation rows (full, w/o TCM, w/o CCM: one shared stage-1 model) with the default features, then the
-# feature comparison (vgg16 / daisy / learned x 1, 3, 5 references; daisy x 5 is the ablation's "full").
+# feature comparison (vgg16 / daisy / learned x 1, 3, 5 references; learned x 5 is the ablation's "full").
 # One job at a time, one thread each (a shared 2-core machine); every job reuses the seed's stage-1 model.
 #
 #   DATASETS="synthetic diatom" SEEDS="0 1 2" PARTS="ablation comparison" benchmarks/results/run_features.sh
@@ -21,8 +21,8 @@ for part in $PARTS; do
       if [ "$part" = ablation ]; then
         cmd="$BIN/arcsem experiment=colorization_ablation dataset=$ds seed=$seed ablation=full,no_tcm,no_ccm $COMMON hydra.sweep.dir=$OUT/ablation-$ds-s$seed"
       else
-        cmd="$BIN/arcsem experiment=feature_comparison dataset=$ds seed=$seed colorize.features=vgg16,learned colorize.references=one,three,five $COMMON hydra.sweep.dir=$OUT/comparison-$ds-s$seed"
-        extra="$BIN/arcsem experiment=feature_comparison dataset=$ds seed=$seed colorize.features=daisy colorize.references=one,three $COMMON hydra.sweep.dir=$OUT/comparison-daisy-$ds-s$seed"
+        cmd="$BIN/arcsem experiment=feature_comparison dataset=$ds seed=$seed colorize.features=vgg16,daisy colorize.references=one,three,five $COMMON hydra.sweep.dir=$OUT/comparison-$ds-s$seed"
+        extra="$BIN/arcsem experiment=feature_comparison dataset=$ds seed=$seed colorize.features=learned colorize.references=one,three $COMMON hydra.sweep.dir=$OUT/comparison-learned-$ds-s$seed"
       fi
       echo "== $(date -u '+%H:%M:%S') $cmd"
       $cmd

@@ -37,7 +37,7 @@ log = logging.getLogger(__name__)
 FEATURES = ("auto", "vgg16", "vgg19", "daisy", "learned")
 # The extractor `auto` takes where no ImageNet VGG weights exist: the best measured without them
 # (benchmarks/results/features/README.md: benchmarks/feature_matching.py and benchmarks/feature_comparison.py).
-DEFAULT_WITHOUT_IMAGENET = "daisy"
+DEFAULT_WITHOUT_IMAGENET = "learned"
 _ANNOUNCED: set[tuple[str, str]] = set()
 
 

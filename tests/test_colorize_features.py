@@ -80,7 +80,6 @@ def _ctx(tmp_path, seed=0, sc=None):
 
 def test_learned_features_train_deterministically_and_are_cached(tmp_path):
     cfg = LearnedConfig(steps=40, width=8, dim=16, points=64)
-    torch.set_num_threads(1)
     a = learned_extractor(_ctx(tmp_path / "a"), cfg)
     b = learned_extractor(_ctx(tmp_path / "b"), cfg)
     assert a.info["cache_hit"] is False and a.info["loss_last"] < a.info["loss_first"]

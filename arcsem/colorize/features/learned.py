@@ -143,12 +143,33 @@ def train_scene_cnn(gray: Tensor, cams, depths: Tensor, masks: Tensor, cfg: Lear
     """Train :class:`SceneCNN` on grey views ``[N, H, W, 3]`` with their cameras, depth ``[N, H, W]`` and masks
     (all at the TCM input resolution); returns the model (eval mode) and ``{"steps", "loss_first", "loss_last",
     "time_s"}``."""
-    from tqdm.auto import tqdm
 
     t0 = time.perf_counter()
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         net = SceneCNN(cfg.width, cfg.dim)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # many small ops: one thread is faster, and never spin-waits on a busy machine
+    try:
+        losses = _train_loop(net, gray, cams, depths, masks, cfg, seed, progress)
+    finally:
+        torch.set_num_threads(threads)
+    net.eval().requires_grad_(False)
+    if not losses:
+        from ...errors import DataError
+
+        raise DataError("colorize.features=learned: no pixel correspondences between the training views "
+                        "(empty masks or depth?)")
+    n = max(1, len(losses) // 10)
+    info = {"steps": len(losses), "loss_first": sum(losses[:n]) / n, "loss_last": sum(losses[-n:]) / n,
+            "time_s": time.perf_counter() - t0}
+    return net, info
+
+
+def _train_loop(net: SceneCNN, gray, cams, depths, masks, cfg: LearnedConfig, seed: int, progress: bool) -> list:
+    """The InfoNCE steps of :func:`train_scene_cnn`; returns the loss of each step that found correspondences."""
+    from tqdm.auto import tqdm
+
     g = torch.Generator().manual_seed(seed)
     x = grey_channel(gray)
     nbr = _neighbours(cams, cfg.neighbours)
@@ -168,16 +189,7 @@ def train_scene_cnn(gray: Tensor, cams, depths: Tensor, masks: Tensor, cfg: Lear
         loss.backward()
         opt.step()
         losses.append(float(loss.detach()))
-    net.eval().requires_grad_(False)
-    if not losses:
-        from ...errors import DataError
-
-        raise DataError("colorize.features=learned: no pixel correspondences between the training views "
-                        "(empty masks or depth?)")
-    n = max(1, len(losses) // 10)
-    info = {"steps": len(losses), "loss_first": sum(losses[:n]) / n, "loss_last": sum(losses[-n:]) / n,
-            "time_s": time.perf_counter() - t0}
-    return net, info
+    return losses
 
 
 class LearnedFeatures:

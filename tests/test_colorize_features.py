@@ -1,5 +1,6 @@
 """TCM/CCM feature extractors: DAISY, the scene-trained CNN, correspondences, `auto`, loss spaces, coverage."""
 import logging
+import math
 
 import pytest
 import torch
@@ -129,7 +130,13 @@ def test_split_psnr_and_coverage():
     cov[:, 2:] = True
     r = split_psnr(pred, gt, masks, cov)
     assert r["psnr_covered"] == pytest.approx(40.0) and r["psnr_uncovered"] == pytest.approx(20.0)
-    assert r["coverage"] == 0.5
+    assert r["coverage"] == 0.5 and r["no_surface"] == 0.0 and r["uncovered_px"] == 16
+    surface = torch.ones(2, 4, 4, dtype=torch.bool)
+    surface[:, 0] = False  # the model has no surface on the top row: in neither part
+    pred[:, 1] += 0.2  # the second row's error becomes 0.3, the top row's stays 0.1
+    r = split_psnr(pred, gt, masks, cov, surface)
+    assert r["psnr_uncovered"] == pytest.approx(-10 * math.log10(0.09)) and r["uncovered_px"] == 8
+    assert r["coverage"] == pytest.approx(16 / 24) and r["no_surface"] == pytest.approx(0.25)
     sc = analytic_scene(8, 2, 48, 32)
     tr, te = sc.train, sc.test
     own = coverage_masks(tr.cameras[:1], tr.depths[:1], tr.masks[:1], tr.cameras[:1], tr.depths[:1], tr.masks[:1])

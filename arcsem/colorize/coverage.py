@@ -4,15 +4,14 @@ A specimen pixel is *covered* when pseudo-colours reach it: its 3-D point (its d
 reference point within the search radius (:func:`arcsem.colorize.pseudocolor.query_view`, the same
 test as the pseudo-colours). TCM and CCM exist for the rest: parts occluded in, or unseen by, every
 reference. Where the dataset has depth maps (the synthetic scenes) the test runs on that true geometry,
-so "outside" means parts no reference sees, not pixels where the stage-1 depth is wrong (on the grain
-with five references, 1.9 % of the held-out specimen pixels were outside by the model's depth, a third
-of them on the silhouette's outer pixel ring, with a median depth error 13 times the covered pixels').
+so "outside" means parts no reference sees, not pixels where the stage-1 depth is wrong (by the model's
+depth, most held-out pixels "outside" at five references were silhouette and depth errors of the model).
 Otherwise it uses the stage-1 model's depth, as the pseudo-colours do.
 
 PSNR over each part is pooled over the views (the MSE of all their pixels in that part), so small
-uncovered regions of some views do not give noisy per-view numbers. Specimen pixels (ground-truth
-mask) where the model has no surface (depth 0: alpha < 0.5 in the render) are in neither part: they
-are geometry errors at silhouettes, which no colour term can fix; their share is ``no_surface``.
+uncovered regions of some views do not give noisy per-view numbers. With the model's depth, specimen
+pixels (ground-truth mask) where the model has no surface (alpha < 0.5) are in neither part: geometry
+errors no colour term can fix; their share is ``no_surface``.
 """
 from __future__ import annotations
 

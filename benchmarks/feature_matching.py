@@ -13,8 +13,8 @@ extractor trains on); a stage-2 run uses the stage-1 model's depth instead.
 
 Usage::
 
-    ARCSEM_CACHE=/tmp/cache .venv/bin/python benchmarks/feature_matching.py [--dataset synthetic|diatom] \\
-        [--features vgg16 daisy learned] [--references one three five] [--seed 0] [--out results.md]
+    ARCSEM_CACHE=/tmp/cache .venv/bin/python benchmarks/feature_matching.py [--dataset synthetic diatom] \\
+        [--features chance vgg16 daisy learned] [--references one three five] [--seeds 0 1 2] [--out results.md]
 """
 from __future__ import annotations
 
@@ -22,6 +22,7 @@ import argparse
 import sys
 import time
 
+import pandas as pd
 import torch
 import torch.nn.functional as F
 
@@ -29,6 +30,7 @@ from arcsem.colorize.features import ColourSpace, SceneContext, build_extractor
 from arcsem.colorize.guidance import Guidance, downscale
 from arcsem.colorize.pseudocolor import cache_key, pseudo_colors
 from arcsem.colorize.references import load_references
+from arcsem.colorize.vgg import _CACHE as vgg_cache
 
 
 def load(dataset: str):
@@ -92,30 +94,52 @@ SPACE_STRIDE = 4  # block 0 of every extractor
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--dataset", default="synthetic")
+    ap.add_argument("--dataset", nargs="+", default=["synthetic"])
     ap.add_argument("--features", nargs="+", default=["chance", "vgg16", "daisy", "learned"])
     ap.add_argument("--references", nargs="+", default=["one", "three", "five"])
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seeds", nargs="+", type=int, default=[0])
     ap.add_argument("--cache", default=None, help="cache folder of the learned extractor (default: none)")
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
-    torch.manual_seed(a.seed)
-    scene = load(a.dataset)
-    lines = [(f"dataset={a.dataset}, seed {a.seed}, block-0 cells (16 px), ground-truth depth; "
-             "1 - cos / mean |colour error| (lower is better), cells"),
-             "", "| features | references | inside 1-cos | inside L1 | n in | outside 1-cos | outside L1 | n out | s |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
-    for refs_name in a.references:
-        for name in a.features:
-            (ci, li, ni), (co, lo, no), secs = run_one(scene, name, refs_name, a.seed, a.cache)
-            lines.append(f"| {name} | {refs_name} | {ci:.4f} | {li:.4f} | {ni} | {co:.4f} | {lo:.4f} | {no} | {secs:.1f} |")
-            print(lines[-1], flush=True)
-    text = "\n".join(lines) + "\n"
-    if a.out:
-        with open(a.out, "a") as fh:
-            fh.write(text + "\n")
+    rows = []
+    for ds in a.dataset:
+        scene = load(ds)
+        for seed in a.seeds:
+            for refs_name in a.references:
+                for name in a.features:
+                    torch.manual_seed(seed)  # vgg16's random weights: a new network per seed
+                    vgg_cache.clear()
+                    (ci, li, ni), (co, lo, no), secs = run_one(scene, name, refs_name, seed, a.cache)
+                    rows.append({"dataset": ds, "seed": seed, "references": refs_name, "features": name, "in_cos": ci,
+                                 "in_l1": li, "n_in": ni, "out_cos": co, "out_l1": lo, "n_out": no, "s": secs})
+                    print(rows[-1], flush=True)
+    text = report(pd.DataFrame(rows), a)
     print(text)
+    if a.out:
+        with open(a.out, "w") as fh:
+            fh.write(text)
     return 0
+
+
+def report(df: pd.DataFrame, a) -> str:
+    """Per (dataset, references, features): means over seeds; then each extractor's mean over the settings."""
+    g = df.groupby(["dataset", "references", "features"], sort=False)
+    mean = g[["in_cos", "in_l1", "out_cos", "out_l1"]].mean()
+    n = g[["n_in", "n_out"]].first()
+    lines = [(f"seeds {a.seeds}; block-0 cells (16 px at 288x192), ground-truth depth; 1 - cos and mean |colour "
+             "error| of the matched reference colour (lower is better); means over the seeds"), "",
+             "| dataset | references | features | inside 1-cos | inside L1 | cells in | outside 1-cos | outside L1 | cells out |",
+             "|---|---|---|---:|---:|---:|---:|---:|---:|"]
+    for (ds, r, f), m in mean.iterrows():
+        k = n.loc[(ds, r, f)]
+        lines.append(f"| {ds} | {r} | {f} | {m.in_cos:.4f} | {m.in_l1:.4f} | {k.n_in} | {m.out_cos:.4f} | "
+                     f"{m.out_l1:.4f} | {k.n_out} |")
+    over = mean.groupby("features", sort=False).mean()
+    lines += ["", "Mean over the (dataset, references) settings (outside: those with cells outside):", "",
+              "| features | inside 1-cos | inside L1 | outside 1-cos | outside L1 |", "|---|---:|---:|---:|---:|"]
+    for f, m in over.iterrows():
+        lines.append(f"| {f} | {m.in_cos:.4f} | {m.in_l1:.4f} | {m.out_cos:.4f} | {m.out_l1:.4f} |")
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":

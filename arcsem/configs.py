@@ -104,7 +104,13 @@ class ColorizeConfig:
     depth: str = checked("model", choices=("model", "dataset"))  # depth for pseudo-colours: model (stage-1 render, the paper) | dataset (ground truth)
     radius: float | None = checked(None, gt=0.0)  # fixed world search radius; None: radius_factor x pixel footprint
     radius_factor: float = checked(2.0, gt=0.0)  # radius in pixel footprints (ortho 1/fx, pinhole z/fx) at the query's depth
-    vgg: str = checked("vgg16", choices=("vgg16", "vgg19"))  # vgg16 (Ref-NPR) | vgg19 (ArCSEM code)
+    # TCM/CCM matching features (arcsem.colorize.features): vgg16 (Ref-NPR) | vgg19 (ArCSEM code), ImageNet weights
+    # from the torch hub cache | daisy (dense DAISY, OpenCV) | learned (a CNN trained on the scene's grey views with
+    # stage-1 correspondences) | auto: vgg16 where its ImageNet weights exist, else the best measured without them
+    features: str = checked("auto", choices=("auto", "vgg16", "vgg19", "daisy", "learned"))
+    # TCM loss space: features (the extractor's own, VGG only: the paper) | color (cell-mean colour, 1 - cos) |
+    # auto: features for VGG, color for daisy/learned (they cannot describe a colour render)
+    tcm_space: str = checked("auto", choices=("auto", "features", "color"))
     tcm_downscale: int = checked(4, ge=1)  # TCM/CCM on images scaled down by 4 (paper)
     ccm_downscale: int = checked(16, ge=1)  # CCM cell size in pixels (Ref-NPR)
     ccm_max_dist: float = checked(0.6, ge=0.0, le=2.0)  # CCM accepts a match if its cosine distance <= this (Ref-NPR)

@@ -15,7 +15,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from .errors import ConfigError, DataError
+from .errors import ConfigError, DataError, PluginError
 
 __all__ = ["MIN_IMAGE_SIZE", "STAGE_PLAN", "check_config", "check_device", "check_scene"]
 
@@ -70,7 +70,9 @@ def _check_color(cfg: Any) -> None:
     from .plugins import BACKBONES
 
     cc = colorize_config(cfg)
-    colorize_losses(cc, BACKBONES.get(str(cfg.backbone.name)))
+    losses = colorize_losses(cc, BACKBONES.get(str(cfg.backbone.name)))
+    if any(n in losses.terms for n in ("tcm", "ccm")):
+        _check_features(cc)
     refs = cc.references
     files = [refs] if isinstance(refs, str) else list(refs or [])
     for f in files:
@@ -87,6 +89,22 @@ def _check_render(cfg: Any) -> None:
     run = Path(rc.run).expanduser()
     if not (run / "config.yaml").is_file():
         raise DataError(f"render.run: {run} is not a finished arcsem run folder (no config.yaml)")
+
+
+def _check_features(cc: Any) -> None:
+    """``colorize.features`` / ``tcm_space``: the extractor can run here and the loss space suits it."""
+    from .colorize.features import resolve_features
+
+    name = resolve_features(cc.features)
+    if name == "daisy":
+        import cv2
+
+        if not hasattr(cv2, "xfeatures2d"):
+            raise PluginError("colorize.features=daisy needs OpenCV contrib (opencv-contrib-python-headless); "
+                              "the installed cv2 has no xfeatures2d")
+    if cc.tcm_space == "features" and name not in ("vgg16", "vgg19"):
+        raise ConfigError(f"colorize.tcm_space=features: '{name}' features cannot be computed on a colour render; "
+                          "use tcm_space=color (or auto)")
 
 
 def check_config(cfg: Any, stage: str) -> None:

@@ -55,7 +55,7 @@ def main():
     pseudo, valid = pseudo_colors(split.cameras, split.depths, split.masks, refs.indices.tolist(), refs.images,
                                   progress=False)
     vgg = get_vgg("vgg16")
-    guid = Guidance(vgg, split.images, refs.indices.tolist(), refs.images, 4, 16)
+    guid = Guidance(vgg, vgg, split.images, refs.indices.tolist(), refs.images, 4, 16)
     for i in range(len(split)):
         guid.matches(i)
     hook = ColorTargets(refs, pseudo, valid, guid, vgg, 4, 16)
@@ -71,7 +71,7 @@ def main():
           f"{a.steps} steps x {a.repeats} repeats (median of per-step means)")
     print(f"  stage 1 step: {1000 * m1:.1f} ms  (runs {', '.join(f'{1000 * x:.1f}' for x in s1)})")
     print(f"  stage 2 step: {1000 * m2:.1f} ms  (runs {', '.join(f'{1000 * x:.1f}' for x in s2)})")
-    print(f"  ratio stage 2 / stage 1: {m2 / m1:.2f}x  (VGG features: {vgg.features_source})")
+    print(f"  ratio stage 2 / stage 1: {m2 / m1:.2f}x  (features: {vgg.label()})")
 
 
 if __name__ == "__main__":

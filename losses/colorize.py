@@ -5,7 +5,8 @@ They read their targets from ``batch.extras``, which the stage-2 batch hook
 
 * ``is_reference`` ``[C]`` bool; ``reference`` ``[C,H,W,3]`` the artist colours (zeros elsewhere);
 * ``pseudo`` ``[C,H,W,3]`` and ``pseudo_valid`` ``[C,H,W]`` bool;
-* ``tcm_guidance``: per VGG block ``[C,D_b,h_b,w_b]``; ``vgg`` the extractor; ``tcm_downscale``;
+* ``tcm_guidance``: per feature block ``[C,D_b,h_b,w_b]``; ``tcm_space`` the TCM loss space (images
+  ``[C,H,W,3]`` -> per block ``[C,D_b,h_b,w_b]``: VGG, or cell-mean colours); ``tcm_downscale``;
 * ``ccm_target`` ``[C,hc,wc,3]``, ``ccm_valid`` ``[C,hc,wc]``; ``ccm_downscale``.
 
 Reference views are supervised by ``reference_l1`` only (paper weight 20); the other three terms
@@ -94,7 +95,8 @@ class PseudoColor(Loss):
 
 @LOSSES.register("tcm")
 class TCM(Loss):
-    """Template-based correspondence: ``1 - cos`` between VGG features of the render and the guidance."""
+    """Template-based correspondence: ``1 - cos`` between the render and the guidance in the TCM loss space
+    (VGG features, the paper; or cell-mean colours: ``colorize.tcm_space``)."""
 
     batch_modes: ClassVar[frozenset[str]] = frozenset({"image"})
 
@@ -107,10 +109,10 @@ class TCM(Loss):
         keep = ~_extras(batch, "is_reference", self.name)
         if not bool(keep.any()):
             return out["rgb"].sum() * 0.0
-        vgg = _extras(batch, "vgg", self.name)
+        space = _extras(batch, "tcm_space", self.name)
         img = downscale(out["rgb"][keep], int(_extras(batch, "tcm_downscale", self.name)))
         guide = [g[keep] for g in _extras(batch, "tcm_guidance", self.name)]
-        return tcm_distance(vgg(img), guide)
+        return tcm_distance(space(img), guide)
 
 
 @LOSSES.register("ccm")

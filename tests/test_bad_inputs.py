@@ -52,6 +52,9 @@ CONFIG_CASES = {
     "references=seven": (None, ["colorize.references=seven"], "all", ["colorize.references: unknown preset 'seven'"]),
     "references file": (None, ["colorize.references=/nowhere/ref.png"], "all",
                         ["colorize.references: file or folder not found: /nowhere/ref.png"]),
+    "features=sift": (None, ["colorize.features=sift"], "all", ["colorize.features: must be one of auto, vgg16"]),
+    "tcm_space=features daisy": (None, ["colorize.features=daisy", "colorize.tcm_space=features", "colorize.losses.tcm.weight=1"],
+                                 "all", ["colorize.tcm_space=features: 'daisy' features cannot be computed"]),
     "stage=paint": (None, ["stage=paint"], None, ["stage: unknown stage 'paint'"]),
     "threads=0": (None, ["threads=0"], "check", ["threads: expected a positive integer or null, got 0"]),
 }

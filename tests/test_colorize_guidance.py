@@ -9,7 +9,13 @@ from arcsem.colorize.guidance import Guidance, ccm_targets, nearest_cosine, patc
 class FakeVGG(nn.Module):
     """'Features' = (image, 1 - image) per pixel: grey values stay distinguishable under cosine."""
 
-    arch, features_source, blocks = "fake", "random", (3, 4)
+    name, strides, differentiable = "fake", (1, 1), True
+
+    def key(self):
+        return "fake"
+
+    def label(self):
+        return "fake"
 
     def forward(self, images):
         f = torch.cat([images, 1 - images], -1).permute(0, 3, 1, 2)
@@ -34,7 +40,7 @@ def test_tcm_guidance_is_colour_feature_at_nearest_grey_feature():
     ref_col = torch.stack([red, blue])[None, None]  # [1, 1, 2, 3]
     view = _grey([[0.85, 0.25]])  # matches (1, 0)
     gray = torch.cat([ref_grey, view[None]])  # view 0 = reference, view 1 = query
-    g = Guidance(FakeVGG(), gray, [0], ref_col, tcm_downscale=1, ccm_downscale=1)
+    g = Guidance(FakeVGG(), FakeVGG(), gray, [0], ref_col, tcm_downscale=1, ccm_downscale=1)
     feats = [f[0] for f in FakeVGG()(view[None])]
     assert tcm_match(feats, FakeVGG()(ref_grey))[0].tolist() == [[1, 0]]
     guide = g.targets(1)["tcm_guidance"][0]  # [D=6, 1, 2]
@@ -64,14 +70,14 @@ def test_ccm_targets_from_quadrant_matches(tmp_path):
         ref_g[r:r + 2, c:c + 2] = quads[q]
         ref_c[r:r + 2, c:c + 2] = cols[q]
         view[r:r + 2, c:c + 2] = quads[perm[q]]
-    g = Guidance(FakeVGG(), torch.stack([ref_g, view]), [0], ref_c[None], tcm_downscale=1, ccm_downscale=2,
+    g = Guidance(FakeVGG(), FakeVGG(), torch.stack([ref_g, view]), [0], ref_c[None], tcm_downscale=1, ccm_downscale=2,
                  cache_dir=tmp_path)
     t = g.targets(1)
     expect = torch.stack([cols[p] for p in perm]).reshape(2, 2, 3)
     torch.testing.assert_close(t["ccm_target"], expect)
     assert t["ccm_valid"].tolist() == [[False, True], [True, True]]  # the white quadrant is ignored
     # a second instance reads the matches from disk instead of recomputing
-    g2 = Guidance(FakeVGG(), torch.stack([ref_g, view]), [0], ref_c[None], tcm_downscale=1, ccm_downscale=2,
+    g2 = Guidance(FakeVGG(), FakeVGG(), torch.stack([ref_g, view]), [0], ref_c[None], tcm_downscale=1, ccm_downscale=2,
                   cache_dir=tmp_path)
     g2._compute = lambda v: pytest.fail("recomputed despite the disk cache")
     torch.testing.assert_close(g2.targets(1)["ccm_target"], expect)

@@ -62,7 +62,7 @@ def test_tcm_ccm_read_extras():
     b = _batch([1], h=8, w=8)
     feats = lambda x: [x.permute(0, 3, 1, 2)]
     target = torch.rand(1, 8, 8, 3)
-    b.extras = {"is_reference": torch.tensor([False]), "vgg": feats, "tcm_downscale": 1,
+    b.extras = {"is_reference": torch.tensor([False]), "tcm_space": feats, "tcm_downscale": 1,
                 "tcm_guidance": [target.permute(0, 3, 1, 2)], "ccm_downscale": 4,
                 "ccm_target": torch.full((1, 2, 2, 3), 0.5), "ccm_valid": torch.ones(1, 2, 2, dtype=torch.bool)}
     assert float(TCM(TCM.Config())({"rgb": target * 3}, b, 0)) < 1e-6  # same direction: cos = 1

@@ -33,13 +33,14 @@ def test_stage2_end_to_end(tmp_path, monkeypatch):
         "seed": 0, "device": "cpu", "cache_dir": str(tmp_path / "cache"),
         "train": {"steps": 3, "progress": False, "checkpoint_every": 0, "eval": ev},
         "colorize": {"steps": 4, "progress": False, "tcm_downscale": 1, "ccm_downscale": 4, "checkpoint_every": 0,
-                     "eval": ev}})
+                     "eval": ev, "features": "vgg16"}})
     run = tmp_path / "run"
     run_stage1(cfg, scene, run)
     before = load_checkpoint(run / "checkpoints" / "last.pt")["model"]
     r = run_stage2(cfg, scene, run)
     s2 = r["stage2"]
-    assert r["features"] == "random" and s2["features"] == "random"
+    assert r["features"] == "vgg16-random" and s2["features"] == "vgg16-random"
+    assert s2["feature_extractor"]["tcm_space"] == "features"
     assert sorted(s2["losses"]) == ["ccm", "pseudo_color", "reference_l1", "tcm"] and s2["steps"] == 4
     for part in ("train_nonref", "train_ref", "test"):
         assert {"psnr", "ssim", "psnr_masked"} <= set(s2[part]) and s2[part]["psnr"] > 0
@@ -58,3 +59,39 @@ def test_stage2_end_to_end(tmp_path, monkeypatch):
     # a rerun reuses the pseudo-colours and guidance from the cache and the finished checkpoint
     r2 = run_stage2(cfg, scene, run)
     assert r2["stage2"]["pseudo"]["cache_hit"] is True
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("features", ["daisy", "learned"])
+def test_stage2_with_features_that_need_no_weights(tmp_path, monkeypatch, features):
+    from arcsem.colorize import run_stage2
+    from arcsem.train import run_stage1
+
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
+    warnings.simplefilter("ignore")
+    torch.manual_seed(0)
+    scene = analytic_scene(8, 2, 64, 48)
+    ev = {"lpips": False, "video": False, "renders": False}
+    cfg = OmegaConf.create({
+        "backbone": {"name": "gs2d", "random_init_points": 300}, "act": {"enabled": True, "mode": "rgb"},
+        "seed": 0, "device": "cpu", "cache_dir": str(tmp_path / "cache"),
+        "train": {"steps": 3, "progress": False, "checkpoint_every": 0, "eval": ev},
+        "colorize": {"steps": 3, "progress": False, "tcm_downscale": 1, "ccm_downscale": 8, "checkpoint_every": 0,
+                     "eval": ev, "features": features, "depth": "dataset", "references": "one"}})
+    run = tmp_path / "run"
+    run_stage1(cfg, scene, run)
+    s2 = run_stage2(cfg, scene, run)["stage2"]
+    fx = s2["feature_extractor"]
+    assert s2["features"] == features and fx["name"] == features and fx["tcm_space"] == "color"
+    test = s2["test"]
+    assert 0 < test["coverage"] < 1 and test["psnr_uncovered"] > 0 and test["psnr_covered"] > 0
+    assert 0 < s2["train_nonref"]["coverage"] < 1
+    guides = sorted((tmp_path / "cache" / "colorize").glob("guide_*.npz"))
+    assert len(guides) == len(scene.train)
+    if features == "learned":
+        assert fx["training"]["cache_hit"] is False and len(list((tmp_path / "cache" / "colorize" / "features")
+                                                                 .glob("learned_*.pt"))) == 1
+    s2b = run_stage2(cfg, scene, tmp_path / "run")["stage2"]  # again: model and guidance from the cache
+    if features == "learned":
+        assert s2b["feature_extractor"]["training"]["cache_hit"] is True
+    assert sorted((tmp_path / "cache" / "colorize").glob("guide_*.npz")) == guides

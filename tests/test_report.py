@@ -18,7 +18,7 @@ from report_util import GRAY, _job, _png, _stage1, _sweep
 
 from arcsem.report import build_report
 from arcsem.report.collect import collect, expected_jobs, parse_overrides
-from arcsem.report.tables import build_table, to_latex, to_markdown, write_tables
+from arcsem.report.tables import LAYOUTS, build_table, to_latex, to_markdown, write_tables
 
 
 @pytest.fixture
@@ -114,9 +114,10 @@ def test_nan_lpips_na_mean_std_and_features(ref_sweep, tmp_path):
     assert "**26.50 ± 0.71**" in lines["5"] and "24.00" in lines["2"]
     cells = [c.strip() for c in lines["5"].split("|")[2:-1]]
     assert cells[2] == "n/a" and cells[5] == "n/a"  # LPIPS train / held-out
-    assert lines["1"].count("missing") == 6
+    assert lines["1"].count("missing") == 7  # six metrics and the features column
     assert "LPIPS: n/a: weights missing (missing: alexnet-owt-7be5be79.pth not in torch hub cache)" in md
-    assert "VGG weights (features): random." in md and "RANDOM weights in every run that uses them" in md
+    assert "TCM/CCM features: random." in md and "RANDOM weights in every run that uses them" in md
+    assert cells[-1] == "random"  # the features column
     assert md.count("missing job:") == 3  # five/seed=1 is done; two/seed=1, one/seed=0, one/seed=1 are not
     csv = pd.read_csv(out / "reference_count.csv")
     five = csv[csv["row"] == "five"].iloc[0]
@@ -232,7 +233,7 @@ def test_runs_of_no_study_get_a_table_and_grids(tmp_path):
     md = (tmp_path / "rep" / "runs.md").read_text()
     assert "| 2026-01-01/12-00-00 | 33.00 | 0.900 | n/a | 31.00 |" in md
     assert "LPIPS: n/a: weights missing (missing: no alexnet weights)" in md
-    assert "VGG weights (features): imagenet." in md
+    assert "TCM/CCM features: imagenet." in md and md.splitlines()[4].endswith("| imagenet |")
     grids = sorted(p.name for p in (tmp_path / "rep" / "grids").iterdir())
     assert grids == ["runs_color.png", "runs_gray.png"]  # no depth files -> no depth grid
     assert 'src="grids/runs_color.png"' in page.read_text()
@@ -282,7 +283,7 @@ def test_sweep_with_no_finished_job(tmp_path):
     sweep = _sweep(tmp_path / "s", "colorization_ablation", "ablation", ["full", "no_tcm"])
     _job(sweep, 0, ["experiment=colorization_ablation", "ablation=full"], None)
     t = build_table(collect([sweep]), "colorization_ablation")
-    assert t.labels == ["full", "w/o TCM"] and len(t.columns) == 6
+    assert t.labels == ["full", "w/o TCM"] and len(t.columns) == len(LAYOUTS["colorization_ablation"]) == 10
     assert all(cell == ("missing", False) for row in t.cells for cell in row)
     assert sum(n.startswith("missing job:") for n in t.notes) == 2 and not any("LPIPS" in n for n in t.notes)
 

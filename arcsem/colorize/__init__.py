@@ -12,6 +12,7 @@ __all__ = [
     "Guidance",
     "References",
     "VGGFeatures",
+    "build_extractor",
     "cached_pseudo_colors",
     "get_vgg",
     "load_references",
@@ -26,7 +27,7 @@ _WHERE = {
     "load_references": "references", "References": "references",
     "specimen_masks": "masks", "otsu_mask": "masks",
     "pseudo_colors": "pseudocolor", "cached_pseudo_colors": "pseudocolor",
-    "Guidance": "guidance", "VGGFeatures": "vgg", "get_vgg": "vgg",
+    "Guidance": "guidance", "VGGFeatures": "vgg", "get_vgg": "vgg", "build_extractor": "features",
 }
 
 

@@ -2,11 +2,13 @@
 
 Both depend only on the grey images and the references, never on the render:
 
-* TCM: for each feature location of the grey view ``g`` (per VGG block), the nearest feature by
-  cosine distance among the grey references' features (all references concatenated); the guidance
-  is the COLOUR reference's feature at that location. Stored as match indices into the flattened
-  reference colour features (``[h, w]`` long per block), gathered when a batch needs them.
-* CCM: the same search on block-3 features pooled to cells of ``ccm_downscale`` pixels (with the
+* TCM: for each feature location of the grey view ``g`` (per block of the feature extractor,
+  ``colorize.features``), the nearest feature by cosine distance among the grey references' features
+  (all references concatenated); the guidance is the COLOUR reference at that location in the TCM
+  loss space (its VGG feature, as in the paper, or its colour: :mod:`arcsem.colorize.features`).
+  Stored as match indices into the flattened reference loss-space features (``[h, w]`` long per
+  block), gathered when a batch needs them.
+* CCM: the same search on block-0 (VGG: relu3_x) features pooled to cells of ``ccm_downscale`` pixels (with the
   default ``tcm_downscale`` 4 a block-3 location IS a 16-pixel cell); a match counts if its cosine
   distance is <= ``ccm_max_dist`` (0.6) and its reference patch is not white (all channels > 0.99);
   the target is the mean colour of the matched reference patch.
@@ -97,34 +99,46 @@ class Guidance:
     """TCM match indices and CCM targets of every view, computed on first use and cached in memory and on disk.
 
     Args:
-        vgg: a :class:`arcsem.colorize.vgg.VGGFeatures`. gray: ``[N, H, W, 3]`` grey training images.
+        extractor: matches grey images (:class:`arcsem.colorize.features.Extractor`). space: the TCM loss
+            space (the extractor itself, or :class:`~arcsem.colorize.features.ColourSpace`); its blocks have the
+            extractor's grids. gray: ``[N, H, W, 3]`` grey training images.
         ref_indices: ``R`` view indices of the references. ref_colors: ``[R, H, W, 3]``.
-        tcm_downscale: images scaled down by this before VGG (paper: 4). ccm_downscale: CCM cell (16).
+        tcm_downscale: images scaled down by this before the extractor (paper: 4). ccm_downscale: CCM cell (16).
     """
 
-    def __init__(self, vgg, gray: Tensor, ref_indices, ref_colors: Tensor, tcm_downscale: int = 4,
+    def __init__(self, extractor, space, gray: Tensor, ref_indices, ref_colors: Tensor, tcm_downscale: int = 4,
                  ccm_downscale: int = 16, ccm_max_dist: float = 0.6, ccm_white: float = 0.99,
                  cache_dir: str | Path | None = None, chunk: int = 1024):
-        self.vgg, self.gray, self.ref_indices = vgg, gray, list(ref_indices)
+        self.extractor, self.space, self.gray, self.ref_indices = extractor, space, gray, list(ref_indices)
         self.tcm_downscale, self.ccm_downscale = tcm_downscale, ccm_downscale
         self.ccm_max_dist, self.ccm_white, self.chunk = ccm_max_dist, ccm_white, chunk
         self.cache_dir = Path(cache_dir) if cache_dir else None
         self.grid = (gray.shape[1] // ccm_downscale, gray.shape[2] // ccm_downscale)
         with torch.no_grad():
-            self.ref_gray = self.features(gray[self.ref_indices])
-            self.ref_color = [_flat(f) for f in self.features(ref_colors)]
+            self.ref_color = [_flat(f) for f in space(downscale(ref_colors.float(), tcm_downscale))]
+        self._ref_gray: list[Tensor] | None = None  # extractor features of the grey references, when needed
         self.ref_means = patch_means(ref_colors.float(), ccm_downscale).reshape(-1, 3)
-        self.key = cache_key("guidance-v1", vgg.arch, vgg.features_source, vgg.blocks, gray, self.ref_indices,
-                             ref_colors, tcm_downscale, ccm_downscale, ccm_max_dist, ccm_white)
+        from .features.base import space_label
+
+        self.key = cache_key("guidance-v2", extractor.key(), space_label(space), gray,
+                             self.ref_indices, ref_colors, tcm_downscale, ccm_downscale, ccm_max_dist, ccm_white)
         self._memory: dict[int, dict[str, Tensor]] = {}
 
     def features(self, images: Tensor) -> list[Tensor]:
-        """VGG block features of images ``[C, H, W, 3]`` after the TCM downscale."""
-        return self.vgg(downscale(images.float(), self.tcm_downscale))
+        """Extractor block features of images ``[C, H, W, 3]`` after the TCM downscale (no gradient)."""
+        from .features.base import no_grad_features
+
+        return no_grad_features(self.extractor, downscale(images.float(), self.tcm_downscale))
+
+    @property
+    def ref_gray(self) -> list[Tensor]:
+        """Per block ``[R, D_b, h_b, w_b]``: the grey references' features (computed on the first cache miss)."""
+        if self._ref_gray is None:
+            self._ref_gray = self.features(self.gray[self.ref_indices])
+        return self._ref_gray
 
     def _compute(self, v: int) -> dict[str, Tensor]:
-        with torch.no_grad():
-            feats = [f[0] for f in self.features(self.gray[v:v + 1])]
+        feats = [f[0] for f in self.features(self.gray[v:v + 1])]
         out = {f"tcm_idx{b}": i for b, i in enumerate(tcm_match(feats, self.ref_gray, self.chunk))}
         out["ccm_idx"], out["ccm_dist"] = ccm_match(feats[0], self.ref_gray[0], self.grid, self.chunk)
         return out
@@ -145,7 +159,7 @@ class Guidance:
         return out
 
     def targets(self, v: int) -> dict[str, Tensor | list[Tensor]]:
-        """``tcm_guidance``: per block ``[D_b, h_b, w_b]``; ``ccm_target [hc, wc, 3]``, ``ccm_valid [hc, wc]``."""
+        """``tcm_guidance``: per block ``[D_b, h_b, w_b]`` (loss space); ``ccm_target [hc, wc, 3]``, ``ccm_valid [hc, wc]``."""
         m = self.matches(v)
         guide = []
         for b, rc in enumerate(self.ref_color):

@@ -31,6 +31,7 @@ __all__ = [
     "pixel_footprint",
     "pseudo_colors",
     "pseudo_key",
+    "query_view",
     "reference_cloud",
     "save_pseudo",
 ]
@@ -120,17 +121,25 @@ def pseudo_colors(
             colors[v][m] = ref_images[ridx.index(v)].float()[m]
             valid[v] = m
             continue
-        flat, q = masked_points(cams[v], depths[v], masks[v])
-        if len(flat) == 0:
-            continue
-        z = depths[v].reshape(-1)[flat].double()
-        r = torch.full_like(z, radius) if radius is not None else radius_factor * pixel_footprint(cams[v], z[None])[0]
-        dist, nn = tree.query(q.numpy(), k=1, distance_upper_bound=float(r.max()), workers=-1)
-        ok = torch.from_numpy(dist <= r.numpy())
-        hit = flat[ok]
-        colors[v].view(-1, 3)[hit] = cols_t[torch.from_numpy(nn[ok.numpy()])]
+        hit, nn = query_view(tree, cams[v], depths[v], masks[v], radius, radius_factor)
+        colors[v].view(-1, 3)[hit] = cols_t[nn]
         valid[v].view(-1)[hit] = True
     return colors, valid
+
+
+def query_view(tree, cam: Cameras, depth: Tensor, mask: Tensor, radius: float | None = None,
+               radius_factor: float = 2.0) -> tuple[Tensor, Tensor]:
+    """The masked pixels of ONE view (``depth``, ``mask`` ``[H, W]``) that have a reference point of
+    ``tree`` (a ``cKDTree`` of the reference cloud) within the radius: flat pixel indices ``[M]`` and the
+    index ``[M]`` of their nearest reference point."""
+    flat, q = masked_points(cam, depth, mask)
+    if len(flat) == 0:
+        return flat, flat
+    z = depth.reshape(-1)[flat].double()
+    r = torch.full_like(z, radius) if radius is not None else radius_factor * pixel_footprint(cam, z[None])[0]
+    dist, nn = tree.query(q.numpy(), k=1, distance_upper_bound=float(r.max()), workers=-1)
+    ok = torch.from_numpy(dist <= r.numpy())
+    return flat[ok], torch.from_numpy(nn[ok.numpy()])
 
 
 # ---------------------------------------------------------------- cache

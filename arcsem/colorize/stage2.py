@@ -7,7 +7,9 @@ It writes into ``run_dir``: ``colored/<name>.png`` for every training view (inpu
 ``colorize/pseudo/<name>.png`` (pseudo-colour previews), ``colored_turntable.mp4``, the coloured
 model (``colored_model.ply`` for Gaussians), the coloured mesh (``colored_mesh.ply``/``.glb``) and
 viewer folder (``colored_viewer/``), ``colorize/views.csv``, and returns the metrics
-against ground-truth colour (where the dataset has it) plus ``features: imagenet|random``.
+against ground-truth colour (where the dataset has it; held-out PSNR also inside and outside the
+pseudo-colour coverage, :mod:`arcsem.colorize.coverage`) plus ``features``: the TCM/CCM extractor
+(``vgg16-imagenet``, ``vgg16-random``, ``daisy``, ``learned``; ``colorize.features``) or ``unused``.
 """
 from __future__ import annotations
 
@@ -110,10 +112,10 @@ class ColorTargets:
     """The stage-2 ``batch_hook``: fills ``batch.extras`` from the cached pseudo-colours and guidance."""
 
     def __init__(self, refs: References, pseudo: torch.Tensor, valid: torch.Tensor, guidance: Guidance | None,
-                 vgg=None, tcm_downscale: int = 4, ccm_downscale: int = 16):
+                 space=None, tcm_downscale: int = 4, ccm_downscale: int = 16):
         self.ref_pos = {int(v): k for k, v in enumerate(refs.indices.tolist())}
         self.refs, self.pseudo, self.valid, self.guidance = refs, pseudo, valid, guidance
-        self.vgg, self.tcm_downscale, self.ccm_downscale = vgg, tcm_downscale, ccm_downscale
+        self.space, self.tcm_downscale, self.ccm_downscale = space, tcm_downscale, ccm_downscale
 
     def __call__(self, batch: Batch) -> Batch:
         idx = batch.indices.cpu().tolist()
@@ -124,7 +126,7 @@ class ColorTargets:
         ex = dict(batch.extras or {})
         ex.update(is_reference=is_ref, reference=ref.to(dev), pseudo=self.pseudo[idx].to(dev),
                   pseudo_valid=self.valid[idx].to(dev), tcm_downscale=self.tcm_downscale,
-                  ccm_downscale=self.ccm_downscale, vgg=self.vgg)
+                  ccm_downscale=self.ccm_downscale, tcm_space=self.space)
         if self.guidance is not None:
             t = [self.guidance.targets(i) for i in idx]
             ex["tcm_guidance"] = [torch.stack([x["tcm_guidance"][b] for x in t]).to(dev)
@@ -161,6 +163,34 @@ def _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir):
     return colors, valid, {"cache_hit": hit, "time_s": time.perf_counter() - t0, "key": key}
 
 
+def _guidance(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir) -> tuple[Guidance, Any, dict]:
+    """The TCM/CCM guidance of every view (computed now, cached on disk), its loss space and what to record."""
+    from .features import SceneContext, build_extractor, tcm_space
+    from .features.base import space_label
+    from .pseudocolor import cache_key
+
+    t0 = time.perf_counter()
+    from_model = cc.depth == "model"
+    ctx = SceneContext(gray=split.images, cameras=split.cameras, masks=masks,
+                       depths=(lambda: render_depths(backbone, split)) if from_model else (lambda: split.depths),
+                       depth_key=cache_key(Path(ckpt)) if from_model else cache_key(split.depths),
+                       seed=int(cfg.get("seed", 0)), downscale=cc.tcm_downscale, cache_dir=cache_dir,
+                       progress=cc.progress)
+    extractor = build_extractor(cc.features, ctx)
+    space = tcm_space(cc.tcm_space, extractor)
+    guidance = Guidance(extractor, space, split.images, refs.indices.tolist(), refs.images, cc.tcm_downscale,
+                        cc.ccm_downscale, cc.ccm_max_dist, cc.ccm_white, cache_dir)
+    for i in range(len(split)):  # once per view, before training (cached on disk)
+        guidance.matches(i)
+    info = {"requested": cc.features, "name": extractor.name, "label": extractor.label(),
+            "tcm_space": space_label(space), "time_s": time.perf_counter() - t0}
+    if hasattr(extractor, "weights_detail"):
+        info["weights"] = extractor.weights_detail
+    if hasattr(extractor, "info"):
+        info["training"] = extractor.info
+    return guidance, space, info
+
+
 def _pseudo_quality(split, masks, refs, colors, valid) -> dict:
     others = [i for i in range(len(split)) if i not in set(refs.indices.tolist())]
     out = {"coverage": float(valid[others].sum() / masks[others].sum().clamp_min(1)) if others else float("nan")}
@@ -171,12 +201,12 @@ def _pseudo_quality(split, masks, refs, colors, valid) -> dict:
 
 
 def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
-    """Colour the stage-1 model; returns ``{"stage2": {...}, "features": "imagenet"|"random"}``."""
+    """Colour the stage-1 model; returns ``{"stage2": {...}, "features": <extractor label>|"unused"}``."""
     from ..share import cache_root
     from ..train import LoopConfig, load_stage1, train
     from ..train.loop import loss_trend_warning
+    from .coverage import coverage_metrics
     from .outputs import evaluate_colour, write_colored_products, write_outputs
-    from .vgg import get_vgg
 
     run_dir = Path(run_dir)
     cc = colorize_config(cfg)
@@ -191,16 +221,10 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     cache_dir = Path(cc.cache_dir) if cc.cache_dir else cache_root(cfg) / "colorize"
     pseudo, valid, pinfo = _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir)
     losses = colorize_losses(cc, backbone)
-    use_guidance = any(n in losses.terms for n in ("tcm", "ccm"))
-    vgg = get_vgg(cc.vgg) if use_guidance else None
-    t0 = time.perf_counter()
-    guidance = Guidance(vgg, split.images, refs.indices.tolist(), refs.images, cc.tcm_downscale, cc.ccm_downscale,
-                        cc.ccm_max_dist, cc.ccm_white, cache_dir) if use_guidance else None
-    if guidance is not None:
-        for i in range(len(split)):  # once per view, before training (cached on disk)
-            guidance.matches(i)
-    t_guid = time.perf_counter() - t0
-    hook = ColorTargets(refs, pseudo, valid, guidance, vgg, cc.tcm_downscale, cc.ccm_downscale)
+    guidance, space, finfo = None, None, None
+    if any(n in losses.terms for n in ("tcm", "ccm")):
+        guidance, space, finfo = _guidance(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir)
+    hook = ColorTargets(refs, pseudo, valid, guidance, space, cc.tcm_downscale, cc.ccm_downscale)
     loop = LoopConfig(steps=cc.steps, stage="color", batch_views=cc.batch_views, log_every=cc.log_every,
                       checkpoint_every=cc.checkpoint_every, resume=cc.resume, seed=int(cfg.get("seed", 0)),
                       progress=cc.progress, desc=f"stage 2 ({backbone.name})")
@@ -208,17 +232,18 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
                 config={"colorize": plain(cfg.get("colorize")), "stage1": str(ckpt), "pseudo": pinfo["key"]},
                 batch_hook=hook)
     backbone.eval()
-    features = vgg.features_source if vgg is not None else "unused"
+    features = finfo["label"] if finfo is not None else "unused"
     result = evaluate_colour(backbone, scene, refs, run_dir, cc)
+    for part, extra in coverage_metrics(backbone, scene, refs, masks, valid, cc).items():
+        result.setdefault(part, {}).update(extra)
     result.update(write_outputs(backbone, scene, run_dir, cc, pseudo, valid))
     result.update(write_colored_products(cfg, backbone, scene, run_dir, res.steps, cc.progress))
     result.update(
         features=features, references=refs.names, losses=sorted(losses.terms), steps=res.steps, time_s=res.time_s,
         steps_per_s=res.steps_per_s, stage1_checkpoint=str(ckpt), image_size=[split.cameras.width, split.cameras.height],
         pseudo={**_pseudo_quality(split, masks, refs, pseudo, valid), "cache_hit": pinfo["cache_hit"],
-                "time_s": pinfo["time_s"]}, guidance_time_s=t_guid,
-        vgg={"arch": cc.vgg, "weights": vgg.weights_detail} if vgg is not None else None,
-        final_loss=res.history[-1]["loss"] if res.history else None)
+                "time_s": pinfo["time_s"]}, guidance_time_s=finfo["time_s"] if finfo else 0.0,
+        feature_extractor=finfo, final_loss=res.history[-1]["loss"] if res.history else None)
     warning = loss_trend_warning(res.history, loop.desc)
     if warning:
         log.warning(warning)

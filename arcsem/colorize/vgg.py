@@ -56,6 +56,7 @@ class VGGFeatures(nn.Module):
         net = nn.Module()
         net.features = tv.models.vgg.make_layers(tv.models.vgg.cfgs[VGG_CFG[arch]], batch_norm=False)
         self.arch, self.blocks = arch, tuple(blocks)
+        self.name, self.strides = arch, tuple(2 ** (b - 1) for b in self.blocks)  # block b: after b-1 pools
         self.features_source, self.weights_detail = "random", "not requested"
         self.layers = block_layers(net.features, self.blocks)
         last = max(i for ids in self.layers.values() for i in ids)
@@ -94,6 +95,21 @@ class VGGFeatures(nn.Module):
         self.weights_detail = why
         warnings.warn(msg, stacklevel=3)
         log.warning(msg)
+
+    differentiable = True  # usable on a colour render: the paper's TCM loss space
+
+    def key(self) -> str:
+        """Cache identity: architecture, blocks and a hash of the weights (random ones differ between runs)."""
+        if getattr(self, "_key", None) is None:
+            from .pseudocolor import cache_key
+
+            weights = cache_key(*[t for _, t in sorted(self.trunk.state_dict().items())])
+            self._key = f"vgg:{self.arch}:{self.blocks}:{self.features_source}:{weights}"
+        return self._key
+
+    def label(self) -> str:
+        """``vgg16-imagenet`` or ``vgg16-random`` (what runs record as ``features``)."""
+        return f"{self.arch}-{self.features_source}"
 
     def train(self, mode: bool = True):  # the trunk always stays in eval mode
         super().train(mode)

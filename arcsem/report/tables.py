@@ -36,6 +36,7 @@ class Column:
     key: str            # flattened metrics key, e.g. "stage1.train.psnr"
     best: str | None    # "max" | "min" | None (no bold)
     digits: int
+    text: bool = False  # a text column (e.g. the TCM/CCM features): the distinct values of the row's runs
 
 
 def _ims(group: str, prefix: str) -> list[Column]:
@@ -55,15 +56,28 @@ DEPTH_PCT = "stage1.depth.test_mae_pct|stage1.depth.median_abs_pct"
 DEPTH_ABS = "stage1.depth.test_mae|stage1.depth.median_abs"
 CHAMFER = Column("mesh", "Chamfer %", "stage1.mesh.gt.chamfer_pct", "min", 2)  # built-in scene only
 
+FEATURES = Column("TCM/CCM", "features", "features", None, 0, text=True)
+
+
+def _coverage(group: str, prefix: str) -> list[Column]:
+    """PSNR inside / outside the pseudo-colour coverage (arcsem.colorize.coverage) and the covered share."""
+    return [Column(group, "PSNR in cov.", f"{prefix}.psnr_covered", "max", 2),
+            Column(group, "PSNR out cov.", f"{prefix}.psnr_uncovered", "max", 2),
+            Column(group, "coverage", f"{prefix}.coverage", None, 3)]
+
+
+COLOUR = (_ims("non-ref. train views", "stage2.train_nonref") + _ims("held-out", "stage2.test")
+          + _coverage("held-out", "stage2.test") + [FEATURES])
 LAYOUTS: dict[str, list[Column]] = {
     "grayscale_comparison": _ims("train views", "stage1.train") + _ims("held-out", "stage1.test") + [
         Column("depth (held-out)", "err. %", DEPTH_PCT, "min", 2),
         Column("depth (held-out)", "err.", DEPTH_ABS, "min", 4), CHAMFER] + PAPER_COLUMNS,
-    "colorization_ablation": _ims("non-ref. train views", "stage2.train_nonref") + _ims("held-out", "stage2.test"),
-    "reference_count": _ims("non-ref. train views", "stage2.train_nonref") + _ims("held-out", "stage2.test"),
+    "colorization_ablation": COLOUR,
+    "reference_count": COLOUR,
     "runs": _ims("grey train", "stage1.train") + _ims("grey held-out", "stage1.test") + [
         Column("depth", "err. %", DEPTH_PCT, "min", 2), CHAMFER]
-    + _ims("colour non-ref.", "stage2.train_nonref") + _ims("colour held-out", "stage2.test"),
+    + _ims("colour non-ref.", "stage2.train_nonref") + _ims("colour held-out", "stage2.test")
+    + _coverage("colour held-out", "stage2.test") + [FEATURES],
 }
 ROW_HEADER = {"grayscale_comparison": "Model", "colorization_ablation": "Variant",
               "reference_count": "References", "runs": "Run"}
@@ -100,6 +114,10 @@ def _summary(df: pd.DataFrame, study: str, columns: list[Column], missing: list[
         rec = {"row": row, "label": spec.rows.get(row, row), "n": len(sub),
                "status": "ok" if not n_miss else ("missing" if sub.empty else f"{n_miss} job(s) missing")}
         for c in columns:
+            if c.text:
+                vals = _per_run(sub, c.key).dropna().astype(str)
+                rec[c.key] = ", ".join(sorted(set(vals))) or "n/a"
+                continue
             if c.key.startswith("paper."):
                 vals = PAPER_TABLE1.get(row)
                 rec[c.key] = math.nan if vals is None else vals[["psnr", "ssim", "lpips"].index(c.key[6:])]
@@ -189,13 +207,11 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
         notes += _lpips_notes(_distinct(df, "lpips_weights"), lp_nan)
     feats = _distinct(df, "features")
     if study != "grayscale_comparison" and (feats or study != "runs"):
-        if "random" in feats:
-            per_run = _per_run(df, "features")
-            n_random, n_used = int((per_run == "random").sum()), int(per_run.isin(["random", "imagenet"]).sum())
-            which = "every run that uses them" if n_random == n_used else f"{n_random} of the {n_used} runs that use them"
-            notes.append(f"VGG features: RANDOM weights in {which} (ImageNet weights unavailable): TCM/CCM "
-                         "numbers are not the standard ones.")
-        notes.append("VGG weights (features): " + (", ".join(feats) if feats else "not recorded") + ".")
+        notes += _feature_notes(df, feats)
+        if any(c.key.endswith("psnr_uncovered") for c in columns):
+            notes.append("PSNR in / out cov.: held-out colour PSNR pooled over the specimen pixels that pseudo-colours "
+                         "reach (a reference point within the search radius) and over the rest, which only TCM, "
+                         "CCM and the model's own interpolation colour; coverage: the covered share.")
     seeds = sorted({str(s) for s in df["seed"].dropna()}) if "seed" in df else []
     if seeds:
         notes.append(f"seeds: {', '.join(seeds)}; several runs per row are shown as mean ± std.")
@@ -207,6 +223,22 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
     return notes
 
 
+def _feature_notes(df: pd.DataFrame, feats: list[str]) -> list[str]:
+    """What TCM/CCM matched with: the recorded ``features`` (``vgg16-imagenet``, ``vgg16-random``, ``daisy``,
+    ``learned``, ``unused``; older runs: ``imagenet`` / ``random``)."""
+    notes = []
+    per_run = _per_run(df, "features")
+    random = per_run.astype(str).str.contains("random")
+    used = per_run.notna() & (per_run.astype(str) != "unused")
+    if bool(random.any()):
+        n_random, n_used = int(random.sum()), int(used.sum())
+        which = "every run that uses them" if n_random == n_used else f"{n_random} of the {n_used} runs that use them"
+        notes.append(f"VGG features: RANDOM weights in {which} (ImageNet weights unavailable): TCM/CCM "
+                     "numbers are not the standard ones.")
+    notes.append("TCM/CCM features: " + (", ".join(feats) if feats else "not recorded") + ".")
+    return notes
+
+
 def _paired_notes(df: pd.DataFrame, study: str, columns: list[Column]) -> list[str]:
     """Held-out PSNR of each row minus the study's own method, paired by seed, where >= 2 seeds pair up.
 
@@ -214,9 +246,14 @@ def _paired_notes(df: pd.DataFrame, study: str, columns: list[Column]) -> list[s
     noise?) and the seeds the row won.
     """
     spec = STUDIES[study]
-    key = next((c.key for c in columns if c.group == "held-out" and c.label == "PSNR"), None)
-    if spec.ours is None or key is None or key not in df or "seed" not in df or spec.ours not in set(df["row"]):
+    keys = [(c.key, c.label) for c in columns if c.group == "held-out" and c.label in ("PSNR", "PSNR out cov.")]
+    if spec.ours is None or not keys or "seed" not in df or spec.ours not in set(df["row"]):
         return []
+    return [n for key, label in keys if key in df for n in _paired_note(df, spec, key, label)]
+
+
+def _paired_note(df: pd.DataFrame, spec, key: str, label: str) -> list[str]:
+    """One note: ``label`` (a held-out PSNR column) of each row minus the study's own method, paired by seed."""
     parts = []
     for row in [r for r in spec.rows if r != spec.ours] + sorted(set(df["row"].dropna()) - set(spec.rows)):
         if row not in set(df["row"]):
@@ -233,7 +270,8 @@ def _paired_notes(df: pd.DataFrame, study: str, columns: list[Column]) -> list[s
                      f"better at {s['b_wins']}/{s['n']} seeds")
     if not parts:
         return []
-    return [f"held-out PSNR minus {spec.rows[spec.ours]}'s, paired by seed (mean, 95 % t-interval): "
+    what = "held-out PSNR" if label == "PSNR" else f"held-out {label}"
+    return [f"{what} minus {spec.rows[spec.ours]}'s, paired by seed (mean, 95 % t-interval): "
             + "; ".join(parts) + "."]
 
 
@@ -244,12 +282,13 @@ def build_table(coll: Collection, study: str) -> Table:
     columns = []
     for c in LAYOUTS[study]:  # columns no finished run has are left out (all kept when none finished)
         alts = c.key.split("|")
-        key = next((k for k in alts if k.startswith("paper.") or k in df.columns), None if len(df) else alts[0])
+        key = next((k for k in alts if k.startswith("paper.") or k in df.columns
+                    or (c.text and any(str(x).endswith("." + k) for x in df.columns))), None if len(df) else alts[0])
         if key is not None:
             columns.append(replace(c, key=key))
     nums = _summary(df, study, columns, missing)
     best = {}
-    for c in columns:
+    for c in [c for c in columns if not c.text]:
         vals = nums[c.key].dropna() if len(nums) else pd.Series(dtype=float)
         if c.best and len(vals) > 1:  # a lone value is not "best" of anything
             best[c.key] = round(vals.max() if c.best == "max" else vals.min(), c.digits)
@@ -259,6 +298,9 @@ def build_table(coll: Collection, study: str) -> Table:
         for c in columns:
             if r["status"] == "missing" and not c.key.startswith("paper."):
                 row.append(("missing", False))
+                continue
+            if c.text:
+                row.append((str(r[c.key]), False))
                 continue
             mean, std = r[c.key], r.get(f"{c.key}.std", math.nan)
             n = 1 if c.key.startswith("paper.") else int(r["n"])

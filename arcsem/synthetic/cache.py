@@ -8,7 +8,7 @@ import shutil
 from dataclasses import asdict
 from pathlib import Path
 
-from .write import GENERATOR_VERSION, SceneParams, generate_scene
+from .write import GENERATOR_VERSION, SceneParams, generate_scene, params_record
 
 __all__ = ["cache_root", "ensure_scene", "scene_key"]
 
@@ -22,7 +22,7 @@ def cache_root() -> Path:
 
 def scene_key(p: SceneParams) -> str:
     """16 hex digits of the SHA-1 of the parameters and the generator version."""
-    blob = json.dumps({**asdict(p), "generator_version": GENERATOR_VERSION}, sort_keys=True)
+    blob = json.dumps({**params_record(p), "generator_version": GENERATOR_VERSION}, sort_keys=True)
     return hashlib.sha1(blob.encode()).hexdigest()[:16]
 
 
@@ -42,7 +42,7 @@ def ensure_scene(path=None, *, progress: bool | None = None, **params) -> Path:
     shutil.rmtree(tmp, ignore_errors=True)
     try:
         generate_scene(tmp, progress=progress, **asdict(p))
-        (tmp / MARKER).write_text(json.dumps({**asdict(p), "generator_version": GENERATOR_VERSION}))
+        (tmp / MARKER).write_text(json.dumps({**params_record(p), "generator_version": GENERATOR_VERSION}))
         if folder.exists() and not (folder / MARKER).is_file():
             shutil.rmtree(folder)  # a stale incomplete folder (not written by this function)
         try:

@@ -14,8 +14,8 @@ import torch
 from torch import Tensor
 
 from ..cameras import Cameras
-from .albedo import BACKGROUND_RGB, SUBSTRATE_ALBEDO, colorize, grain_albedo
-from .sdf import Grain
+from .albedo import BACKGROUND_RGB, SUBSTRATE_ALBEDO, colorize
+from .sdf import Grain  # or any specimen with the same attributes (e.g. diatom.Diatom)
 from .shading import DETECTOR_CAM, ShadingConfig, detector_shadow, ellipsoid_shadow, sem_grey
 from .trace import ray_sphere, sdf_gradient, sphere_trace
 
@@ -106,7 +106,7 @@ def shade(g: Grain, kind: Tensor, pts: Tensor, u: Tensor, det: Tensor, cfg: Rend
             # (~1e-7) divided by h^2 = 4e-6 put per-pixel noise of up to 0.17 into the grey level
             # (a stipple no view-consistent model can reproduce). Tracing stays float32.
             nrm, lap = (x.float() for x in sdf_gradient(g.to(torch.float64).sdf, pts[idx].double()))
-            albedo = grain_albedo(g, p)
+            albedo = g.albedo(p)
             gain = 1.0
             normal[idx] = nrm
         else:

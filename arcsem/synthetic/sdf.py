@@ -91,6 +91,12 @@ class Grain:
         """Signed distance ``[N]`` of points ``p [N, 3]`` (negative inside)."""
         return grain_sdf(self, p)[0]
 
+    def albedo(self, p: Tensor) -> Tensor:
+        """RGB albedo ``[N, 3]`` of surface points (:func:`arcsem.synthetic.albedo.grain_albedo`)."""
+        from .albedo import grain_albedo
+
+        return grain_albedo(self, p)
+
 
 def _fibonacci(n: int) -> np.ndarray:
     i = np.arange(n) + 0.5

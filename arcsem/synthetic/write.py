@@ -25,7 +25,8 @@ from .sdf import make_grain
 from .shading import drift_and_noise, exposure_drift
 from .sheet import contact_sheet
 
-__all__ = ["GENERATOR_VERSION", "SceneParams", "generate_scene", "reference_sets", "true_exposures"]
+__all__ = ["GENERATOR_VERSION", "SPECIMENS", "SceneParams", "generate_scene", "make_specimen", "params_record",
+           "reference_sets", "true_exposures"]
 
 GENERATOR_VERSION = 2  # bump when the output of the same parameters changes (invalidates caches)
 FLIP = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV <-> OpenGL camera axes
@@ -48,6 +49,7 @@ class SceneParams:
     drift: float = 0.05           # per-image log-contrast / brightness drift, x(1 + 2 el/85) on the vertical arc
     n_spines: int = 30
     test_every: int = 4           # one test view in every 4th gap of each arc
+    specimen: str = "grain"       # "grain" (the built-in pollen grain) | "diatom" (arcsem.synthetic.diatom)
 
     @classmethod
     def from_transforms(cls, meta: dict) -> SceneParams:
@@ -55,6 +57,31 @@ class SceneParams:
         if "synthetic" not in meta:
             raise ValueError("transforms.json has no 'synthetic' block: not a scene of the built-in generator")
         return cls(**{k: v for k, v in meta["synthetic"].items() if k in cls.__dataclass_fields__})
+
+
+SPECIMENS = ("grain", "diatom")
+
+
+def params_record(p: SceneParams) -> dict:
+    """The parameters as recorded (cache key, ``transforms.json``, README): ``specimen`` only when it is not
+    the grain, so the built-in scene's files and cache folder stay what they were before specimens existed."""
+    d = asdict(p)
+    if d["specimen"] == "grain":
+        del d["specimen"]
+    return d
+
+
+def make_specimen(p: SceneParams):
+    """The specimen of ``p``: :func:`~arcsem.synthetic.sdf.make_grain` or :func:`~arcsem.synthetic.diatom.make_diatom`."""
+    if p.specimen == "grain":
+        return make_grain(p.seed, p.n_spines)
+    if p.specimen == "diatom":
+        from .diatom import make_diatom
+
+        return make_diatom(p.seed)
+    from ..errors import ConfigError
+
+    raise ConfigError(f"synthetic scene: unknown specimen '{p.specimen}'; available: {', '.join(SPECIMENS)}")
 
 
 def reference_sets(views: list[ViewSpec]) -> dict[str, list[str]]:
@@ -84,10 +111,10 @@ def generate_scene(out_dir, *, progress: bool | None = None, **params) -> Path:
         from ..errors import ConfigError
 
         raise ConfigError(f"synthetic scene: width/height must be >= 8, got {p.width}x{p.height}")
+    grain = make_specimen(p)
     out = Path(out_dir)
     for sub in ("images", "clean", "color", "masks", "depth", "normals", "references"):
         (out / sub).mkdir(parents=True, exist_ok=True)
-    grain = make_grain(p.seed, p.n_spines)
     views = arc_views(p.n_horizontal, p.n_vertical, p.test_every)
     cams, distance = arc_cameras(views, p.width, p.height, p.camera)
     cfg = RenderConfig(supersample=p.supersample, substrate=p.substrate)
@@ -133,7 +160,7 @@ def _transforms(p: SceneParams, cams, frames: list[dict], refs: dict, grain, dis
         "fl_x": float(K[0, 0]), "fl_y": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
         "w": p.width, "h": p.height, "aabb": grain.aabb.tolist(), "ply_file_path": "points3d.ply",
         "reference_sets": refs, "frames": frames,
-        "synthetic": {**asdict(p), "generator_version": GENERATOR_VERSION, "camera_distance": distance,
+        "synthetic": {**params_record(p), "generator_version": GENERATOR_VERSION, "camera_distance": distance,
                       "grain_size": grain.size, "world_up": [0, 0, 1], "substrate_z": grain.substrate_z},
     }
 
@@ -204,9 +231,12 @@ def _readme(p: SceneParams) -> str:
     colmap = ("colmap/sparse/0: COLMAP model (PINHOLE) of the same cameras and the point cloud.\n"
               if p.camera == "pinhole" else
               "No COLMAP model: COLMAP has no orthographic camera model; use transforms.json.\n")
-    return (
+    other = ("" if p.specimen == "grain" else
+             "Specimen: a centric diatom frustule (arcsem.synthetic.diatom); 'grain' below means this specimen,\n"
+             "whose substrate plane lies at z = -0.6.\n")
+    return other + (
         "Synthetic SEM scene written by arcsem.synthetic (arcsem-make-scene).\n"
-        f"Parameters: {json.dumps(asdict(p))}\n\n"
+        f"Parameters: {json.dumps(params_record(p))}\n\n"
         "World: z up (the grain's polar axis), grain centred at the origin, grain size 2 units;\n"
         "substrate plane z = -1 (shaded, but not specimen: masks, depth and normals are 0 there).\n"
         f"Cameras: {p.n_horizontal} views on a horizontal arc (h_00 left .. right, azimuth -60..60 deg,\n"

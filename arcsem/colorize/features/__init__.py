@@ -1,0 +1,17 @@
+"""Feature extractors for TCM/CCM matching (``colorize.features``): VGG, dense DAISY, a scene-trained CNN.
+
+See :mod:`.base` for the interface and the TCM loss spaces. Heavy modules import lazily.
+"""
+from .base import (
+    DEFAULT_WITHOUT_IMAGENET,
+    FEATURES,
+    ColourSpace,
+    Extractor,
+    SceneContext,
+    build_extractor,
+    resolve_features,
+    tcm_space,
+)
+
+__all__ = ["DEFAULT_WITHOUT_IMAGENET", "FEATURES", "ColourSpace", "Extractor", "SceneContext", "build_extractor",
+           "resolve_features", "tcm_space"]

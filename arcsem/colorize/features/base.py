@@ -1,0 +1,165 @@
+"""The feature-extractor interface of TCM/CCM matching, the colour loss space, and ``colorize.features=auto``.
+
+An extractor maps grey images ``[N, H, W, 3]`` in [0, 1] (three equal channels) to per-block feature
+maps ``[N, D_b, H // s_b, W // s_b]`` for its block strides ``s_b`` (VGG: relu3_x at 4 and relu4_x at
+8); TCM matches every block location of a grey view to the nearest location (cosine) of the grey
+references, CCM does the same on block 0 pooled to its cells. Extractors:
+
+* ``vgg16`` / ``vgg19``: torchvision VGG with ImageNet weights from the torch hub cache (Ref-NPR /
+  the ArCSEM code); random weights where they cannot be had (recorded as ``vgg16-random``);
+* ``daisy``: dense DAISY descriptors (OpenCV contrib), :mod:`.daisy`;
+* ``learned``: a small CNN trained on the scene's grey training views, positives given by the
+  stage-1 depth and cameras, :mod:`.learned`.
+
+TCM's loss compares the render with the guidance in a *loss space*: the extractor's own features
+(VGG, the paper) or ``color``: the image averaged over each block cell, compared by ``1 - cos``, so
+the matched reference colour's chromaticity is copied and the render keeps its own brightness
+(the stage-1 shading). DAISY and the learned CNN describe grey structure and cannot be applied to a
+colour render, so they use ``color``.
+"""
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+__all__ = ["DEFAULT_WITHOUT_IMAGENET", "FEATURES", "ColourSpace", "Extractor", "SceneContext", "build_extractor",
+           "grey_channel", "imagenet_vgg_available", "no_grad_features", "resolve_features", "space_label", "tcm_space"]
+
+log = logging.getLogger(__name__)
+
+FEATURES = ("auto", "vgg16", "vgg19", "daisy", "learned")
+# The extractor `auto` takes where no ImageNet VGG weights exist: the best measured without them
+# (benchmarks/results/features/README.md: benchmarks/feature_matching.py and benchmarks/feature_comparison.py).
+DEFAULT_WITHOUT_IMAGENET = "learned"
+_ANNOUNCED: set[tuple[str, str]] = set()
+
+
+class Extractor(Protocol):
+    """What TCM/CCM need of a feature extractor (see the module docstring)."""
+
+    name: str                  # "vgg16", "daisy", "learned", ...
+    strides: tuple[int, ...]   # block strides in pixels of the input image
+    differentiable: bool       # usable on a colour render as the TCM loss space
+
+    def key(self) -> str: ...                                  # identity for caches (changes with weights)
+    def label(self) -> str: ...                                # recorded as ``features`` (e.g. vgg16-random)
+    def __call__(self, images: Tensor) -> list[Tensor]: ...    # [N,H,W,3] -> [[N,D_b,H//s_b,W//s_b]]
+
+
+@dataclass
+class SceneContext:
+    """What an extractor trained on the scene needs (at the colourisation resolution).
+
+    gray: ``[N, H, W, 3]`` grey training views. cameras: their ``N`` cameras. masks: ``[N, H, W]`` bool.
+    depths: returns ``[N, H, W]`` z-depth (0 = none), called only when a model must be trained.
+    depth_key: what the depths are (hash of the stage-1 checkpoint or of the depth maps).
+    """
+
+    gray: Tensor
+    cameras: Any
+    masks: Tensor
+    depths: Callable[[], Tensor]
+    depth_key: str
+    seed: int = 0
+    downscale: int = 4
+    cache_dir: Path | None = None
+    progress: bool = False
+
+
+class ColourSpace:
+    """TCM loss space ``color``: ``images [C, H, W, 3]`` -> per block ``[C, 3, H // s, W // s]`` cell means."""
+
+    name = "color"
+
+    def __init__(self, strides: tuple[int, ...]):
+        self.strides = tuple(strides)
+
+    def __call__(self, images: Tensor) -> list[Tensor]:
+        x = images.permute(0, 3, 1, 2)
+        return [F.avg_pool2d(x, s) for s in self.strides]
+
+
+def space_label(space) -> str:
+    """``color`` for a :class:`ColourSpace`, else ``features`` (the extractor itself)."""
+    return "color" if isinstance(space, ColourSpace) else "features"
+
+
+def imagenet_vgg_available(arch: str = "vgg16") -> bool:
+    """Whether the ImageNet weights of ``arch`` are in the torch hub cache (nothing is downloaded)."""
+    from ...weights import find_hub_weights
+    from ..vgg import WEIGHT_FILES
+
+    return find_hub_weights(WEIGHT_FILES[arch]) is not None
+
+
+def resolve_features(name: str) -> str:
+    """``auto`` -> ``vgg16`` where its ImageNet weights are in the hub cache, else the measured best
+    (:data:`DEFAULT_WITHOUT_IMAGENET`), said once per process; other names are returned unchanged."""
+    if name != "auto":
+        return name
+    chosen = "vgg16" if imagenet_vgg_available("vgg16") else DEFAULT_WITHOUT_IMAGENET
+    if ("auto", chosen) not in _ANNOUNCED:
+        _ANNOUNCED.add(("auto", chosen))
+        why = ("ImageNet VGG16 weights found" if chosen == "vgg16" else
+               "no ImageNet VGG weights in the torch hub cache; the best extractor measured without them "
+               "(benchmarks/results/features)")
+        log.warning("colorize.features=auto: TCM/CCM use '%s' features (%s)", chosen, why)
+    return chosen
+
+
+def tcm_space(choice: str, extractor: Extractor):
+    """The TCM loss space: ``auto`` = the extractor's own features where it is differentiable (VGG), else colour."""
+    from ...errors import ConfigError
+
+    if choice == "features" and not extractor.differentiable:
+        raise ConfigError(f"colorize.tcm_space=features: '{extractor.name}' features cannot be computed on a "
+                          "colour render; use tcm_space=color (or auto)")
+    if choice == "features" or (choice == "auto" and extractor.differentiable):
+        return extractor
+    return ColourSpace(extractor.strides)
+
+
+def build_extractor(name: str, ctx: SceneContext | None = None) -> Extractor:
+    """The extractor ``name`` (``auto`` resolved); ``learned`` is trained on ``ctx`` (or read from its cache)."""
+    from ...errors import ConfigError
+
+    name = resolve_features(name)
+    if name in ("vgg16", "vgg19"):
+        from ..vgg import get_vgg
+
+        return get_vgg(name)
+    if name == "daisy":
+        from .daisy import DaisyFeatures
+
+        return DaisyFeatures()
+    if name == "learned":
+        from .learned import learned_extractor
+
+        if ctx is None:
+            raise ConfigError("colorize.features=learned needs the scene (grey views, stage-1 depth, cameras)")
+        return learned_extractor(ctx)
+    raise ConfigError(f"colorize.features: unknown extractor '{name}'; available: {', '.join(FEATURES)}")
+
+
+def grey_channel(images: Tensor) -> Tensor:
+    """``[N, H, W, 3]`` -> ``[N, 1, H, W]`` channel mean, each image standardised (exposure-drift invariant)."""
+    g = images.float().mean(-1, keepdim=True).permute(0, 3, 1, 2)
+    mu = g.mean(dim=(2, 3), keepdim=True)
+    sd = g.std(dim=(2, 3), keepdim=True).clamp_min(1e-3)
+    return (g - mu) / sd
+
+
+def no_grad_features(extractor: Extractor, images: Tensor, batch: int = 4) -> list[Tensor]:
+    """``extractor(images)`` without gradients, ``batch`` images at a time, blocks concatenated."""
+    parts: list[list[Tensor]] = []
+    with torch.no_grad():
+        for s in range(0, len(images), batch):
+            parts.append(extractor(images[s:s + batch]))
+    return [torch.cat([p[b] for p in parts]) for b in range(len(parts[0]))]

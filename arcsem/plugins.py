@@ -23,7 +23,7 @@ from .cameras import Cameras
 from .configs import GroupSchedule
 from .registry import Registry
 
-__all__ = ["BACKBONES", "LOSSES", "Backbone", "Batch", "Loss", "RenderOutput"]
+__all__ = ["BACKBONES", "LOSSES", "Backbone", "Batch", "ColorTargets", "Loss", "RenderOutput"]
 
 BACKBONES = Registry("backbone", "arcsem.backbones")
 LOSSES = Registry("loss", "arcsem.losses")
@@ -32,12 +32,39 @@ RenderOutput = dict[str, Tensor]
 
 
 @dataclass
+class ColorTargets:
+    """The colourisation stage's targets for a batch of ``C`` whole views (filled by stage 2's batch hook).
+
+    Attributes:
+        is_reference: ``[C]`` bool, the artist-coloured views (``reference_l1`` only acts on them; the others skip them).
+        reference: ``[C, H, W, 3]`` the artist colours (zeros for other views).
+        pseudo: ``[C, H, W, 3]`` pseudo-colours; ``pseudo_valid``: ``[C, H, W]`` bool, the pixels that have one.
+        tcm_guidance: per feature block ``[C, D_b, h_b, w_b]`` (None without TCM/CCM guidance).
+        tcm_space: the TCM loss space, images ``[C, h, w, 3]`` -> per block ``[C, D_b, h_b, w_b]``.
+        tcm_downscale: renders are scaled down by this before ``tcm_space``.
+        ccm_target: ``[C, hc, wc, 3]`` matched reference cell colours; ``ccm_valid``: ``[C, hc, wc]`` bool.
+        ccm_downscale: the CCM cell size in pixels.
+    """
+
+    is_reference: Tensor
+    reference: Tensor
+    pseudo: Tensor
+    pseudo_valid: Tensor
+    tcm_guidance: list[Tensor] | None = None
+    tcm_space: Callable[[Tensor], list[Tensor]] | None = None
+    tcm_downscale: int = 4
+    ccm_target: Tensor | None = None
+    ccm_valid: Tensor | None = None
+    ccm_downscale: int = 16
+
+
+@dataclass
 class Batch:
     """What a loss sees besides the render.
 
     Image batches: ``images [C,H,W,3]``, ``masks [C,H,W,1]`` or None, ``indices [C]`` view indices in
     the split. Ray batches (``rays_o``/``rays_d`` set): ``images [R,3]`` target colours per ray.
-    ``extras`` carries stage-specific targets (pseudo-colours, guidance features, ...).
+    ``color``: the colourisation targets (stage 2 only; a loss that reads them declares ``needs = {"color"}``).
     """
 
     cameras: Cameras
@@ -47,7 +74,7 @@ class Batch:
     rays_o: Tensor | None = None
     rays_d: Tensor | None = None
     ray_image_ids: Tensor | None = None
-    extras: dict[str, Any] | None = None
+    color: ColorTargets | None = None
 
 
 class Backbone(nn.Module):
@@ -146,14 +173,15 @@ class Loss(nn.Module):
     Declared for the trainer (:func:`arcsem.train.losses.build_losses` checks them before any work): ``requires``,
     the render outputs it reads (checked against the backbone's ``provides``); ``batch_modes``, the batches it
     works on (``"image"``: whole views ``[C, H, W, 3]``, ``"rays"``: ``[R, 3]``); ``Config`` with ``weight`` and
-    ``start_step`` (0-based step from which it counts). Construction: ``cls(cfg, **runtime)`` (stage 1 passes
-    ``backbone=<name>`` and ``act``). What it reads from the batch: :class:`Batch` (images, masks, indices;
-    stage-2 targets in ``extras``, named in each stage-2 loss's docstring).
+    ``start_step`` (0-based step from which it counts); ``needs``, the optional parts of the :class:`Batch` it
+    reads (``"color"``: the stage-2 :class:`ColorTargets`, so it can only be a term of ``colorize.losses``).
+    Construction: ``cls(cfg, **runtime)`` (stage 1 passes ``backbone=<name>`` and ``act``).
     """
 
     name: ClassVar[str]
     requires: ClassVar[frozenset[str]] = frozenset({"rgb"})
     batch_modes: ClassVar[frozenset[str]] = frozenset({"image", "rays"})
+    needs: ClassVar[frozenset[str]] = frozenset()
 
     @dataclass
     class Config:

@@ -27,10 +27,11 @@ import torch
 import torch.nn.functional as F
 
 from arcsem.colorize.features import ColourSpace, SceneContext, build_extractor
-from arcsem.colorize.guidance import Guidance, downscale
+from arcsem.colorize.guidance import Guidance
 from arcsem.colorize.pseudocolor import cache_key, pseudo_colors
 from arcsem.colorize.references import load_references
 from arcsem.colorize.vgg import _CACHE as vgg_cache
+from arcsem.imageops import downscale
 
 
 def load(dataset: str):

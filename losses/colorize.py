@@ -1,16 +1,9 @@
 """Stage-2 (colourisation) loss plugins: ``reference_l1``, ``pseudo_color``, ``tcm``, ``ccm``.
 
-They read their targets from ``batch.extras``, which the stage-2 batch hook
-(:func:`arcsem.colorize.stage2.ColorTargets.__call__`) fills once per batch from caches:
-
-* ``is_reference`` ``[C]`` bool; ``reference`` ``[C,H,W,3]`` the artist colours (zeros elsewhere);
-* ``pseudo`` ``[C,H,W,3]`` and ``pseudo_valid`` ``[C,H,W]`` bool;
-* ``tcm_guidance``: per feature block ``[C,D_b,h_b,w_b]``; ``tcm_space`` the TCM loss space (images
-  ``[C,H,W,3]`` -> per block ``[C,D_b,h_b,w_b]``: VGG, or cell-mean colours); ``tcm_downscale``;
-* ``ccm_target`` ``[C,hc,wc,3]``, ``ccm_valid`` ``[C,hc,wc]``; ``ccm_downscale``.
-
-Reference views are supervised by ``reference_l1`` only (paper weight 20); the other three terms
-skip them. A term with no view to act on in a batch returns a zero that keeps the graph.
+They read their targets from ``batch.color`` (:class:`arcsem.plugins.ColorTargets`), which the stage-2 batch
+hook fills once per batch from caches, and declare ``needs = {"color"}``: they can only be terms of
+``colorize.losses``. Reference views are supervised by ``reference_l1`` only (paper weight 20); the other three
+terms skip them. A term with no view to act on in a batch returns a zero that keeps the graph.
 """
 from __future__ import annotations
 
@@ -20,9 +13,9 @@ from typing import ClassVar
 import torch
 from torch import Tensor
 
-from arcsem.colorize.guidance import downscale, patch_means
 from arcsem.errors import ConfigError
-from arcsem.plugins import LOSSES, Batch, Loss, RenderOutput
+from arcsem.imageops import downscale, patch_means
+from arcsem.plugins import LOSSES, Batch, ColorTargets, Loss, RenderOutput
 
 __all__ = ["CCM", "TCM", "PseudoColor", "ReferenceL1", "ccm_distance", "masked_l1", "tcm_distance"]
 
@@ -51,11 +44,15 @@ def ccm_distance(render_means: Tensor, target: Tensor, valid: Tensor) -> Tensor:
     return (((render_means - target) ** 2).sum(-1) * valid).sum() / n
 
 
-def _extras(batch: Batch, key: str, who: str):
-    ex = batch.extras or {}
-    if key not in ex:
-        raise ConfigError(f"loss '{who}' needs batch.extras['{key}']: it runs in stage 2 (stage=color) only")
-    return ex[key]
+def _targets(batch: Batch, who: str, *fields: str) -> ColorTargets:
+    """``batch.color``, checked to hold ``fields`` (a stage-2 loss used elsewhere stops with a clear error)."""
+    t = batch.color
+    if t is None:
+        raise ConfigError(f"loss '{who}' needs the colourisation targets: it runs in stage 2 (stage=color) only")
+    missing = [f for f in fields if getattr(t, f) is None]
+    if missing:
+        raise ConfigError(f"loss '{who}' needs {', '.join(missing)} (TCM/CCM guidance), which this stage-2 run has not")
+    return t
 
 
 @LOSSES.register("reference_l1")
@@ -63,6 +60,7 @@ class ReferenceL1(Loss):
     """L1 to the artist colour on reference views (whole image); paper weight 20."""
 
     batch_modes: ClassVar[frozenset[str]] = frozenset({"image"})
+    needs: ClassVar[frozenset[str]] = frozenset({"color"})
 
     @dataclass
     class Config:
@@ -70,10 +68,9 @@ class ReferenceL1(Loss):
         start_step: int = 0
 
     def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
-        is_ref = _extras(batch, "is_reference", self.name).to(out["rgb"].device)
-        ref = _extras(batch, "reference", self.name)
-        valid = is_ref[:, None, None].expand(out["rgb"].shape[:3])
-        return masked_l1(out["rgb"], ref, valid)
+        t = _targets(batch, self.name)
+        valid = t.is_reference.to(out["rgb"].device)[:, None, None].expand(out["rgb"].shape[:3])
+        return masked_l1(out["rgb"], t.reference, valid)
 
 
 @LOSSES.register("pseudo_color")
@@ -81,6 +78,7 @@ class PseudoColor(Loss):
     """``mean |C_pseudo - C_render|`` over pixels of non-reference views that have a pseudo-colour."""
 
     batch_modes: ClassVar[frozenset[str]] = frozenset({"image"})
+    needs: ClassVar[frozenset[str]] = frozenset({"color"})
 
     @dataclass
     class Config:
@@ -88,9 +86,8 @@ class PseudoColor(Loss):
         start_step: int = 0
 
     def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
-        is_ref = _extras(batch, "is_reference", self.name)
-        valid = _extras(batch, "pseudo_valid", self.name) & ~is_ref[:, None, None]
-        return masked_l1(out["rgb"], _extras(batch, "pseudo", self.name), valid)
+        t = _targets(batch, self.name)
+        return masked_l1(out["rgb"], t.pseudo, t.pseudo_valid & ~t.is_reference[:, None, None])
 
 
 @LOSSES.register("tcm")
@@ -99,6 +96,7 @@ class TCM(Loss):
     (VGG features, the paper; or cell-mean colours: ``colorize.tcm_space``)."""
 
     batch_modes: ClassVar[frozenset[str]] = frozenset({"image"})
+    needs: ClassVar[frozenset[str]] = frozenset({"color"})
 
     @dataclass
     class Config:
@@ -106,13 +104,12 @@ class TCM(Loss):
         start_step: int = 0
 
     def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
-        keep = ~_extras(batch, "is_reference", self.name)
+        t = _targets(batch, self.name, "tcm_guidance", "tcm_space")
+        keep = ~t.is_reference
         if not bool(keep.any()):
             return out["rgb"].sum() * 0.0
-        space = _extras(batch, "tcm_space", self.name)
-        img = downscale(out["rgb"][keep], int(_extras(batch, "tcm_downscale", self.name)))
-        guide = [g[keep] for g in _extras(batch, "tcm_guidance", self.name)]
-        return tcm_distance(space(img), guide)
+        img = downscale(out["rgb"][keep], int(t.tcm_downscale))
+        return tcm_distance(t.tcm_space(img), [g[keep] for g in t.tcm_guidance])
 
 
 @LOSSES.register("ccm")
@@ -120,6 +117,7 @@ class CCM(Loss):
     """Coarse colour matching: squared distance of patch-mean colours to the matched reference patches."""
 
     batch_modes: ClassVar[frozenset[str]] = frozenset({"image"})
+    needs: ClassVar[frozenset[str]] = frozenset({"color"})
 
     @dataclass
     class Config:
@@ -127,6 +125,6 @@ class CCM(Loss):
         start_step: int = 0
 
     def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
-        cell = int(_extras(batch, "ccm_downscale", self.name))
-        valid = _extras(batch, "ccm_valid", self.name) & ~_extras(batch, "is_reference", self.name)[:, None, None]
-        return ccm_distance(patch_means(out["rgb"], cell), _extras(batch, "ccm_target", self.name), valid)
+        t = _targets(batch, self.name, "ccm_target", "ccm_valid")
+        valid = t.ccm_valid & ~t.is_reference[:, None, None]
+        return ccm_distance(patch_means(out["rgb"], int(t.ccm_downscale)), t.ccm_target, valid)

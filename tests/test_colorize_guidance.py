@@ -3,7 +3,8 @@ import pytest
 import torch
 from torch import nn
 
-from arcsem.colorize.guidance import Guidance, ccm_targets, nearest_cosine, patch_means, tcm_match
+from arcsem.colorize.guidance import Guidance, ccm_targets, nearest_cosine, tcm_match
+from arcsem.imageops import patch_means
 
 
 class FakeVGG(nn.Module):

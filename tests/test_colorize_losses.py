@@ -4,13 +4,13 @@ from arcsem.losses.colorize import CCM, TCM, PseudoColor, ReferenceL1, ccm_dista
 
 from arcsem.colorize.analytic import arc_cameras
 from arcsem.colorize.references import References
-from arcsem.colorize.stage2 import ColorTargets
-from arcsem.plugins import Batch
+from arcsem.colorize.stage2 import ColorTargetHook
+from arcsem.plugins import Batch, ColorTargets
 
 
-def _batch(idx, extras=None, h=4, w=4):
+def _batch(idx, color=None, h=4, w=4):
     cams = arc_cameras(len(idx), w, h)
-    return Batch(cameras=cams, images=torch.zeros(len(idx), h, w, 3), indices=torch.tensor(idx), extras=extras)
+    return Batch(cameras=cams, images=torch.zeros(len(idx), h, w, 3), indices=torch.tensor(idx), color=color)
 
 
 def test_masked_l1_hand_values():
@@ -38,13 +38,13 @@ def _targets():
     pseudo = torch.full((3, 16, 16, 3), 0.75)
     valid = torch.zeros(3, 16, 16, dtype=torch.bool)
     valid[:, :8] = True
-    return ColorTargets(refs, pseudo, valid, guidance=None, tcm_downscale=1, ccm_downscale=8)
+    return ColorTargetHook(refs, pseudo, valid, guidance=None, tcm_downscale=1, ccm_downscale=8)
 
 
 def test_hook_and_reference_vs_other_views():
     hook = _targets()
     b = hook(_batch([0, 2], h=16, w=16))
-    assert b.extras["is_reference"].tolist() == [True, False]
+    assert b.color.is_reference.tolist() == [True, False]
     rgb = torch.full((2, 16, 16, 3), 0.5, requires_grad=True)
     out = {"rgb": rgb}
     ref = ReferenceL1(ReferenceL1.Config())(out, b, 0)
@@ -58,14 +58,29 @@ def test_hook_and_reference_vs_other_views():
     assert PseudoColor(PseudoColor.Config())({"rgb": rgb[:1]}, b_ref, 0) == 0
 
 
-def test_tcm_ccm_read_extras():
-    b = _batch([1], h=8, w=8)
+def test_tcm_ccm_read_the_colour_targets():
     feats = lambda x: [x.permute(0, 3, 1, 2)]
     target = torch.rand(1, 8, 8, 3)
-    b.extras = {"is_reference": torch.tensor([False]), "tcm_space": feats, "tcm_downscale": 1,
-                "tcm_guidance": [target.permute(0, 3, 1, 2)], "ccm_downscale": 4,
-                "ccm_target": torch.full((1, 2, 2, 3), 0.5), "ccm_valid": torch.ones(1, 2, 2, dtype=torch.bool)}
+    b = _batch([1], h=8, w=8, color=ColorTargets(
+        is_reference=torch.tensor([False]), reference=torch.zeros(1, 8, 8, 3), pseudo=torch.zeros(1, 8, 8, 3),
+        pseudo_valid=torch.zeros(1, 8, 8, dtype=torch.bool), tcm_space=feats, tcm_downscale=1,
+        tcm_guidance=[target.permute(0, 3, 1, 2)], ccm_downscale=4, ccm_target=torch.full((1, 2, 2, 3), 0.5),
+        ccm_valid=torch.ones(1, 2, 2, dtype=torch.bool)))
     assert float(TCM(TCM.Config())({"rgb": target * 3}, b, 0)) < 1e-6  # same direction: cos = 1
     assert float(TCM(TCM.Config())({"rgb": 1 - target}, b, 0)) > 0.01
     torch.testing.assert_close(CCM(CCM.Config())({"rgb": torch.full((1, 8, 8, 3), 0.7)}, b, 0),
                                torch.tensor(3 * 0.2**2))
+
+
+def test_stage2_losses_declare_their_targets_and_stay_out_of_stage1():
+    import pytest
+
+    from arcsem.errors import ConfigError
+    from arcsem.train.losses import build_losses
+
+    assert all(cls.needs == frozenset({"color"}) for cls in (ReferenceL1, PseudoColor, TCM, CCM))
+    with pytest.raises(ConfigError, match="train.losses.tcm: loss 'tcm' needs the batch's \\['color'\\] targets"):
+        build_losses({"tcm": {}}, {"rgb"})
+    assert "tcm" in build_losses({"tcm": {}}, {"rgb"}, batch_parts=frozenset({"color"})).terms
+    with pytest.raises(ConfigError, match="runs in stage 2"):
+        PseudoColor(PseudoColor.Config())({"rgb": torch.zeros(1, 4, 4, 3)}, _batch([0]), 0)

@@ -84,12 +84,14 @@ class NeedsNormal(Loss):
         return out["normal"].mean()
 
 
-@LOSSES.register("_extras_l1")
-class ExtrasL1(Loss):
-    """L1 against ``batch.extras['target']`` (stage-2 style targets)."""
+@LOSSES.register("_pseudo_l1")
+class PseudoL1(Loss):
+    """L1 against ``batch.color.pseudo`` (a stage-2 target the batch hook fills)."""
+
+    needs = frozenset({"color"})
 
     def forward(self, out, batch, step):
-        return (out["rgb"] - batch.extras["target"]).abs().mean()
+        return (out["rgb"] - batch.color.pseudo).abs().mean()
 
 
 def build(scene, name="_tiny_image", act=None, seed=0):
@@ -165,15 +167,19 @@ def test_view_sampler_visits_every_view_once_per_epoch():
     assert b.images.shape == (2, 16, 24, 3) and b.masks.shape == (2, 16, 24, 1) and len(b.cameras) == 2
 
 
-def test_batch_hook_fills_extras_and_color_stage_uses_its_groups():
+def test_batch_hook_fills_colour_targets_and_color_stage_uses_its_groups():
+    from arcsem.plugins import ColorTargets
+
     scene = tiny_scene()
     bb = build(scene)
     target = torch.full((1, 16, 24, 3), 0.25)
 
     def hook(batch):
-        batch.extras = {"target": target.expand(len(batch.cameras), -1, -1, -1)}
+        n = len(batch.cameras)
+        batch.color = ColorTargets(is_reference=torch.zeros(n, dtype=torch.bool), reference=target.expand(n, -1, -1, -1),
+                                   pseudo=target.expand(n, -1, -1, -1), pseudo_valid=torch.ones(n, 16, 24, dtype=torch.bool))
         return batch
-    losses = build_losses({"_extras_l1": {}}, bb.provides)
+    losses = build_losses({"_pseudo_l1": {}}, bb.provides, batch_parts=frozenset({"color"}))
     gain0 = bb.gain.detach().clone()
     train(bb, scene.train, losses, loop(150, stage="color"), batch_hook=hook)
     assert torch.equal(bb.gain, gain0)  # not in the colour stage's groups

@@ -23,21 +23,12 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from ..imageops import downscale, patch_means
 from .pseudocolor import cache_key
 
-__all__ = ["Guidance", "ccm_match", "ccm_targets", "downscale", "nearest_cosine", "patch_means", "tcm_match"]
+__all__ = ["Guidance", "ccm_match", "ccm_targets", "nearest_cosine", "tcm_match"]
 
 log = logging.getLogger(__name__)
-
-
-def downscale(images: Tensor, factor: int) -> Tensor:
-    """``[C, H, W, 3]`` -> ``[C, H//f, W//f, 3]`` (antialiased bilinear, differentiable); f=1: unchanged."""
-    if factor == 1:
-        return images
-    H, W = images.shape[1:3]
-    x = F.interpolate(images.permute(0, 3, 1, 2), size=(H // factor, W // factor), mode="bilinear",
-                      antialias=True, align_corners=False)
-    return x.permute(0, 2, 3, 1)
 
 
 def nearest_cosine(query: Tensor, keys: Tensor, chunk: int = 4096) -> tuple[Tensor, Tensor]:
@@ -80,11 +71,6 @@ def ccm_match(view_feat: Tensor, ref_gray_feat: Tensor, grid: tuple[int, int], c
     q = _pool_to(view_feat[None], grid)[0]
     idx, dist = nearest_cosine(q.reshape(q.shape[0], -1).T, _flat(_pool_to(ref_gray_feat, grid)), chunk)
     return idx.reshape(grid), dist.reshape(grid)
-
-
-def patch_means(images: Tensor, cell: int) -> Tensor:
-    """Mean colour of ``cell x cell`` patches: ``[C, H, W, 3]`` -> ``[C, H//cell, W//cell, 3]``."""
-    return F.avg_pool2d(images.permute(0, 3, 1, 2), cell).permute(0, 2, 3, 1)
 
 
 def ccm_targets(idx: Tensor, dist: Tensor, ref_means: Tensor, max_dist: float = 0.6, white: float = 0.99):

@@ -23,7 +23,7 @@ import torch
 import torch.nn.functional as F
 
 from ..errors import DataError
-from ..plugins import Batch
+from ..plugins import Batch, ColorTargets
 from ..registry import plain, validate_config
 from .config import ColorizeConfig
 from .guidance import Guidance
@@ -31,7 +31,7 @@ from .masks import specimen_masks
 from .pseudocolor import cached_pseudo_colors, pseudo_colors, pseudo_key
 from .references import References, load_references
 
-__all__ = ["ColorTargets", "check_stage1_model", "colorize_config", "colorize_losses", "find_stage1", "render_depths",
+__all__ = ["ColorTargetHook", "check_stage1_model", "colorize_config", "colorize_losses", "find_stage1", "render_depths",
            "run_stage2"]
 
 log = logging.getLogger(__name__)
@@ -46,7 +46,8 @@ def colorize_losses(cc: ColorizeConfig, backbone: Any):
     from ..train import build_losses
 
     terms = {k: v for k, v in (plain(cc.losses) or {}).items() if v is not None and float(v.get("weight", 1)) != 0}
-    return build_losses(terms, backbone.provides, backbone.batch_mode, where="colorize.losses", backbone=backbone.name)
+    return build_losses(terms, backbone.provides, backbone.batch_mode, where="colorize.losses", backbone=backbone.name,
+                        batch_parts=frozenset({"color"}))
 
 
 def check_stage1_model(cfg: Any, cc: ColorizeConfig, scene, run_dir: Path) -> Path:
@@ -108,8 +109,9 @@ def render_depths(backbone, split, alpha_min: float = 0.5) -> torch.Tensor:
     return torch.stack(out)
 
 
-class ColorTargets:
-    """The stage-2 ``batch_hook``: fills ``batch.extras`` from the cached pseudo-colours and guidance."""
+class ColorTargetHook:
+    """The stage-2 ``batch_hook``: gives each batch its :class:`~arcsem.plugins.ColorTargets` from the cached
+    pseudo-colours and guidance."""
 
     def __init__(self, refs: References, pseudo: torch.Tensor, valid: torch.Tensor, guidance: Guidance | None,
                  space=None, tcm_downscale: int = 4, ccm_downscale: int = 16):
@@ -123,17 +125,16 @@ class ColorTargets:
         is_ref = torch.tensor([i in self.ref_pos for i in idx], device=dev)
         ref = torch.stack([self.refs.images[self.ref_pos[i]] if i in self.ref_pos
                            else torch.zeros_like(self.refs.images[0]) for i in idx])
-        ex = dict(batch.extras or {})
-        ex.update(is_reference=is_ref, reference=ref.to(dev), pseudo=self.pseudo[idx].to(dev),
-                  pseudo_valid=self.valid[idx].to(dev), tcm_downscale=self.tcm_downscale,
-                  ccm_downscale=self.ccm_downscale, tcm_space=self.space)
+        targets = ColorTargets(is_reference=is_ref, reference=ref.to(dev), pseudo=self.pseudo[idx].to(dev),
+                               pseudo_valid=self.valid[idx].to(dev), tcm_space=self.space,
+                               tcm_downscale=self.tcm_downscale, ccm_downscale=self.ccm_downscale)
         if self.guidance is not None:
             t = [self.guidance.targets(i) for i in idx]
-            ex["tcm_guidance"] = [torch.stack([x["tcm_guidance"][b] for x in t]).to(dev)
-                                  for b in range(len(t[0]["tcm_guidance"]))]
-            ex["ccm_target"] = torch.stack([x["ccm_target"] for x in t]).to(dev)
-            ex["ccm_valid"] = torch.stack([x["ccm_valid"] for x in t]).to(dev)
-        return dataclasses.replace(batch, extras=ex)
+            targets.tcm_guidance = [torch.stack([x["tcm_guidance"][b] for x in t]).to(dev)
+                                    for b in range(len(t[0]["tcm_guidance"]))]
+            targets.ccm_target = torch.stack([x["ccm_target"] for x in t]).to(dev)
+            targets.ccm_valid = torch.stack([x["ccm_valid"] for x in t]).to(dev)
+        return dataclasses.replace(batch, color=targets)
 
 
 def _prepare_scene(scene, ckpt: Path, cc: ColorizeConfig):
@@ -224,7 +225,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     guidance, space, finfo = None, None, None
     if any(n in losses.terms for n in ("tcm", "ccm")):
         guidance, space, finfo = _guidance(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir)
-    hook = ColorTargets(refs, pseudo, valid, guidance, space, cc.tcm_downscale, cc.ccm_downscale)
+    hook = ColorTargetHook(refs, pseudo, valid, guidance, space, cc.tcm_downscale, cc.ccm_downscale)
     loop = LoopConfig(steps=cc.steps, stage="color", batch_views=cc.batch_views, log_every=cc.log_every,
                       checkpoint_every=cc.checkpoint_every, resume=cc.resume, seed=int(cfg.get("seed", 0)),
                       progress=cc.progress, desc=f"stage 2 ({backbone.name})")

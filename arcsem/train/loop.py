@@ -1,7 +1,7 @@
 """The generic training loop shared by stage 1 (grey geometry) and stage 2 (colour).
 
 One step: set the scheduled learning rates, draw a batch (whole views or random rays), let the
-stage's ``batch_hook`` add its targets to ``batch.extras``, render, sum the active loss terms, call
+stage's ``batch_hook`` add its targets (stage 2: ``batch.color``), render, sum the active loss terms, call
 ``backbone.pre_backward``, backpropagate, check gradients, call ``backbone.post_backward`` (densify,
 prune, upsample: it may replace tensors in ``optimizers[group]``), step every optimiser and check
 the parameters. Any non-finite loss term, gradient or parameter stops the run with a
@@ -223,7 +223,7 @@ def train(backbone: nn.Module, split: Split, losses: LossSet, loop: LoopConfig |
         ckpt_dir: where ``last.pt`` lives (None: no checkpoints, no resume).
         config: the config that determines the result; stored in checkpoints, compared on resume.
         act: ACT module optimised as group ``"act"`` with rate ``act_lr`` (None in stage 2).
-        batch_hook: ``batch -> batch`` run on every batch before rendering (stage-2 targets in ``extras``).
+        batch_hook: ``batch -> batch`` run on every batch before rendering (stage 2: ``batch.color``).
         evaluate: ``step -> metrics`` called every ``loop.eval_every`` steps.
         on_step: ``(completed_steps, record)`` after every step (tests, custom logging).
     Returns:

@@ -51,13 +51,16 @@ class LossSet(nn.Module):
 
 
 def build_losses(cfg: Mapping | None, provides: frozenset[str] | set[str], batch_mode: str = "image",
-                 where: str = "train.losses", backbone: str = "backbone", **runtime: Any) -> LossSet:
+                 where: str = "train.losses", backbone: str = "backbone", batch_parts: frozenset[str] = frozenset(),
+                 **runtime: Any) -> LossSet:
     """Build the loss plugins of ``cfg`` and check them against the backbone.
 
     Args:
         cfg: ``{name: {weight, start_step, plugin?, ...} | None}``.
         provides: the render outputs the backbone produces (``Backbone.provides``).
         batch_mode: ``"image"`` or ``"rays"`` (``Backbone.batch_mode``).
+        batch_parts: the optional :class:`~arcsem.plugins.Batch` parts the stage fills (``{"color"}`` in stage 2),
+            checked against each loss's ``needs``.
         runtime: passed to every plugin constructor (e.g. ``scene``).
     Raises:
         ConfigError: a term needs an output the backbone does not provide, or a batch mode it lacks.
@@ -85,6 +88,10 @@ def build_losses(cfg: Mapping | None, provides: frozenset[str] | set[str], batch
             raise ConfigError(
                 f"{where}.{name}: loss '{plugin}' works on {sorted(modes)} batches but backbone '{backbone}' "
                 f"trains on '{batch_mode}' batches; drop the term with {where}.{name}=null")
+        lacking = set(loss.needs) - set(batch_parts)
+        if lacking:
+            raise ConfigError(f"{where}.{name}: loss '{plugin}' needs the batch's {sorted(lacking)} targets, which "
+                              f"this stage does not give ('color': a stage-2 loss, for colorize.losses)")
         terms[name] = loss
     if not terms:
         raise ConfigError(f"{where}: no loss term with a non-zero weight")

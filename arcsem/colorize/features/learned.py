@@ -250,7 +250,7 @@ def learned_extractor(ctx: SceneContext, cfg: LearnedConfig | None = None) -> Le
         hit = _load(path, cfg)
         if hit is not None:
             return LearnedFeatures(hit[0], key, {**hit[1], "cache_hit": True})
-    from ..guidance import downscale
+    from ...imageops import downscale
 
     depths, masks = downscale_geometry(ctx.depths().float(), ctx.masks.bool(), f)
     gray = downscale(ctx.gray.float(), f)

@@ -42,14 +42,14 @@ def scene(n=8, w=256, h=192):
                  torch.tensor([[-1.0] * 3, [1.0] * 3]))
 
 
-def build(reso, occupancy, renderer="auto", next_reso=None):
+def build(reso, occupancy, rasterizer="auto", next_reso=None):
     from arcsem.backbones.plenoxels import Plenoxels
     from arcsem.backbones.plenoxels.grid import build_index
 
     from arcsem.registry import validate_config
 
     sc = scene()
-    cfg = validate_config(Plenoxels.Config, {"reso": [[4, 4, 4], reso] + ([next_reso] if next_reso else []), "renderer": renderer}, where="bench")
+    cfg = validate_config(Plenoxels.Config, {"reso": [[4, 4, 4], reso] + ([next_reso] if next_reso else []), "rasterizer": rasterizer}, where="bench")
     bb = Plenoxels(cfg, scene=sc)
     axes = [torch.linspace(-1, 1, r) for r in reso]
     X, Y, Z = torch.meshgrid(*axes, indexing="ij")

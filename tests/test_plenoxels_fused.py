@@ -63,7 +63,7 @@ def test_fused_kernel_gradcheck():
 def test_backbone_renderers_agree():
     _cpp_or_skip()
     scene = small_scene()
-    a, b = make(scene, renderer="torch"), make(scene, renderer="cpp")
+    a, b = make(scene, rasterizer="torch"), make(scene, rasterizer="cpp")
     with_ball(a, sigma=5.0)
     b.load_state_dict(a.state_dict())
     with torch.no_grad():
@@ -75,7 +75,7 @@ def test_backbone_renderers_agree():
 def test_fused_gradients_are_reproducible():
     _cpp_or_skip()
     scene = small_scene(w=40, h=30)
-    bb = make(scene, renderer="cpp")
+    bb = make(scene, rasterizer="cpp")
     with_ball(bb, sigma=5.0)
     o, d = scene.train.cameras.rays()
     grads = []

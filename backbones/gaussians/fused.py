@@ -13,16 +13,15 @@ the toolchain is missing, so ``rasterizer: auto`` falls back to PyTorch.
 """
 from __future__ import annotations
 
-import hashlib
-import os
-import warnings
-from functools import lru_cache
 from pathlib import Path
 
 import torch
 from torch import Tensor
 
+from arcsem import cext
+
 __all__ = [
+    "EXTENSION",
     "composite2d",
     "composite3d",
     "footprint_bin_2dgs",
@@ -34,55 +33,24 @@ __all__ = [
 ]
 
 CPP_DIR = Path(__file__).parent / "cpp"
-SOURCES = [CPP_DIR / name for name in ("composite3d.cpp", "composite2d.cpp", "binning.cpp", "project.cpp", "module.cpp")]
-CFLAGS = ["-O3", "-fopenmp"]
+EXTENSION = cext.Extension(
+    prefix="arcsem_fused_raster",
+    sources=tuple(CPP_DIR / n for n in ("composite3d.cpp", "composite2d.cpp", "binning.cpp", "project.cpp", "module.cpp")),
+    what="fused C++ Gaussian rasteriser",
+)
 
 
-def build_name() -> str:
-    """Extension name with a hash of the sources, headers, flags and source folder: every change (and every
-    checkout) builds into its own folder, so a stale build is never loaded and a running job's library is
-    never overwritten."""
-    h = hashlib.sha1(" ".join([*CFLAGS, str(CPP_DIR)]).encode())  # per checkout: ninja rebuilds on a path change
-    for f in sorted([*SOURCES, *CPP_DIR.glob("*.h")]):
-        h.update(f.name.encode() + f.read_bytes())
-    return f"arcsem_fused_raster_{h.hexdigest()[:12]}"
-
-
-@lru_cache(maxsize=1)
 def load_extension(verbose: bool = False):
-    """The compiled module, or None (with one warning) when it cannot be built or loaded."""
-    if os.environ.get("ARCSEM_NO_CPP"):
-        return None
-    try:
-        from torch.utils.cpp_extension import load
-
-        return load(
-            name=os.environ.get("ARCSEM_FUSED_BUILD_NAME") or build_name(),  # fixed name: incremental dev builds
-            sources=[str(s) for s in SOURCES],
-            extra_cflags=CFLAGS,
-            extra_ldflags=["-fopenmp"],
-            verbose=verbose,
-        )
-    except Exception as exc:  # noqa: BLE001 - no compiler, no headers, ...: fall back, say it once
-        warnings.warn(f"arcsem: fused C++ rasteriser unavailable ({type(exc).__name__}: {str(exc)[:200]}); "
-                      "using the PyTorch path (rasterizer=torch)", RuntimeWarning, stacklevel=2)
-        return None
+    """The compiled module, or None (with one warning) when it cannot be built (:func:`arcsem.cext.load`)."""
+    return cext.load(EXTENSION, verbose)
 
 
-def resolve_impl(impl: str) -> str:
-    """``auto`` -> ``cpp`` if the extension loads (CPU tensors), else ``torch``; ``cpp`` must load."""
-    if impl not in ("auto", "torch", "cpp"):
-        from arcsem.errors import ConfigError
+load_extension.cache_clear = cext.load.cache_clear  # tests simulate a missing toolchain
 
-        raise ConfigError(f"rasterizer: '{impl}' is not one of auto, torch, cpp")
-    if impl == "torch":
-        return "torch"
-    ok = load_extension() is not None
-    if impl == "cpp" and not ok:
-        from arcsem.errors import ConfigError
 
-        raise ConfigError("rasterizer: 'cpp' requested but the C++ extension could not be built (see warning)")
-    return "cpp" if ok else "torch"
+def resolve_impl(impl: str, device: str = "cpu") -> str:
+    """``rasterizer`` value ``auto|torch|cpp`` -> the path taken (:func:`arcsem.cext.resolve_impl`)."""
+    return cext.resolve_impl(impl, EXTENSION, device)
 
 
 def _grad(g: Tensor | None) -> Tensor:

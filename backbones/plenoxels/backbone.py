@@ -96,7 +96,7 @@ class Plenoxels(Backbone):
     def _render(self, rays_o: Tensor, rays_d: Tensor, image_ids: Tensor | None, **kw: Any) -> dict:
         c = self.cfg
         if "impl" not in kw:
-            kw["impl"] = resolve_impl(c.renderer, self.bounds.device)
+            kw["impl"] = resolve_impl(c.rasterizer, self.bounds.device)
         learned = c.learn_background
         out = render_grid(
             self.grid(), rays_o.to(self.bounds.dtype), rays_d.to(self.bounds.dtype), sh_degree=c.sh_degree,

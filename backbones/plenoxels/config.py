@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from arcsem.registry import checked
+
 __all__ = ["PlenoxelsConfig"]
 
 
@@ -67,5 +69,5 @@ class PlenoxelsConfig:
     """... reduced further so that at most this many rays are rendered (CPU budget; our choice)."""
     chunk: int = 8192
     """Rays per chunk when rendering whole images."""
-    renderer: str = "auto"
+    rasterizer: str = checked("auto", choices=("auto", "torch", "cpp"))
     """"cpp" (fused C++ CPU kernel), "torch" (PyTorch reference, any device), "auto" (cpp on CPU if it builds)."""

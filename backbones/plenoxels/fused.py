@@ -4,55 +4,36 @@
 no per-sample buffers; the backward marches again and scatters gradients into density, SH and the
 per-ray ACT transform. :func:`arcsem.backbones.plenoxels.render.render_grid` with ``impl="torch"``
 is the reference: tests/test_plenoxels.py compares values and gradients of both paths.
-``load_extension()`` compiles once (cached under ``$TORCH_EXTENSIONS_DIR``) and returns None with one
-warning when no toolchain is available, so ``impl="auto"`` falls back to PyTorch.
+``load_extension()`` compiles once through :mod:`arcsem.cext` (the project's one extension loader) and
+returns None with one warning when no toolchain is available, so ``rasterizer: auto`` falls back to PyTorch.
 """
 from __future__ import annotations
 
 import os
-import warnings
-from functools import lru_cache
 from pathlib import Path
 
 import torch
 from torch import Tensor
 
-__all__ = ["load_extension", "march", "resolve_impl"]
+from arcsem import cext
 
-SOURCE = Path(__file__).parent / "cpp" / "render.cpp"
+__all__ = ["EXTENSION", "load_extension", "march", "resolve_impl"]
+
+EXTENSION = cext.Extension(prefix="arcsem_plenoxels_fused", sources=(Path(__file__).parent / "cpp" / "render.cpp",),
+                           what="fused C++ Plenoxels ray marcher")
 # The backward gives each extra thread a private gradient buffer (no atomic adds) while they total at most
 # this many bytes; larger grids or more threads fall back to atomic adds into one buffer.
 PRIVATE_GRAD_BYTES = float(os.environ.get("ARCSEM_PLX_PRIVATE_GRAD_BYTES", str(1 << 30)))
 
 
-@lru_cache(maxsize=1)
 def load_extension(verbose: bool = False):
-    """The compiled module, or None (with one warning) when it cannot be built or loaded."""
-    if os.environ.get("ARCSEM_NO_CPP"):
-        return None
-    try:
-        from torch.utils.cpp_extension import load
-
-        return load(name="arcsem_plenoxels_fused", sources=[str(SOURCE)], extra_cflags=["-O3", "-fopenmp"],
-                    extra_ldflags=["-fopenmp"], verbose=verbose)
-    except Exception as exc:  # noqa: BLE001  (no compiler or headers: fall back, say it once)
-        warnings.warn(f"arcsem: fused C++ Plenoxels renderer unavailable ({type(exc).__name__}: {str(exc)[:200]}); "
-                      "using the PyTorch path (renderer=torch)", RuntimeWarning, stacklevel=2)
-        return None
+    """The compiled module, or None (with one warning) when it cannot be built (:func:`arcsem.cext.load`)."""
+    return cext.load(EXTENSION, verbose)
 
 
-def resolve_impl(impl: str, device: torch.device) -> str:
-    """``auto`` -> ``cpp`` on CPU tensors when the extension loads, else ``torch``; ``cpp`` must load."""
-    from arcsem.errors import ConfigError
-
-    if impl not in ("auto", "torch", "cpp"):
-        raise ConfigError(f"backbone 'plenoxels': renderer '{impl}' is not one of auto, torch, cpp")
-    if impl == "torch" or (impl == "auto" and device.type != "cpu"):
-        return "torch"
-    ok = device.type == "cpu" and load_extension() is not None
-    if impl == "cpp" and not ok:
-        raise ConfigError("backbone 'plenoxels': renderer 'cpp' needs CPU tensors and a C++ toolchain (see warning)")
-    return "cpp" if ok else "torch"
+def resolve_impl(impl: str, device: torch.device | str = "cpu") -> str:
+    """``rasterizer`` value ``auto|torch|cpp`` -> the path taken (:func:`arcsem.cext.resolve_impl`)."""
+    return cext.resolve_impl(impl, EXTENSION, str(device))
 
 
 class _March(torch.autograd.Function):

@@ -1,0 +1,87 @@
+"""C++ extensions: one loader and one ``rasterizer`` choice for every fused CPU kernel of the project.
+
+A backbone with fused kernels names its sources once (:class:`Extension`); :func:`load` compiles them as a
+PyTorch JIT extension the first time (about a minute with gcc; cached under ``$TORCH_EXTENSIONS_DIR`` or
+``~/.cache/torch_extensions``) and returns None with one warning when no toolchain is available, so
+``rasterizer: auto`` falls back to the PyTorch reference path. :func:`resolve_impl` turns the config value
+``auto|torch|cpp`` into the path a render takes.
+
+The build folder's name carries a hash of the sources, the headers beside them, the flags and the source
+folder: every change (and every checkout) builds into its own folder, so a stale build is never loaded and a
+running job's library is never overwritten. ``ARCSEM_NO_CPP=1`` disables every extension (the PyTorch path
+is used); ``ARCSEM_CPP_BUILD_NAME`` fixes the name (incremental builds while editing a kernel).
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import warnings
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+__all__ = ["CHOICES", "Extension", "build_name", "load", "resolve_impl"]
+
+CHOICES = ("auto", "torch", "cpp")
+
+
+@dataclass(frozen=True)
+class Extension:
+    """What to build: ``prefix`` (e.g. ``arcsem_gaussians``), the ``.cpp`` files, and what it is for messages."""
+
+    prefix: str
+    sources: tuple[Path, ...]
+    what: str
+    cflags: tuple[str, ...] = field(default=("-O3", "-fopenmp"))
+    ldflags: tuple[str, ...] = field(default=("-fopenmp",))
+
+
+def build_name(ext: Extension) -> str:
+    """``<prefix>_<12 hex>``: a hash of the flags, the source folder, the sources and the headers beside them."""
+    folders = sorted({s.parent for s in ext.sources})
+    h = hashlib.sha1(" ".join([*ext.cflags, *ext.ldflags, *map(str, folders)]).encode())
+    headers = [p for d in folders for p in d.glob("*.h")]
+    for f in sorted({*ext.sources, *headers}):
+        h.update(f.name.encode() + f.read_bytes())
+    return f"{ext.prefix}_{h.hexdigest()[:12]}"
+
+
+@lru_cache(maxsize=None)
+def load(ext: Extension, verbose: bool = False):
+    """The compiled module, or None (with one warning naming ``ext.what``) when it cannot be built or loaded."""
+    if os.environ.get("ARCSEM_NO_CPP"):
+        return None
+    try:
+        from torch.utils.cpp_extension import load as jit_load
+
+        return jit_load(
+            name=os.environ.get("ARCSEM_CPP_BUILD_NAME") or build_name(ext),
+            sources=[str(s) for s in ext.sources],
+            extra_cflags=list(ext.cflags),
+            extra_ldflags=list(ext.ldflags),
+            verbose=verbose,
+        )
+    except Exception as exc:  # noqa: BLE001 - no compiler, no headers, ...: fall back, say it once
+        warnings.warn(f"arcsem: {ext.what} unavailable ({type(exc).__name__}: {str(exc)[:200]}); "
+                      "using the PyTorch path (rasterizer=torch)", RuntimeWarning, stacklevel=2)
+        return None
+
+
+def resolve_impl(impl: str, ext: Extension, device: str = "cpu") -> str:
+    """``rasterizer`` config value -> ``"cpp"`` or ``"torch"``.
+
+    ``auto``: ``cpp`` for CPU tensors when the extension loads, else ``torch``; ``torch``: always the PyTorch
+    path (any device); ``cpp``: must load and the tensors must be on the CPU (else a ConfigError).
+    """
+    from arcsem.errors import ConfigError
+
+    if impl not in CHOICES:
+        raise ConfigError(f"rasterizer: '{impl}' is not one of {', '.join(CHOICES)}")
+    on_cpu = str(device).split(":")[0] == "cpu"
+    if impl == "torch" or (impl == "auto" and not on_cpu):
+        return "torch"
+    ok = on_cpu and load(ext) is not None
+    if impl == "cpp" and not ok:
+        why = "tensors on the CPU" if not on_cpu else "a C++ toolchain (see the warning above)"
+        raise ConfigError(f"rasterizer: 'cpp' ({ext.what}) needs {why}; use rasterizer=torch or auto")
+    return "cpp" if ok else "torch"

@@ -17,7 +17,7 @@ import hashlib
 import os
 import warnings
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 __all__ = ["CHOICES", "Extension", "build_name", "load", "resolve_impl"]
@@ -46,7 +46,7 @@ def build_name(ext: Extension) -> str:
     return f"{ext.prefix}_{h.hexdigest()[:12]}"
 
 
-@lru_cache(maxsize=None)
+@cache
 def load(ext: Extension, verbose: bool = False):
     """The compiled module, or None (with one warning naming ``ext.what``) when it cannot be built or loaded."""
     if os.environ.get("ARCSEM_NO_CPP"):

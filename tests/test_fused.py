@@ -221,7 +221,7 @@ def test_unavailable_extension_falls_back_with_one_warning(monkeypatch):
         with warnings.catch_warnings(record=True) as rec:
             warnings.simplefilter("always")
             impls = [fused.resolve_impl("auto"), fused.resolve_impl("auto")]
-            with pytest.raises(ConfigError, match="needs a C\+\+ toolchain"):
+            with pytest.raises(ConfigError, match=r"needs a C\+\+ toolchain"):
                 fused.resolve_impl("cpp")
         assert impls == ["torch", "torch"]
         msgs = [str(w.message) for w in rec if issubclass(w.category, RuntimeWarning)]

@@ -25,6 +25,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--no-substrate", action="store_true", help="render the grain without the substrate plane")
     ap.add_argument("--supersample", type=int, default=P.supersample, help="s x s samples on silhouette pixels (1 = off)")
     ap.add_argument("--noise", type=float, default=P.noise, help="Gaussian scan noise of the training images")
+    ap.add_argument("--specimen", choices=("grain", "diatom"), default=P.specimen)
+    ap.add_argument("--texture", type=float, default=P.texture,
+                    help="surface texture amplitude on specimen and substrate (0 = none; 0.3 = SEM-like)")
     ap.add_argument("--force", action="store_true", help="with --out: regenerate even if the folder is complete")
     ap.add_argument("--debug", action="store_true", help="show tracebacks")
     return ap
@@ -38,12 +41,13 @@ def main(argv: list[str] | None = None) -> int:
 
     params = {"seed": args.seed, "width": args.width, "height": args.height, "camera": args.camera,
                   "n_horizontal": args.n_horizontal, "n_vertical": args.n_vertical, "substrate": not args.no_substrate,
-                  "supersample": args.supersample, "noise": args.noise}
+                  "supersample": args.supersample, "noise": args.noise,
+              "specimen": args.specimen, "texture": args.texture}
     t0 = time.perf_counter()
 
     def make() -> int:
-        if args.n_horizontal < 3 or args.n_vertical < 3 or args.supersample < 1:
-            raise ConfigError("--n-horizontal/--n-vertical must be >= 3 and --supersample >= 1")
+        if args.n_horizontal < 3 or args.n_vertical < 3 or args.supersample < 1 or not 0 <= args.texture < 1:
+            raise ConfigError("--n-horizontal/--n-vertical must be >= 3, --supersample >= 1, 0 <= --texture < 1")
         if args.out is not None and args.force:
             path = generate_scene(args.out, **params)
             (path.parent / ".complete").write_text("{}")

@@ -17,6 +17,7 @@ from ..cameras import Cameras
 from .albedo import BACKGROUND_RGB, SUBSTRATE_ALBEDO, colorize
 from .sdf import Grain  # or any specimen with the same attributes (e.g. diatom.Diatom)
 from .shading import DETECTOR_CAM, ShadingConfig, detector_shadow, ellipsoid_shadow, sem_grey
+from .texture import texture_gain
 from .trace import ray_sphere, sdf_gradient, sphere_trace
 
 __all__ = ["RenderConfig", "ViewImages", "cast", "cast_and_shade", "render_views", "view_rays"]
@@ -33,6 +34,9 @@ class RenderConfig:
     max_steps: int = 64
     tol: float = 1e-4             # |SDF| at accepted hits, in units of the grain size
     chunk: int = 1 << 20          # rays per chunk (bounds memory at any resolution)
+    texture: float = 0.0          # surface texture amplitude (arcsem.synthetic.texture; 0 = none)
+    texture_scale: float = 0.05   # its coarsest lattice spacing, in units of the specimen's size
+    texture_seed: int = 0
     shading: ShadingConfig = field(default_factory=ShadingConfig)
 
 
@@ -116,6 +120,9 @@ def shade(g: Grain, kind: Tensor, pts: Tensor, u: Tensor, det: Tensor, cfg: Rend
             gain = cfg.shading.substrate_gain
         vis = detector_shadow(g.sdf, p, nrm, dd) if cls == GRAIN else ellipsoid_shadow(p, dd, g.radii)
         gr = gain * sem_grey(nrm, uu, dd, lap, vis, cfg.shading)
+        if cfg.texture:
+            tex = texture_gain(pts[idx], cfg.texture, cfg.texture_scale * g.size, cfg.texture_seed + cls)
+            gr = (gr * tex).clamp(0, 1)
         grey[idx] = gr
         color[idx] = colorize(albedo, gr)
     return {"grey": grey, "color": color, "normal": normal}

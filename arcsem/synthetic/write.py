@@ -50,6 +50,8 @@ class SceneParams:
     n_spines: int = 30
     test_every: int = 4           # one test view in every 4th gap of each arc
     specimen: str = "grain"       # "grain" (the built-in pollen grain) | "diatom" (arcsem.synthetic.diatom)
+    texture: float = 0.0          # amplitude of a surface texture on specimen and substrate (0 = none; 0.3 = SEM-like)
+    texture_scale: float = 0.05   # its coarsest lattice spacing, in units of the specimen's size (3 octaves finer)
 
     @classmethod
     def from_transforms(cls, meta: dict) -> SceneParams:
@@ -64,10 +66,13 @@ SPECIMENS = ("grain", "diatom")
 
 def params_record(p: SceneParams) -> dict:
     """The parameters as recorded (cache key, ``transforms.json``, README): ``specimen`` only when it is not
-    the grain, so the built-in scene's files and cache folder stay what they were before specimens existed."""
+    the grain and the texture only when there is one, so the built-in scene's files and cache folder stay what
+    they were before specimens and textures existed."""
     d = asdict(p)
     if d["specimen"] == "grain":
         del d["specimen"]
+    if d["texture"] == 0:  # the untextured scenes keep their files and cache folders
+        del d["texture"], d["texture_scale"]
     return d
 
 
@@ -117,7 +122,8 @@ def generate_scene(out_dir, *, progress: bool | None = None, **params) -> Path:
         (out / sub).mkdir(parents=True, exist_ok=True)
     views = arc_views(p.n_horizontal, p.n_vertical, p.test_every)
     cams, distance = arc_cameras(views, p.width, p.height, p.camera)
-    cfg = RenderConfig(supersample=p.supersample, substrate=p.substrate)
+    cfg = RenderConfig(supersample=p.supersample, substrate=p.substrate, texture=p.texture,
+                       texture_scale=p.texture_scale, texture_seed=p.seed)
     refs = reference_sets(views)
     n_train = sum(v.split == "train" for v in views)
     # views are rendered in groups of at most cfg.chunk pixels and written at once: memory stays

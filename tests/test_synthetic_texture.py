@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import torch
+
 from arcsem.synthetic import SceneParams
 from arcsem.synthetic.cache import scene_key
 from arcsem.synthetic.texture import texture_gain, value_noise

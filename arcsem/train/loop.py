@@ -101,11 +101,13 @@ def _groups(backbone: nn.Module, act: nn.Module | None, stage: str) -> dict[str,
 
 
 def _check_finite(run: _Run, step: int, what: str, named: Mapping[str, Any], kind: str) -> None:
+    """Stop on a non-finite tensor of ``named``; ``step`` is 0-based, messages count steps from 1 (as the history,
+    the progress bar and checkpoints do)."""
     for name, value in named.items():
         tensors = value if isinstance(value, (list, tuple)) else [value]
         for t in tensors:
             if t is not None and not bool(torch.isfinite(t).all()):
-                raise TrainingError(f"step {step}: {kind} '{name}' is not finite ({what}); training stopped, "
+                raise TrainingError(f"step {step + 1}: {kind} '{name}' is not finite ({what}); training stopped, "
                                     f"{run.on_disk()}")
 
 

@@ -21,29 +21,22 @@ def _nan_gradient_from(bb, step_from: int):
     bb.logits.register_hook(hook)
 
 
-def test_non_finite_gradient_at_step_1_says_no_checkpoint_exists(tmp_path):
+@pytest.mark.parametrize("nan_from,on_disk", [
+    (1, "no checkpoint has been written yet ({ckpt} does not exist)"),  # not "the last good one": none exists
+    (13, "the checkpoint on disk is from step 10 ({ckpt})"),
+])
+def test_non_finite_gradient_names_the_step_and_what_is_on_disk(tmp_path, nan_from, on_disk):
     scene = tiny_scene()
     bb = build(scene)
-    _nan_gradient_from(bb, 1)
+    _nan_gradient_from(bb, nan_from)
+    ckpt = tmp_path / "ckpt" / "last.pt"
     with pytest.raises(TrainingError) as info:
         train(bb, scene.train, build_losses(L1_DSSIM, bb.provides), loop(20, checkpoint_every=5),
               ckpt_dir=tmp_path / "ckpt")
     msg = str(info.value)
-    assert msg.startswith("step 1: gradient of group 'image' is not finite"), msg
-    assert "no checkpoint has been written yet" in msg and "last good" not in msg, msg
-    assert not (tmp_path / "ckpt" / "last.pt").exists()
-
-
-def test_non_finite_gradient_later_names_the_checkpoint_on_disk(tmp_path):
-    scene = tiny_scene()
-    bb = build(scene)
-    _nan_gradient_from(bb, 13)
-    with pytest.raises(TrainingError) as info:
-        train(bb, scene.train, build_losses(L1_DSSIM, bb.provides), loop(20, checkpoint_every=5),
-              ckpt_dir=tmp_path / "ckpt")
-    msg = str(info.value)
-    assert msg.startswith("step 13: gradient of group 'image'"), msg
-    assert f"the checkpoint on disk is from step 10 ({tmp_path / 'ckpt' / 'last.pt'})" in msg, msg
+    assert msg.startswith(f"step {nan_from}: gradient of group 'image' is not finite"), msg
+    assert msg.endswith(on_disk.format(ckpt=ckpt)), msg
+    assert ckpt.exists() == (nan_from > 5)
 
 
 def test_non_finite_loss_term_is_named():

@@ -176,11 +176,13 @@ def _run_stages(cfg: DictConfig, scene: Any, run_dir: Path, stages: tuple[str, .
         _write_metrics(run_dir, metrics, t_start)
 
 
-def run(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
+def run(cfg: DictConfig, run_dir: str | Path | None = None, overrides: list[str] | None = None) -> dict:
     """Run ``cfg.stage`` and write ``config.yaml`` and ``metrics.json`` (after every stage) into the run directory.
 
-    The whole config is validated first (:func:`arcsem.preflight.check_config`), the run folder is locked,
-    and while the stages run no file outside the run folder and the cache is written (:mod:`arcsem.guard`).
+    ``overrides``: the command line (default: Hydra's task overrides, where Hydra runs the job); recorded in
+    ``metrics.json`` and checked. The whole config is validated first (:func:`arcsem.preflight.check_config`),
+    the run folder is locked, and while the stages run no file outside the run folder and the cache is written
+    (:mod:`arcsem.guard`).
     """
     from .data import load_scene
     from .guard import allowed_roots, protect
@@ -190,10 +192,11 @@ def run(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
 
     t_start = time.perf_counter()
     stage = str(cfg.stage)
-    check_config(cfg, stage)
+    if overrides is None:
+        _, overrides = _hydra_info()
+    check_config(cfg, stage, overrides)
     run_dir = Path(run_dir) if run_dir is not None else run_directory(cfg)
     with run_folder_lock(run_dir):
-        _, overrides = _hydra_info()
         write_text_atomic(run_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
         seed_everything(int(cfg.seed))
         set_threads(cfg.get("threads"))

@@ -17,7 +17,7 @@ from typing import Any
 
 from .errors import ConfigError, DataError, PluginError
 
-__all__ = ["MIN_IMAGE_SIZE", "STAGE_PLAN", "check_config", "check_device", "check_scene"]
+__all__ = ["MIN_IMAGE_SIZE", "STAGE_PLAN", "check_config", "check_device", "check_flag_overrides", "check_scene"]
 
 STAGE_PLAN = {"gray": ("gray",), "color": ("color",), "all": ("gray", "color"), "check": ("gray", "color"),
               "render": ("render",)}
@@ -107,10 +107,28 @@ def _check_features(cc: Any) -> None:
                           "use tcm_space=color (or auto)")
 
 
-def check_config(cfg: Any, stage: str) -> None:
-    """Validate the config of every stage ``stage`` runs (see the module docstring); reads no data."""
+def check_flag_overrides(cfg: Any, overrides: list[str]) -> None:
+    """A command-line value for a true/false key must read as a boolean.
+
+    The Hydra schemas convert ``train.progress=-7`` to ``True`` (OmegaConf reads any non-zero number as true)
+    before a dataclass sees it, so the raw overrides are checked against the composed config's types.
+    """
+    from omegaconf import OmegaConf
+
+    for item in overrides:
+        key, sep, value = item.lstrip("+~").partition("=")
+        if not sep or not isinstance(OmegaConf.select(cfg, key, default=None), bool):
+            continue
+        if value.strip().lower() not in ("true", "false"):
+            raise ConfigError(f"{key}: must be true or false, got {value!r}")
+
+
+def check_config(cfg: Any, stage: str, overrides: list[str] | None = None) -> None:
+    """Validate the config of every stage ``stage`` runs (see the module docstring); reads no data.
+    ``overrides``: the command line's (Hydra's task overrides), checked by :func:`check_flag_overrides`."""
     from .app import STAGES
 
+    check_flag_overrides(cfg, overrides or [])
     if stage not in STAGES:
         raise ConfigError(f"stage: unknown stage '{stage}'; available: {', '.join(STAGES)}")
     _check_top_level(cfg)

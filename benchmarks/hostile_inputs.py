@@ -30,10 +30,7 @@ def config_cases() -> list[tuple[str, list[str]]]:
     """``(name, overrides)``: each field of the validated config dataclasses, a string and -7."""
     from arcsem.backbones.gs2d.backbone import GS2DBackbone
 
-    from arcsem.act import ActConfig
-    from arcsem.colorize.config import ColorizeConfig
-    from arcsem.data.build import ReaderOptions
-    from arcsem.train.stage1 import EvalConfig, TrainConfig
+    from arcsem.configs import ActConfig, ColorizeConfig, EvalConfig, ReaderOptions, TrainConfig
 
     groups = {"train": TrainConfig, "train.eval": EvalConfig, "colorize": ColorizeConfig, "act": ActConfig,
               "dataset": ReaderOptions, "backbone": GS2DBackbone.Config}
@@ -102,9 +99,8 @@ def run_case(tmp: Path, name: str, overrides: list[str], edit=None) -> dict:
         try:
             with initialize_config_module("arcsem.conf", version_base="1.3"):
                 def call():
-                    cfg = compose("config", overrides=["dataset=transforms", f"dataset.path={case / 'scene'}",
-                                                       "stage=check", *overrides])
-                    return app.run(cfg, run_dir=case / "run")
+                    line = ["dataset=transforms", f"dataset.path={case / 'scene'}", "stage=check", *overrides]
+                    return app.run(compose("config", overrides=line), run_dir=case / "run", overrides=line)
                 code = call_reporting_errors(call)
             lines = [ln for ln in err.getvalue().splitlines() if ln.startswith("error:")]
             if code == 2:

@@ -57,6 +57,8 @@ CONFIG_CASES = {
                                  "all", ["colorize.tcm_space=features: 'daisy' features cannot be computed"]),
     "stage=paint": (None, ["stage=paint"], None, ["stage: unknown stage 'paint'"]),
     "threads=0": (None, ["threads=0"], "check", ["threads: expected a positive integer or null, got 0"]),
+    "flag -7": (None, ["train.eval.video=-7"], "check", ["train.eval.video: must be true or false, got '-7'"]),
+    "backbone flag 1": (None, ["backbone.densify=1"], "check", ["backbone.densify: must be true or false, got '1'"]),
 }
 
 

@@ -1,10 +1,8 @@
 """Training views scored as the paper's Table 1 did: each view's own ACT against the observed image.
 
-On the built-in scene the tables score every view against its noise-free, drift-free image with the
-mean ACT (``arcsem.train.evaluate``): that is the fair test of what the scene learned. The paper had
-no such images and scored its training views with their own ACT against the captured images, which
-is where ACT's per-view transforms show directly (its Table 1: 2DGS 35.25 dB, 2DGS + ACT 36.32 dB).
-This script re-scores stage-1 runs that way and, when runs of two rows share seeds, pairs them.
+Runs made since the trainer records both protocols carry this score as ``stage1.train_paper`` in
+``metrics.json`` (and the grayscale table shows it); this script re-scores older stage-1 runs the same way
+(``evaluate_split(..., protocol="paper")``) and, when runs of two rows share seeds, pairs them.
 
 Usage (run folders with ``config.yaml`` and ``stage1/checkpoints/last.pt``; the dataset must be
 readable, e.g. the same ``ARCSEM_CACHE`` as the runs)::
@@ -14,7 +12,6 @@ readable, e.g. the same ``ARCSEM_CACHE`` as the runs)::
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from pathlib import Path
 
@@ -35,8 +32,7 @@ def observed_scores(run: Path) -> dict[str, float]:
     scene = load_scene(cfg.dataset)
     backbone, _ = load_stage1(run / "stage1" / "checkpoints" / "last.pt", scene, cfg)
     train = prepare_scene(scene, train_config(cfg)).train
-    _, mean, _ = evaluate_split(backbone, dataclasses.replace(train, clean=None), split_name="train",
-                                with_lpips=False)
+    _, mean, _ = evaluate_split(backbone, train, split_name="train_paper", with_lpips=False, protocol="paper")
     return {"psnr": mean["psnr"], "ssim": mean["ssim"]}
 
 

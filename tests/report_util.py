@@ -43,7 +43,9 @@ def _sweep(root: Path, experiment: str, key: str, values: list[str]) -> Path:
 
 
 def _stage1(psnr, ssim, lpips, tpsnr, pct, lpips_note="/root/.cache/torch/hub/checkpoints/alexnet-owt-7be5be79.pth"):
-    return {"stage1": {"train": {"psnr": psnr, "ssim": ssim, "lpips": lpips},
+    return {"stage1": {"train_paper": {"psnr": psnr, "ssim": ssim, "lpips": lpips},
+                       # the mean-ACT / clean-image score of the training views: a decoy the tables must not show
+                       "train": {"psnr": psnr + 50, "ssim": ssim / 2, "lpips": 9.0},
                        "test": {"psnr": tpsnr, "ssim": ssim - 0.01, "lpips": lpips + 0.01},
                        # the trainer's keys; median_abs_pct (the older name) is a decoy the table must not use
                        "depth": {"test_mae": pct / 100, "test_mae_pct": pct, "median_abs_pct": 99.0},

@@ -74,7 +74,7 @@ def test_collect_flattens_and_lists_missing(gray_sweep):
     assert sorted(df["row"]) == ["gs2d", "gs3d", "plenoxels"]
     assert set(df["study"]) == {"grayscale_comparison"}
     row = df[df["row"] == "gs3d"].iloc[0]
-    assert row["stage1.train.psnr"] == 33.5 and row["stage1.depth.test_mae_pct"] == 1.5
+    assert row["stage1.train_paper.psnr"] == 33.5 and row["stage1.train.psnr"] == 83.5 and row["stage1.depth.test_mae_pct"] == 1.5
     assert row["git"] == "abc123" and row["variant"] == "gs3d"
     assert len(coll.missing) == 1
     miss = coll.missing[0]
@@ -99,7 +99,7 @@ def test_grayscale_table_bold_paper_and_missing(gray_sweep, tmp_path):
     tex = to_latex(t)
     assert r"\toprule" in tex and r"\midrule" in tex and r"\bottomrule" in tex
     assert r"\textbf{33.50}" in tex and r"\textbf{0.400}" in tex and r"\textbf{30.00}" not in tex
-    assert r"\multicolumn{3}{c}{train views}" in tex and r"2DGS + ACT & missing" in tex
+    assert r"\multicolumn{3}{c}{train views: own ACT, observed images (Table 1 protocol)}" in tex and r"2DGS + ACT & missing" in tex
     assert "grayscale\\_comparison" in tex  # escaped underscore in the caption
 
 
@@ -187,7 +187,7 @@ def test_single_run_in_app_layout(tmp_path):
     run.mkdir(parents=True)
     (run / "config.yaml").write_text(yaml.safe_dump({"seed": 3, "dataset": {"path": str(tmp_path / "ds")}}))
     metrics = {"seed": 3, "git_revision": "f00", "overrides": ["experiment=grayscale_comparison", "+variant=gs3d"],
-               "stages": {"gray": {"train": {"psnr": 31.0, "ssim": 0.8, "lpips": 0.3}}}}
+               "stages": {"gray": {"train_paper": {"psnr": 31.0, "ssim": 0.8, "lpips": 0.3}}}}
     (run / "metrics.json").write_text(json.dumps(metrics))
     _png(run / "renders/test/v1.png", 50)
     _png(tmp_path / "ds" / "test" / "v1.png", 250)  # ground truth found in the dataset folder
@@ -195,7 +195,7 @@ def test_single_run_in_app_layout(tmp_path):
     coll = collect([run])
     rec = coll.runs.iloc[0]
     assert (rec["study"], rec["row"], rec["git"], rec["seed"]) == ("grayscale_comparison", "gs3d", "f00", 3)
-    assert rec["stage1.train.psnr"] == 31.0 and coll.missing == []
+    assert rec["stage1.train_paper.psnr"] == 31.0 and coll.missing == []
     page = build_report([run])
     assert page == run / "report" / "index.html"
     build_report([run])  # again: the report's own video copy is not collected a second time

@@ -1,10 +1,11 @@
 """Evaluation of a trained scene: image metrics, depth error, renders, per-view CSV, turntable video.
 
-Protocol: training views are rendered with their own ACT and scored against the observed image (the
-paper's Table 1 protocol), held-out views with the mean ACT (their cameras carry ``image_id = -1``).
-Where the dataset has noise-free images (``split.clean``, the synthetic scene), every view is scored
-against them and rendered with the mean ACT: a noise-free image has no per-image exposure drift,
-so a view's own transform (fitted to its drift) would be scored for reproducing it. With masks, masked
+Protocols (:data:`PROTOCOLS`): ``paper`` renders each view with its own ACT and scores it against the
+observed image (the paper's Table 1 protocol, for training views; held-out cameras carry ``image_id = -1``
+and so get the mean ACT); ``clean`` renders with the mean ACT and scores against the noise-free image
+(``split.clean``, the synthetic scenes): a noise-free image has no per-image exposure drift, so a view's own
+transform (fitted to its drift) would be scored for reproducing it. ``auto`` is ``clean`` where the split
+has noise-free images, else ``paper``. With masks, masked
 variants (``psnr_masked`` ...) are added. With ground-truth depth, the median absolute depth error
 over the pixels inside the GT mask (``depth > 0`` and the specimen mask) is reported, also as a
 percentage of ``length_scale`` (``scene.scale``: the specimen's diameter where the dataset states
@@ -29,10 +30,26 @@ from torch import nn
 
 from ..scene import Split
 
-__all__ = ["depth_display", "depth_error", "evaluate_split", "mean_metrics", "render_view", "to_uint8",
-           "write_views_csv"]
+__all__ = ["PROTOCOLS", "depth_display", "depth_error", "evaluate_split", "mean_metrics", "render_view",
+           "resolve_protocol", "to_uint8", "write_views_csv"]
 
 METRICS = ("psnr", "ssim", "lpips")
+PROTOCOLS = {
+    "paper": "each view with its own ACT (held-out views: the mean ACT), against the observed image",
+    "clean": "the mean ACT, against the noise-free image",
+}
+"""What each evaluation protocol does (recorded in ``metrics.json`` beside the numbers)."""
+
+
+def resolve_protocol(split: Split, protocol: str) -> str:
+    """``auto`` -> ``clean`` where ``split`` has noise-free images, else ``paper``; checks the choice."""
+    if protocol == "auto":
+        return "clean" if split.clean is not None else "paper"
+    if protocol not in PROTOCOLS:
+        raise ValueError(f"evaluation protocol must be auto, {', '.join(PROTOCOLS)}; got {protocol!r}")
+    if protocol == "clean" and split.clean is None:
+        raise ValueError("evaluation protocol 'clean' needs noise-free images (split.clean)")
+    return protocol
 DEPTH_SPAN = 0.5
 """Depth images span ``0 .. DEPTH_SPAN x length_scale`` below the nearest ground-truth point (half the
 specimen's diameter: the depth of the hemisphere a view sees)."""
@@ -51,11 +68,11 @@ def depth_error(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None)
     return (pred[valid].double() - gt[valid].double()).abs()
 
 
-def render_view(backbone: nn.Module, split: Split, i: int) -> dict[str, torch.Tensor]:
-    """Image outputs (``[H, W, k]`` each) of view ``i`` as it is scored: with the mean ACT against a
-    noise-free image, else with the view's own ACT (see the module docstring)."""
+def render_view(backbone: nn.Module, split: Split, i: int, protocol: str = "auto") -> dict[str, torch.Tensor]:
+    """Image outputs (``[H, W, k]`` each) of view ``i`` as ``protocol`` scores it: ``clean``, the mean ACT;
+    ``paper``, the view's own ACT (see the module docstring)."""
     cams = split.cameras[i : i + 1]
-    if split.clean is not None:  # scored against a drift-free image: the mean ACT (see the module docstring)
+    if resolve_protocol(split, protocol) == "clean":  # a drift-free target: the mean ACT
         cams = dataclasses.replace(cams, image_ids=torch.full_like(cams.image_ids, -1))
     with torch.no_grad():
         out = backbone.render(cams)
@@ -74,8 +91,9 @@ def _image_row(pred, gt, mask, with_lpips: bool) -> dict[str, Any]:
 
 def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test", length_scale: float = 1.0,
                    out_dir: str | Path | None = None, with_lpips: bool = True, max_views: int | None = None,
-                   ) -> tuple[list[dict[str, Any]], dict[str, Any], list[torch.Tensor]]:
-    """Render and score every view of ``split`` (up to ``max_views``, evenly spaced).
+                   protocol: str = "auto") -> tuple[list[dict[str, Any]], dict[str, Any], list[torch.Tensor]]:
+    """Render and score every view of ``split`` (up to ``max_views``, evenly spaced) under ``protocol``
+    (:data:`PROTOCOLS`; ``auto``: ``clean`` where the split has noise-free images, else ``paper``).
 
     Returns:
         rows: one dict per view (``split``, ``name``, metrics, ``depth_mae``, ``depth_mae_pct``).
@@ -87,13 +105,14 @@ def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test
     """
     n = len(split)
     views = range(n) if not max_views or max_views >= n else np.linspace(0, n - 1, max_views).round().astype(int)
-    target = split.clean if split.clean is not None else split.images
+    protocol = resolve_protocol(split, protocol)
+    target = split.clean if protocol == "clean" else split.images
     render_dir = Path(out_dir) / "renders" / split_name if out_dir is not None else None
     if render_dir is not None:
         render_dir.mkdir(parents=True, exist_ok=True)
     rows, errors, weights = [], [], set()
     for i in (int(v) for v in views):
-        out = render_view(backbone, split, i)
+        out = render_view(backbone, split, i, protocol)
         pred, mask = out["rgb"].clamp(0, 1), None if split.masks is None else split.masks[i]
         row = {"split": split_name, "name": split.names[i], **_image_row(pred, target[i], mask, with_lpips)}
         weights.add(row.pop("lpips_weights", "skipped"))
@@ -105,7 +124,7 @@ def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test
             row["depth_mae_pct"] = 100.0 * row["depth_mae"] / length_scale
         rows.append(row)
         if render_dir is not None:
-            _write_view(render_dir, split, i, out, depth, DEPTH_SPAN * length_scale)
+            _write_view(render_dir, split, i, out, target[i], depth, DEPTH_SPAN * length_scale)
     summary = mean_metrics(rows)
     if errors:
         pooled = torch.cat(errors)
@@ -133,7 +152,8 @@ def depth_display(depth: torch.Tensor, gt: torch.Tensor | None, mask: torch.Tens
     return pred, (None if gt is None else depth_rgb(gt, shown, lo, lo + span)), lo
 
 
-def _write_view(render_dir: Path, split: Split, i: int, out: dict, depth: torch.Tensor | None, span: float) -> None:
+def _write_view(render_dir: Path, split: Split, i: int, out: dict, target: torch.Tensor, depth: torch.Tensor | None,
+                span: float) -> None:
     """``<name>.png``, ``<name>_depth.png`` and the ground truth beside them (``_gt``, ``_depth_gt``)."""
     import imageio.v2 as imageio
 
@@ -141,8 +161,7 @@ def _write_view(render_dir: Path, split: Split, i: int, out: dict, depth: torch.
 
     name = split.names[i]
     imageio.imwrite(out_path(render_dir, name, ".png"), to_uint8(out["rgb"]))
-    target = split.clean if split.clean is not None else split.images
-    imageio.imwrite(out_path(render_dir, name, "_gt.png"), to_uint8(target[i]))
+    imageio.imwrite(out_path(render_dir, name, "_gt.png"), to_uint8(target))
     if depth is None:
         return
     gt = split.depths[i] if split.depths is not None else None

@@ -14,7 +14,7 @@ __all__ = ["ACT_MODES", "DEFAULT_LOSSES", "SPLIT_MODES", "ActConfig", "ColorizeC
            "GroupSchedule", "OptimConfig", "ReaderOptions", "TrainConfig"]
 
 ACT_MODES = ("rgb", "scalar")
-SPLIT_MODES = ("auto", "every_k", "none")
+SPLIT_MODES = ("auto", "every_k", "holdout", "none")
 
 
 @dataclass
@@ -137,3 +137,5 @@ class ReaderOptions:
     # separate files), else all train
     test_every: int = checked(8, ge=2)  # split=every_k: views 0, k, 2k, ... (in file order) are test views
     max_views: int | None = checked(None, ge=2)  # keep at most this many views, evenly spaced, before splitting
+    holdout: list[str] = field(default_factory=list)  # split=holdout: the test views, by name (a leave-one-out
+    # sweep: dataset.split=holdout dataset.holdout=[v_02],[v_03],[v_04])

@@ -74,6 +74,13 @@ def test_split_modes(tiny_transforms):
     assert len(read_transforms(path, ReaderOptions(split="none")).train) == 5
     few = read_transforms(path, ReaderOptions(split="none", max_views=3))
     assert few.train.names == ["view_00", "view_02", "view_04"]
+    held = read_transforms(path, ReaderOptions(split="holdout", holdout=["view_01", "view_04"]))
+    assert held.test.names == ["view_01", "view_04"] and held.train.names == ["view_00", "view_02", "view_03"]
+    assert held.train.cameras.image_ids.tolist() == [0, 1, 2] and held.test.cameras.image_ids.tolist() == [-1, -1]
+    with pytest.raises(DataError, match="dataset.holdout: unknown view.s. view_9; the views are view_00, view_01"):
+        read_transforms(path, ReaderOptions(split="holdout", holdout=["view_9"]))
+    with pytest.raises(DataError, match="dataset.holdout: no view named"):
+        read_transforms(path, ReaderOptions(split="holdout"))
 
 
 def test_nerf_synthetic_train_test_files(tmp_path):
@@ -282,7 +289,7 @@ def test_load_scene_config_errors(tiny_transforms):
         load_scene(OmegaConf.create({"kind": "transforms", "path": "???"}))
     with pytest.raises(ConfigError, match="unknown kind 'nerf'; available: transforms, colmap, synthetic"):
         load_scene({"kind": "nerf"})
-    with pytest.raises(ConfigError, match="dataset.split: must be one of auto, every_k, none, got 'random'"):
+    with pytest.raises(ConfigError, match="dataset.split: must be one of auto, every_k, holdout, none, got 'random'"):
         load_scene({"kind": "transforms", "path": "x", "split": "random"})
     path = tiny_transforms(n=2, aabb=[[0, 0], [1, 1]])
     with pytest.raises(DataError, match="'aabb' must be"):

@@ -29,7 +29,7 @@ __all__ = [
 
 KINDS = ("transforms", "colmap", "synthetic")
 # Keys of a dataset config that are reader options, not parameters of the synthetic generator.
-_READER_KEYS = {"kind", "path", "downscale", "split", "test_every", "max_views", "images", "masks",
+_READER_KEYS = {"kind", "path", "downscale", "split", "test_every", "max_views", "holdout", "images", "masks",
                 "undistort", "params"}
 
 

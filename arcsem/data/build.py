@@ -17,7 +17,7 @@ import torch
 from ..cameras import Cameras
 from ..configs import ReaderOptions
 from ..errors import DataError
-from ..registry import validate_config
+from ..registry import plain, validate_config
 from ..scene import Scene, Split
 from .io import read_array, read_image, read_mask, resize
 from .names import view_names
@@ -74,7 +74,10 @@ class ViewSpec:
 def reader_options(cfg: Any) -> ReaderOptions:
     """Validated :class:`ReaderOptions` from a dataset config (a DictConfig or a dict)."""
     get = (lambda k, d: cfg.get(k, d)) if hasattr(cfg, "get") else (lambda k, d: getattr(cfg, k, d))
-    values = {k: get(k, None) for k in ("downscale", "split", "test_every", "max_views")}
+    values = {k: get(k, None) for k in ("downscale", "split", "test_every", "max_views", "holdout")}
+    if values["holdout"] is not None:
+        values["holdout"] = [str(v) for v in plain(values["holdout"])] if not isinstance(values["holdout"], str) \
+            else [values["holdout"]]
     if values["downscale"] is None:  # `downscale: null` means no downscaling (0 is refused, not read as 1)
         values["downscale"] = 1.0
     return validate_config(ReaderOptions, {k: v for k, v in values.items() if v is not None or k == "max_views"},
@@ -93,12 +96,25 @@ def select_views(views: list[ViewSpec], opts: ReaderOptions) -> tuple[list[ViewS
     if opts.split == "every_k":
         return ([v for i, v in enumerate(views) if i % opts.test_every != 0],
                 [v for i, v in enumerate(views) if i % opts.test_every == 0])
+    if opts.split == "holdout":
+        return _holdout(views, opts.holdout)
     if opts.split == "auto" and any(v.split is not None for v in views):
         bad = [v.name for v in views if v.split not in (None, "train", "test")]
         if bad:
             raise DataError(f"view '{bad[0]}': split must be 'train' or 'test'")
         return [v for v in views if v.split != "test"], [v for v in views if v.split == "test"]
     return list(views), []
+
+
+def _holdout(views: list[ViewSpec], held: list[str]) -> tuple[list[ViewSpec], list[ViewSpec]]:
+    """``split=holdout``: the views named in ``held`` are the test views, every other view trains."""
+    names = [v.name for v in views]
+    unknown = [h for h in held if h not in names]
+    if not held or unknown:
+        why = f"unknown view(s) {', '.join(unknown)}" if unknown else "no view named"
+        raise DataError(f"dataset.holdout: {why}; the views are {', '.join(names[:12])}"
+                        + (" ..." if len(names) > 12 else ""))
+    return [v for v in views if v.name not in held], [v for v in views if v.name in held]
 
 
 def _read_view(v: ViewSpec, size: tuple[int, int]) -> dict[str, np.ndarray | None]:

@@ -45,7 +45,10 @@ class OptimConfig:
 class EvalConfig:
     """``train.eval``: what the final and periodic evaluations do."""
 
-    lpips: bool = True  # LPIPS (AlexNet); NaN + reason when its ImageNet weights are missing
+    metrics: str = checked("3dgs", choices=("3dgs", "skimage"))  # the metric convention (arcsem/metrics.py):
+    # 3dgs = the 3DGS/2DGS evaluation scripts the paper used (8-bit render, zero-padded SSIM, LPIPS-VGG);
+    # skimage = float render, scikit-image SSIM, LPIPS-AlexNet
+    lpips: bool = True  # LPIPS (the convention's network); NaN + reason when its ImageNet weights are missing
     renders: bool = True  # write renders/{train,test}/<name>.png and <name>_depth.png
     video: bool = True  # turntable.mp4: novel views on a full orbit around the specimen
     video_frames: int = checked(60, ge=1)

@@ -1,12 +1,14 @@
-"""Small differentiable image operations shared by the colourisation guidance and its losses.
+"""Small differentiable image operations shared by losses, metrics and the colourisation guidance.
 
 Images are ``[C, H, W, 3]`` (channels last, as renders are)."""
 from __future__ import annotations
 
+import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-__all__ = ["downscale", "patch_means"]
+__all__ = ["downscale", "gaussian_window", "patch_means", "ssim_map"]
+
 
 
 def downscale(images: Tensor, factor: int) -> Tensor:
@@ -22,3 +24,43 @@ def downscale(images: Tensor, factor: int) -> Tensor:
 def patch_means(images: Tensor, cell: int) -> Tensor:
     """Mean colour of ``cell x cell`` patches: ``[C, H, W, 3]`` -> ``[C, H//cell, W//cell, 3]``."""
     return F.avg_pool2d(images.permute(0, 3, 1, 2), cell).permute(0, 2, 3, 1)
+
+
+C1, C2 = 0.01**2, 0.03**2
+
+
+def gaussian_window(size: int = 11, sigma: float = 1.5, dtype=torch.float32, device=None) -> Tensor:
+    """Normalised 1-D Gaussian ``[size]`` centred on the middle tap."""
+    x = torch.arange(size, dtype=dtype, device=device) - (size - 1) / 2
+    g = torch.exp(-(x**2) / (2 * sigma**2))
+    return g / g.sum()
+
+
+def _blur(x: Tensor, g: Tensor) -> Tensor:
+    """Separable Gaussian blur of ``[B, ch, H, W]`` with zero padding (same size out)."""
+    ch, k = x.shape[1], g.numel()
+    gx = g.view(1, 1, 1, k).expand(ch, 1, 1, k)
+    gy = g.view(1, 1, k, 1).expand(ch, 1, k, 1)
+    x = F.conv2d(x, gx, padding=(0, k // 2), groups=ch)
+    return F.conv2d(x, gy, padding=(k // 2, 0), groups=ch)
+
+
+def ssim_map(x: Tensor, y: Tensor, size: int = 11, sigma: float = 1.5) -> Tensor:
+    """Per-pixel SSIM of two image batches.
+
+    Args:
+        x, y: ``[C, H, W, ch]`` images in [0, 1].
+    Returns:
+        ``[C, H, W, ch]`` SSIM per pixel and channel (1 where the images agree).
+    """
+    if x.shape != y.shape or x.ndim != 4:
+        raise ValueError(f"ssim_map: expected two [C,H,W,ch] tensors, got {tuple(x.shape)} and {tuple(y.shape)}")
+    g = gaussian_window(size, sigma, x.dtype, x.device)
+    a, b = x.permute(0, 3, 1, 2), y.permute(0, 3, 1, 2)
+    mu_a, mu_b = _blur(a, g), _blur(b, g)
+    var_a = _blur(a * a, g) - mu_a**2
+    var_b = _blur(b * b, g) - mu_b**2
+    cov = _blur(a * b, g) - mu_a * mu_b
+    num = (2 * mu_a * mu_b + C1) * (2 * cov + C2)
+    den = (mu_a**2 + mu_b**2 + C1) * (var_a + var_b + C2)
+    return (num / den).permute(0, 2, 3, 1)

@@ -5,61 +5,21 @@ trainer preset); Plenoxels uses ``l2``. ``l1``/``l2`` work on image batches ``[C
 ray batches ``[R,3]``; ``dssim`` needs whole images. With ``masked: true`` only pixels inside the
 specimen mask count (falls back to every pixel when the batch has no mask).
 
-:func:`ssim_map` is the pure, differentiable SSIM used by the ``dssim`` loss (Wang et al. 2004,
-constants ``C1 = 0.01^2``, ``C2 = 0.03^2`` for data range 1, zero padding as in 3DGS/2DGS).
+:func:`arcsem.imageops.ssim_map` is the pure, differentiable SSIM used by the ``dssim`` loss and by the
+SSIM metric (Wang et al. 2004, constants ``C1 = 0.01^2``, ``C2 = 0.03^2`` for data range 1, zero padding as
+in 3DGS/2DGS).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import ClassVar
 
-import torch
-import torch.nn.functional as F
 from torch import Tensor
 
+from arcsem.imageops import gaussian_window, ssim_map
 from arcsem.plugins import LOSSES, Batch, Loss, RenderOutput
 
 __all__ = ["DSSIM", "L1", "L2", "gaussian_window", "masked_mean", "ssim_map"]
-
-C1, C2 = 0.01**2, 0.03**2
-
-
-def gaussian_window(size: int = 11, sigma: float = 1.5, dtype=torch.float32, device=None) -> Tensor:
-    """Normalised 1-D Gaussian ``[size]`` centred on the middle tap."""
-    x = torch.arange(size, dtype=dtype, device=device) - (size - 1) / 2
-    g = torch.exp(-(x**2) / (2 * sigma**2))
-    return g / g.sum()
-
-
-def _blur(x: Tensor, g: Tensor) -> Tensor:
-    """Separable Gaussian blur of ``[B, ch, H, W]`` with zero padding (same size out)."""
-    ch, k = x.shape[1], g.numel()
-    gx = g.view(1, 1, 1, k).expand(ch, 1, 1, k)
-    gy = g.view(1, 1, k, 1).expand(ch, 1, k, 1)
-    x = F.conv2d(x, gx, padding=(0, k // 2), groups=ch)
-    return F.conv2d(x, gy, padding=(k // 2, 0), groups=ch)
-
-
-def ssim_map(x: Tensor, y: Tensor, size: int = 11, sigma: float = 1.5) -> Tensor:
-    """Per-pixel SSIM of two image batches.
-
-    Args:
-        x, y: ``[C, H, W, ch]`` images in [0, 1].
-    Returns:
-        ``[C, H, W, ch]`` SSIM per pixel and channel (1 where the images agree).
-    """
-    if x.shape != y.shape or x.ndim != 4:
-        raise ValueError(f"ssim_map: expected two [C,H,W,ch] tensors, got {tuple(x.shape)} and {tuple(y.shape)}")
-    g = gaussian_window(size, sigma, x.dtype, x.device)
-    a, b = x.permute(0, 3, 1, 2), y.permute(0, 3, 1, 2)
-    mu_a, mu_b = _blur(a, g), _blur(b, g)
-    var_a = _blur(a * a, g) - mu_a**2
-    var_b = _blur(b * b, g) - mu_b**2
-    cov = _blur(a * b, g) - mu_a * mu_b
-    num = (2 * mu_a * mu_b + C1) * (2 * cov + C2)
-    den = (mu_a**2 + mu_b**2 + C1) * (var_a + var_b + C2)
-    return (num / den).permute(0, 2, 3, 1)
-
 
 def masked_mean(x: Tensor, mask: Tensor | None) -> Tensor:
     """Mean of ``x [..., ch]`` over entries where ``mask [..., 1]`` is set (all entries if None)."""

@@ -49,4 +49,5 @@ def _stage1(psnr, ssim, lpips, tpsnr, pct, lpips_note="/root/.cache/torch/hub/ch
                        "test": {"psnr": tpsnr, "ssim": ssim - 0.01, "lpips": lpips + 0.01},
                        # the trainer's keys; median_abs_pct (the older name) is a decoy the table must not use
                        "depth": {"test_mae": pct / 100, "test_mae_pct": pct, "median_abs_pct": 99.0},
-                       "steps": 100, "time_s": 1.0, "num_primitives": 1000, "lpips_weights": lpips_note}}
+                       "steps": 100, "time_s": 1.0, "num_primitives": 1000, "lpips_weights": lpips_note,
+                       "metrics_convention": {"name": "3dgs", "quantise": True, "ssim": "3dgs", "lpips_net": "vgg"}}}

@@ -64,7 +64,8 @@ def test_clean_targets_are_scored_with_the_mean_act_observed_ones_with_the_views
     evaluate_split(bb, dataclasses.replace(split, clean=None), split_name="train", with_lpips=False)
     assert seen == [[i] for i in range(len(split))]
     seen.clear()  # the paper's protocol asked for explicitly: own ACT, observed images, even with clean ones
-    rows, _, _ = evaluate_split(bb, split, split_name="train_paper", with_lpips=False, protocol="paper")
+    rows, _, _ = evaluate_split(bb, split, split_name="train_paper", with_lpips=False, protocol="paper",
+                                metrics="skimage")
     assert seen == [[i] for i in range(len(split))]
     from arcsem.metrics import psnr
 
@@ -87,8 +88,8 @@ def test_metrics_of_a_known_offset(tmp_path):
     scene = tiny_scene()
     bb = BACKBONES.build({"name": "_oracle"}, scene=scene)
     rows, summary, _ = evaluate_split(bb, scene.test, split_name="test", length_scale=scene.size, out_dir=tmp_path,
-                                      with_lpips=False)
-    # rgb = clean + 0.1 everywhere -> MSE 0.01 -> 20 dB, inside the mask too
+                                      with_lpips=False, metrics="skimage")
+    # rgb = clean + 0.1 everywhere -> MSE 0.01 -> 20 dB, inside the mask too (float renders: no 8-bit rounding)
     assert summary["psnr"] == pytest.approx(20.0, abs=1e-3)
     assert summary["psnr_masked"] == pytest.approx(20.0, abs=1e-3)
     assert math.isnan(summary["lpips"])
@@ -146,6 +147,7 @@ def test_run_stage1_end_to_end_resume_and_reload(tmp_path):
     assert set(out["train"]) >= {"psnr", "ssim", "lpips", "psnr_masked"} and out["test"]["psnr"] > 10
     assert out["depth"]["test_mae"] == pytest.approx(float(out["depth"]["test_mae_pct"]) * scene.size / 100)
     assert out["lpips_weights"] == "skipped"
+    assert out["metrics_convention"] == {"name": "3dgs", "quantise": True, "ssim": "3dgs", "lpips_net": "vgg"}
     assert (tmp_path / "checkpoints" / "last.pt").is_file()
     video = [p for p in tmp_path.iterdir() if p.name.startswith("turntable")]
     assert len(video) == 1 and video[0].stat().st_size > 0 and video[0].suffix == ".mp4"

@@ -4,10 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from arcsem.losses.photometric import gaussian_window, ssim_map
 from skimage.metrics import structural_similarity
 
 from arcsem.cameras import Cameras
+from arcsem.imageops import gaussian_window, ssim_map
 from arcsem.plugins import LOSSES, Batch
 from arcsem.train.losses import build_losses
 

@@ -95,6 +95,7 @@ def test_grayscale_table_bold_paper_and_missing(gray_sweep, tmp_path):
     assert lines["2DGS + ACT"].count("missing") == 8  # 3 train + 3 held-out + 2 depth; paper cells kept
     assert any("missing job: experiment=grayscale_comparison variant=gs2d_act" in n for n in t.notes)
     assert "LPIPS: AlexNet v0.1, ImageNet weights alexnet-owt-7be5be79.pth." in t.notes
+    assert any(n.startswith("metrics (3dgs): the 3DGS/2DGS evaluation scripts' convention") for n in t.notes)
     assert not any("n/a" in n for n in t.notes)
     tex = to_latex(t)
     assert r"\toprule" in tex and r"\midrule" in tex and r"\bottomrule" in tex
@@ -268,6 +269,7 @@ FIX = (" To get LPIPS, fetch the ImageNet weights on a machine with network (pyt
     ([], False, ["LPIPS weights: not recorded."]),
     (["a/alexnet.pth", "missing: offline"], True,
      ["LPIPS: n/a: weights missing (missing: offline)." + FIX, "LPIPS: AlexNet v0.1, ImageNet weights alexnet.pth."]),
+    (["/hub/checkpoints/vgg16-397923af.pth"], False, ["LPIPS: VGG16 v0.1, ImageNet weights vgg16-397923af.pth."]),
     (["missing: alexnet-owt-7be5be79.pth not in /root/.cache/torch/hub/checkpoints and no network"], True,
      ["LPIPS: n/a: weights missing (missing: alexnet-owt-7be5be79.pth not in the torch hub cache and no network)."
       + FIX]),

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import torch
 
+from ..metrics import metric_convention
+
 __all__ = ["colour_split", "evaluate_colour", "write_colored_products", "write_outputs"]
 
 
@@ -40,12 +42,13 @@ def evaluate_colour(backbone, scene, refs, run_dir: Path, cc) -> dict:
             continue
         limit = cc.eval.max_train_views if name.startswith("train") else None
         r, summary, _ = evaluate_split(backbone, colour_split(split, idx), split_name=name, length_scale=scene.scale[0],
-                                       with_lpips=cc.eval.lpips, max_views=limit)
+                                       with_lpips=cc.eval.lpips, max_views=limit, metrics=cc.eval.metrics)
         weights.add(summary.pop("lpips_weights", "skipped"))
         for k in [k for k in summary if k.startswith("depth")]:
             summary.pop(k)
         out[name], rows = summary, rows + r
     out["lpips_weights"] = "; ".join(sorted(weights))
+    out["metrics_convention"] = metric_convention(cc.eval.metrics)
     write_views_csv(Path(run_dir) / "colorize" / "views.csv", rows)
     return out
 

@@ -154,6 +154,23 @@ def no_paths(text: str) -> str:
     return re.sub(r"(?<![\w:/.])(?:~|/)[^\s;,()'\"]*", short, text)
 
 
+CONVENTION_NOTES = {
+    "3dgs": "the 3DGS/2DGS evaluation scripts' convention, which the paper used: renders scored as 8-bit images, "
+            "SSIM with an 11x11 Gaussian window (sigma 1.5) over zero-padded images averaged over every pixel, "
+            "LPIPS with VGG16",
+    "skimage": "renders scored as floats, scikit-image SSIM (Gaussian window sigma 1.5, reflected borders, the "
+               "outer 5 pixels left out), LPIPS with AlexNet",
+}
+
+
+def _convention_notes(names: list[str]) -> list[str]:
+    """What the recorded metric conventions (``*.metrics_convention.name``) mean; older runs recorded none."""
+    if not names:
+        return ["metrics: convention not recorded (runs older than the convention setting: scikit-image SSIM, "
+                "LPIPS with AlexNet, float renders)."]
+    return [f"metrics ({n}): {CONVENTION_NOTES.get(n, 'unknown convention')}." for n in names]
+
+
 def _lpips_notes(values: list[str], any_nan: bool) -> list[str]:
     """Notes on the LPIPS weights from the recorded ``lpips_weights`` values ("; "-joined lists allowed).
 
@@ -174,7 +191,8 @@ def _lpips_notes(values: list[str], any_nan: bool) -> list[str]:
                      f"fetch the ImageNet weights on a machine with network ({FETCH_COMMAND}) and run the job "
                      "again: a number made with random weights is never shown.")
     if good:
-        notes.append("LPIPS: AlexNet v0.1, ImageNet weights " + ", ".join(good) + ".")
+        nets = sorted({"VGG16" if g.startswith("vgg") else "AlexNet" for g in good})
+        notes.append(f"LPIPS: {' and '.join(nets)} v0.1, ImageNet weights " + ", ".join(good) + ".")
     elif not (bad or any_nan):
         notes.append("LPIPS weights: not recorded.")
     return notes
@@ -208,6 +226,7 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
     lp_nan = any(math.isnan(v) for c in columns if c.label == "LPIPS" and not c.key.startswith("paper.")
                  for v in ran.get(c.key, []))
     if len(df):
+        notes += _convention_notes(_distinct(df, "metrics_convention.name"))
         notes += _lpips_notes(_distinct(df, "lpips_weights"), lp_nan)
     feats = _distinct(df, "features")
     if study != "grayscale_comparison" and (feats or study != "runs"):

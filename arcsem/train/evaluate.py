@@ -79,21 +79,23 @@ def render_view(backbone: nn.Module, split: Split, i: int, protocol: str = "auto
     return {k: v[0].detach().cpu() for k, v in out.items() if torch.is_tensor(v) and v.ndim == 4}
 
 
-def _image_row(pred, gt, mask, with_lpips: bool) -> dict[str, Any]:
+def _image_row(pred, gt, mask, with_lpips: bool, convention: str) -> dict[str, Any]:
     from ..metrics import image_metrics
 
-    row = image_metrics(pred, gt, None, with_lpips)
+    row = image_metrics(pred, gt, None, with_lpips, convention)
     if mask is not None:
-        masked = image_metrics(pred, gt, mask, with_lpips)
+        masked = image_metrics(pred, gt, mask, with_lpips, convention)
         row.update({f"{k}_masked": masked[k] for k in METRICS})
     return row
 
 
 def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test", length_scale: float = 1.0,
                    out_dir: str | Path | None = None, with_lpips: bool = True, max_views: int | None = None,
-                   protocol: str = "auto") -> tuple[list[dict[str, Any]], dict[str, Any], list[torch.Tensor]]:
+                   protocol: str = "auto", metrics: str = "3dgs",
+                   ) -> tuple[list[dict[str, Any]], dict[str, Any], list[torch.Tensor]]:
     """Render and score every view of ``split`` (up to ``max_views``, evenly spaced) under ``protocol``
-    (:data:`PROTOCOLS`; ``auto``: ``clean`` where the split has noise-free images, else ``paper``).
+    (:data:`PROTOCOLS`; ``auto``: ``clean`` where the split has noise-free images, else ``paper``) with the
+    metric convention ``metrics`` (:data:`arcsem.metrics.CONVENTIONS`).
 
     Returns:
         rows: one dict per view (``split``, ``name``, metrics, ``depth_mae``, ``depth_mae_pct``).
@@ -114,7 +116,7 @@ def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test
     for i in (int(v) for v in views):
         out = render_view(backbone, split, i, protocol)
         pred, mask = out["rgb"].clamp(0, 1), None if split.masks is None else split.masks[i]
-        row = {"split": split_name, "name": split.names[i], **_image_row(pred, target[i], mask, with_lpips)}
+        row = {"split": split_name, "name": split.names[i], **_image_row(pred, target[i], mask, with_lpips, metrics)}
         weights.add(row.pop("lpips_weights", "skipped"))
         depth = out.get("median_depth", out.get("depth"))
         if split.depths is not None and depth is not None:

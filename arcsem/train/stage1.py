@@ -26,6 +26,7 @@ from omegaconf import OmegaConf
 
 from ..configs import EvalConfig, TrainConfig
 from ..errors import TrainingError
+from ..metrics import metric_convention
 from ..plugins import BACKBONES
 from ..registry import plain, validate_config
 from ..scene import Scene
@@ -138,7 +139,7 @@ def _periodic_eval(backbone, scene: Scene, ec: EvalConfig):
 
     def fn(step: int) -> dict:
         _, summary, _ = evaluate_split(backbone, split, split_name=name, length_scale=scene.scale[0], with_lpips=False,
-                                       max_views=ec.periodic_views)
+                                       max_views=ec.periodic_views, metrics=ec.metrics)
         return {f"{name}_{k}": summary[k] for k in ("psnr", "ssim", "depth_mae_pct") if k in summary}
     return fn
 
@@ -194,7 +195,7 @@ def evaluate(backbone, scene: Scene, run_dir: str | Path | None, ec: EvalConfig 
             result[sname] = {}
             continue
         r, summary, _ = evaluate_split(backbone, split, split_name=sname, length_scale=scene.scale[0], out_dir=where,
-                                       with_lpips=ec.lpips, max_views=limit, protocol=protocol)
+                                       with_lpips=ec.lpips, max_views=limit, protocol=protocol, metrics=ec.metrics)
         rows += r
         for k in ("depth_mae", "depth_mae_pct"):
             if k in summary and sname != "train_paper":
@@ -205,6 +206,7 @@ def evaluate(backbone, scene: Scene, run_dir: str | Path | None, ec: EvalConfig 
     if "train_paper" not in result and "train" in result:
         result["train_paper"], protocols["train_paper"] = result["train"], protocols.get("train")
     result["protocols"] = protocols
+    result["metrics_convention"] = metric_convention(ec.metrics)
     if depth:
         source = "median_depth" if "median_depth" in backbone.provides else "depth"
         depth.update(length_scale=scene.scale[0], length_scale_name=scene.scale[1], source=source,

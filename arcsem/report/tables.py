@@ -166,8 +166,8 @@ CONVENTION_NOTES = {
 def _convention_notes(names: list[str]) -> list[str]:
     """What the recorded metric conventions (``*.metrics_convention.name``) mean; older runs recorded none."""
     if not names:
-        return ["metrics: convention not recorded (runs older than the convention setting: scikit-image SSIM, "
-                "LPIPS with AlexNet, float renders)."]
+        return [("metrics: convention not recorded (runs older than the convention setting: scikit-image SSIM, "
+                 "LPIPS with AlexNet, float renders).")]
     return [f"metrics ({n}): {CONVENTION_NOTES.get(n, 'unknown convention')}." for n in names]
 
 

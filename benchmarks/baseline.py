@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import importlib.util
+import os
 import subprocess
 import sys
 import tempfile
@@ -65,7 +66,15 @@ def baseline_renderers(rev: str = "main") -> dict:
     _materialise(rev, tmp)
     tag = rev.replace("/", "_").replace("-", "_").replace(".", "_")
     fused = _module(f"_baseline_{tag}_fused", tmp / FILES[0])
-    assert fused.load_extension() is not None, f"the kernels of {rev} did not build"
+    fixed = os.environ.pop("ARCSEM_CPP_BUILD_NAME", None)  # a fixed build name would be the working tree's
+    try:
+        ext = fused.load_extension()
+    finally:
+        if fixed is not None:
+            os.environ["ARCSEM_CPP_BUILD_NAME"] = fixed
+    assert ext is not None, f"the kernels of {rev} did not build"
+    fused.load_extension = lambda *a, **k: ext  # never loaded again (by name, it could be another build)
+    fused.resolve_impl = lambda impl, device="cpu": "cpp"
     with _standing_in(fused):
         r2 = _module(f"_baseline_{tag}_gs2d", tmp / FILES[1])
         r3 = _module(f"_baseline_{tag}_gs3d", tmp / FILES[2])

@@ -186,7 +186,7 @@ def test_fused_footprint_and_binning_equal_torch(kind, model):
         cov = torch.stack([cov2d[..., 0, 0], cov2d[..., 0, 1], cov2d[..., 1, 1]], -1)
         got = fused.footprint_bin_3dgs(m2.reshape(C * N, 2), depth.reshape(-1), cov.reshape(C * N, 3), s.opacities,
                                        C, near, W, H, tile)
-    radii, visible, rects_c, eff_c, offsets, ids = got
+    radii, visible, rects_c, eff_c, offsets, ids = got.radii, got.visible, got.rects, got.box, got.offsets, got.ids
     b = bin_tiles(rects, depth, W, H, tile)
     vis = (radius > 0) & (rects[..., 1] > rects[..., 0]) & (rects[..., 3] > rects[..., 2])
     assert 0 < int(vis.sum()) < C * N, "the scene should have visible and culled splats"

@@ -237,17 +237,16 @@ def _render_2dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
     opac = opacities.expand(C, N).reshape(C * N)
     bg = None if background is not None and background.requires_grad else background  # else composited here
     with region("arcsem::render/bin"):
-        radii, visible, _, eff, offsets, ids = fused.footprint_bin_2dgs(H9, Dz, opacities, C, near, W, Hh, tile,
-                                                                        lowpass_sigma)
+        lists = fused.footprint_bin_2dgs(H9, Dz, opacities, C, near, W, Hh, tile, lowpass_sigma)
     with region("arcsem::render/composite"):
         rgb, normal, alpha, depth, med, dist = fused.composite2d(
             H9, Dz, centre2d, opac, colors.expand(C, N, 3).reshape(C * N, 3), normals,
-            means.new_tensor(mcoef).expand(C, 3), offsets, ids, float("-inf"), C, Hh, W, tile, eff, bg, lowpass_sigma)
+            means.new_tensor(mcoef).expand(C, 3), lists, float("-inf"), C, Hh, W, tile, bg, lowpass_sigma)
     if background is not None and bg is None:
         rgb = rgb + (1 - alpha) * background.to(rgb)
     return {
         "rgb": rgb, "alpha": alpha, "depth": depth, "median_depth": med, "normal": normal, "distortion": dist,
-        "radii": radii.view(C, N), "visible": visible.view(C, N), "means2d": leaf,
+        "radii": lists.radii.view(C, N), "visible": lists.visible.view(C, N), "means2d": leaf,
     }
 
 

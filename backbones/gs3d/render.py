@@ -151,13 +151,13 @@ def _render_3dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
     opac = opacities.expand(C, N).reshape(C * N)
     bg = None if background is not None and background.requires_grad else background  # else composited here
     with region("arcsem::render/bin"):
-        radii, visible, _, eff, offsets, ids = fused.footprint_bin_3dgs(m2, depth, cov, opacities, C, near, W, H, tile)
+        lists = fused.footprint_bin_3dgs(m2, depth, cov, opacities, C, near, W, H, tile)
     with region("arcsem::render/composite"):
-        rgb, alpha, dmap = fused.composite3d(m2, conics, opac, colors.expand(C, N, 3).reshape(C * N, 3), depth,
-                                             offsets, ids, C, H, W, tile, eff, bg)
+        rgb, alpha, dmap = fused.composite3d(m2, conics, opac, colors.expand(C, N, 3).reshape(C * N, 3), depth, lists,
+                                             C, H, W, tile, bg)
     if background is not None and bg is None:
         rgb = rgb + (1 - alpha) * background.to(rgb)
     return {
         "rgb": rgb, "alpha": alpha, "depth": dmap,
-        "radii": radii.view(C, N), "visible": visible.view(C, N), "means2d": leaf,
+        "radii": lists.radii.view(C, N), "visible": lists.visible.view(C, N), "means2d": leaf,
     }

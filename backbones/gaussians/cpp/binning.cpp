@@ -4,18 +4,23 @@
 //   footprint2d: backbones/gs2d/render.py footprint_2dgs (+ raster.tile_rects, effective_cutoff2)
 //   footprint3d: backbones/gs3d/render.py footprint_3dgs
 //   binning:     backbones/gaussians/raster.py bin_tiles -> offsets [C*TY*TX+1], ids [P] sorted by tile,
-//                then by (depth, index) within the tile (the torch stable argsort rank).
+//                then by (depth, index) within the tile (the torch stable argsort rank); and, per entry,
+//                the positions of its pairs (tile order), the fixed order in which the kernels sum gradients.
 // Inputs are flattened (camera, splat) entries s = c * N + n; opacities are per splat n.
 #include <torch/extension.h>
-#include <ATen/Parallel.h>
+
 #include <cmath>
 #include <limits>
 #include <numeric>
 #include <vector>
 
+#include "api.h"
+#include "pool.h"
+
+namespace arcsem {
 namespace {
 
-constexpr int64_t kGrain = 1 << 16;  // per-splat loops: small inputs run on the calling thread (no fork/join stall)
+constexpr int64_t kGrain = 1 << 14;  // splats per chunk of the per-splat loops
 
 inline double cutoff2(double op) {  // raster.effective_cutoff2
   const double c2 = 2.0 * std::log(255.0 * std::max(op, 1e-30));
@@ -78,7 +83,7 @@ inline bool conic_box(const double* T, double cut2, double c[2], double e[2]) {
 template <typename T>
 void footprint2d_impl(const T* Hm, const T* Dz, const T* op, int64_t M, int64_t N, double near, double sigma,
                       const Screen& sc, int64_t* radius, int64_t* rects, int64_t* eff, double* depth) {
-  at::parallel_for(0, M, kGrain, [&](int64_t b, int64_t e) {
+  parallel_range(M, kGrain, [&](int64_t b, int64_t e, int) {
     for (int64_t s = b; s < e; ++s) {
       double Td[12];
       for (int j = 0; j < 9; ++j) Td[j] = double(Hm[9 * s + j]);
@@ -107,7 +112,7 @@ void footprint2d_impl(const T* Hm, const T* Dz, const T* op, int64_t M, int64_t 
 template <typename T>
 void footprint3d_impl(const T* m2d, const T* dep, const T* cov, const T* op, int64_t M, int64_t N, double near,
                       const Screen& sc, int64_t* radius, int64_t* rects, int64_t* eff, bool* okout) {
-  at::parallel_for(0, M, kGrain, [&](int64_t b, int64_t e) {
+  parallel_range(M, kGrain, [&](int64_t b, int64_t e, int) {
     for (int64_t s = b; s < e; ++s) {
       const double a = cov[3 * s], bb = cov[3 * s + 1], c = cov[3 * s + 2];
       const double det = a * c - bb * bb, mid = 0.5 * (a + c);
@@ -125,11 +130,11 @@ void footprint3d_impl(const T* m2d, const T* dep, const T* cov, const T* op, int
   });
 }
 
-// raster.bin_tiles: pairs sorted by camera-tile, then by (depth, splat index)
+// raster.bin_tiles: pairs sorted by camera-tile, then by (depth, splat index); and per entry its pairs
 template <typename D>
-std::vector<torch::Tensor> bin_impl(const int64_t* rects, const D* depth, int64_t C, int64_t N, const Screen& sc,
-                                    const torch::TensorOptions& lo) {
+void bin_impl(const int64_t* rects, const D* depth, int64_t C, int64_t N, const Screen& sc, TileLists& out) {
   const int64_t M = C * N, TT = sc.TX * sc.TY;
+  auto lo = out.rects.options();
   std::vector<int64_t> order(M);
   std::iota(order.begin(), order.end(), 0);
   // NaN last (as torch.argsort); such entries have no tiles anyway
@@ -137,25 +142,35 @@ std::vector<torch::Tensor> bin_impl(const int64_t* rects, const D* depth, int64_
     const double a = double(depth[i]), b = double(depth[j]);
     return !std::isnan(a) && (std::isnan(b) || a < b);
   });
-  auto offsets = torch::zeros({C * TT + 1}, lo);
-  int64_t* off = offsets.data_ptr<int64_t>();
+  out.offsets = torch::zeros({C * TT + 1}, lo);
+  out.entry_offsets = torch::empty({M + 1}, lo);
+  int64_t* off = out.offsets.data_ptr<int64_t>();
+  int64_t* eoff = out.entry_offsets.data_ptr<int64_t>();
+  eoff[0] = 0;
   for (int64_t s = 0; s < M; ++s) {
     const int64_t* r = rects + 4 * s;
     const int64_t base = (s / N) * TT;
     for (int64_t ty = r[2]; ty < r[3]; ++ty)
       for (int64_t tx = r[0]; tx < r[1]; ++tx) ++off[base + ty * sc.TX + tx + 1];
+    eoff[s + 1] = eoff[s] + std::max<int64_t>(r[1] - r[0], 0) * std::max<int64_t>(r[3] - r[2], 0);
   }
   for (int64_t t = 0; t < C * TT; ++t) off[t + 1] += off[t];
-  auto ids = torch::empty({off[C * TT]}, lo);
-  int64_t* out = ids.data_ptr<int64_t>();
+  out.ids = torch::empty({off[C * TT]}, lo);
+  out.pair_of = torch::empty({off[C * TT]}, lo);
+  int64_t* ids = out.ids.data_ptr<int64_t>();
+  int64_t* pof = out.pair_of.data_ptr<int64_t>();
   std::vector<int64_t> cur(off, off + C * TT);
   for (const int64_t s : order) {  // depth order (ties: index) per tile by construction
     const int64_t* r = rects + 4 * s;
     const int64_t base = (s / N) * TT;
+    int64_t k = eoff[s];
     for (int64_t ty = r[2]; ty < r[3]; ++ty)
-      for (int64_t tx = r[0]; tx < r[1]; ++tx) out[cur[base + ty * sc.TX + tx]++] = s;
+      for (int64_t tx = r[0]; tx < r[1]; ++tx) {
+        const int64_t p = cur[base + ty * sc.TX + tx]++;
+        ids[p] = s;
+        pof[k++] = p;
+      }
   }
-  return {offsets, ids};
 }
 
 // render._outputs: visible = radius > 0 and a non-empty tile rectangle; radii zeroed where not visible
@@ -171,53 +186,59 @@ torch::Tensor visibility(torch::Tensor& radius, const torch::Tensor& rects) {
   return vis;
 }
 
-Screen screen(int64_t W, int64_t H, int64_t tile) { return Screen{W, H, tile, (W + tile - 1) / tile, (H + tile - 1) / tile}; }
+Screen screen(const Raster& r) {
+  return Screen{r.W, r.H, r.tile, (r.W + r.tile - 1) / r.tile, (r.H + r.tile - 1) / r.tile};
+}
 
 void check(const torch::Tensor& t, const char* name) {
   TORCH_CHECK(t.is_contiguous() && t.device().is_cpu(), name, " must be a contiguous CPU tensor");
 }
 
+TileLists allocate(int64_t M, const torch::TensorOptions& lo) {
+  TileLists l;
+  l.radii = torch::empty({M}, lo);
+  l.rects = torch::empty({M, 4}, lo);
+  l.box = torch::empty({M, 4}, lo);
+  return l;
+}
+
 }  // namespace
 
-// Hm [M, 9] rows Tu, Tv, Tw and Dz [M, 3] row Tz (detached), opacities [N], sigma of the low-pass filter (px)
-// -> radii [M] (0 where not visible), visible [M], rects [M, 4], eff [M, 4], offsets, ids
-std::vector<torch::Tensor> footprint_bin2d(torch::Tensor Hm, torch::Tensor Dz, torch::Tensor op, int64_t C, double near, int64_t W,
-                                           int64_t H, int64_t tile, double sigma) {
+TileLists footprint_bin2d(const torch::Tensor& Hm, const torch::Tensor& Dz, const torch::Tensor& op, const Raster& raster,
+                          double near, double sigma) {
   check(Hm, "homographies"); check(Dz, "depth rows"); check(op, "opacities");
-  const int64_t M = Hm.size(0), N = op.numel();
+  const int64_t M = Hm.size(0), N = op.numel(), C = raster.C;
   TORCH_CHECK(M == C * N && Hm.size(1) == 9 && Dz.size(1) == 3, "footprint_bin2d: Hm, Dz must be [C*N, 9], [C*N, 3]");
   TORCH_CHECK(sigma > 0, "footprint_bin2d: the low-pass sigma must be > 0");
-  const Screen sc = screen(W, H, tile);
-  auto lo = Hm.options().dtype(torch::kLong);
-  auto radius = torch::empty({M}, lo), rects = torch::empty({M, 4}, lo), eff = torch::empty({M, 4}, lo);
+  const Screen sc = screen(raster);
+  TileLists l = allocate(M, Hm.options().dtype(torch::kLong));
   auto depth = torch::empty({M}, Hm.options().dtype(torch::kDouble));
   AT_DISPATCH_FLOATING_TYPES(Hm.scalar_type(), "footprint2d", [&] {
     footprint2d_impl<scalar_t>(Hm.data_ptr<scalar_t>(), Dz.data_ptr<scalar_t>(), op.data_ptr<scalar_t>(), M, N, near, sigma, sc,
-                               radius.data_ptr<int64_t>(), rects.data_ptr<int64_t>(), eff.data_ptr<int64_t>(),
+                               l.radii.data_ptr<int64_t>(), l.rects.data_ptr<int64_t>(), l.box.data_ptr<int64_t>(),
                                depth.data_ptr<double>());
   });
-  auto b = bin_impl<double>(rects.data_ptr<int64_t>(), depth.data_ptr<double>(), C, N, sc, lo);
-  auto vis = visibility(radius, rects);
-  return {radius, vis, rects, eff, b[0], b[1]};
+  bin_impl<double>(l.rects.data_ptr<int64_t>(), depth.data_ptr<double>(), C, N, sc, l);
+  l.visible = visibility(l.radii, l.rects);
+  return l;
 }
 
-// means2d [M,2], depth [M], cov (a, b, c) [M,3], opacities [N] -> as footprint_bin2d
-std::vector<torch::Tensor> footprint_bin3d(torch::Tensor m2d, torch::Tensor depth, torch::Tensor cov, torch::Tensor op,
-                                           int64_t C, double near, int64_t W, int64_t H, int64_t tile) {
+TileLists footprint_bin3d(const torch::Tensor& m2d, const torch::Tensor& depth, const torch::Tensor& cov,
+                          const torch::Tensor& op, const Raster& raster, double near) {
   for (auto* t : {&m2d, &depth, &cov, &op}) check(*t, "footprint_bin3d input");
-  const int64_t M = depth.numel(), N = op.numel();
+  const int64_t M = depth.numel(), N = op.numel(), C = raster.C;
   TORCH_CHECK(M == C * N, "footprint_bin3d: depth must have C*N entries");
-  const Screen sc = screen(W, H, tile);
-  auto lo = depth.options().dtype(torch::kLong);
-  auto radius = torch::empty({M}, lo), rects = torch::empty({M, 4}, lo), eff = torch::empty({M, 4}, lo);
+  const Screen sc = screen(raster);
+  TileLists l = allocate(M, depth.options().dtype(torch::kLong));
   auto ok = torch::empty({M}, depth.options().dtype(torch::kBool));
-  std::vector<torch::Tensor> b;
   AT_DISPATCH_FLOATING_TYPES(depth.scalar_type(), "footprint3d", [&] {
     footprint3d_impl<scalar_t>(m2d.data_ptr<scalar_t>(), depth.data_ptr<scalar_t>(), cov.data_ptr<scalar_t>(),
-                               op.data_ptr<scalar_t>(), M, N, near, sc, radius.data_ptr<int64_t>(),
-                               rects.data_ptr<int64_t>(), eff.data_ptr<int64_t>(), ok.data_ptr<bool>());
-    b = bin_impl<scalar_t>(rects.data_ptr<int64_t>(), depth.data_ptr<scalar_t>(), C, N, sc, lo);
+                               op.data_ptr<scalar_t>(), M, N, near, sc, l.radii.data_ptr<int64_t>(),
+                               l.rects.data_ptr<int64_t>(), l.box.data_ptr<int64_t>(), ok.data_ptr<bool>());
+    bin_impl<scalar_t>(l.rects.data_ptr<int64_t>(), depth.data_ptr<scalar_t>(), C, N, sc, l);
   });
-  auto vis = visibility(radius, rects);
-  return {radius, vis, rects, eff, b[0], b[1]};
+  l.visible = visibility(l.radii, l.rects);
+  return l;
 }
+
+}  // namespace arcsem

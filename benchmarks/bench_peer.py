@@ -4,7 +4,7 @@ The scene of the peer comparison (3DGS; 2DGS with ``--models 2DGS,3DGS``): a pin
 principal point at the centre) at z = -3 looking down +z; ``torch.manual_seed(0)``; means
 ``(rand(N, 3) - 0.5) * 1.6``, isotropic scale 0.02, opacity 0.5, normalised ``randn(N, 4)`` quaternions, colours
 from degree-3 SH coefficients ``randn(N, 16, 3) * 0.1`` evaluated towards the camera (+0.5, clamped at 0) inside
-the timing; black background. One run = forward + backward of ``sum(rgb)`` (gradients of means, quaternions,
+the timing (main: PyTorch ops; this tree: the fused kernel the Gaussian backbones use); black background. One run = forward + backward of ``sum(rgb)`` (gradients of means, quaternions,
 scales, opacities and SH). Figures: median of the last 3 of 4 runs (``--runs``), wall seconds.
 
     .venv/bin/python benchmarks/bench_peer.py                         # this tree vs main, 1 and 2 threads
@@ -22,6 +22,7 @@ import statistics
 import time
 
 import torch
+from arcsem.backbones.gaussians.fused import sh_colors
 from arcsem.backbones.gaussians.sh import eval_sh
 from arcsem.backbones.gs2d.render import render_2dgs
 from arcsem.backbones.gs3d.render import render_3dgs
@@ -45,12 +46,24 @@ def peer_scene(N: int) -> tuple[list[torch.Tensor], Cameras]:
     return [means, quats, scales, opac, sh], Cameras(w2c, K, 256, 256, "pinhole")
 
 
-def run_once(render, dims: int, params: list[torch.Tensor], cams: Cameras) -> float:
+def torch_colors(means, sh_dc, sh_rest, cams):
+    """SH colours as main's GaussianModel.colors (PyTorch ops)."""
+    sh = torch.cat([sh_dc, sh_rest], 1)
+    return torch.clamp_min(eval_sh(3, sh[None], means[None] - cams.centers[:, None]) + 0.5, 0.0)
+
+
+def fused_colors(means, sh_dc, sh_rest, cams):
+    """SH colours as this tree's GaussianModel.colors with the fused kernels."""
+    return sh_colors(means, sh_dc, sh_rest, cams.centers, False, 3)
+
+
+def run_once(fns: dict, dims: int, params: list[torch.Tensor], cams: Cameras) -> float:
     """Wall seconds of SH colours + render + backward of ``sum(rgb)``."""
-    means, quats, scales, opac, sh = [p.detach().clone().requires_grad_(True) for p in params]
+    means, quats, scales, opac, sh_dc, sh_rest = [p.detach().clone().requires_grad_(True)
+                                                  for p in (*params[:4], params[4][:, :1], params[4][:, 1:])]
     t0 = time.perf_counter()
-    colors = torch.clamp_min(eval_sh(3, sh[None], means[None] - cams.centers[:, None]) + 0.5, 0.0)
-    out = render(means, quats, scales[:, :dims], opac, colors, cams, impl="cpp")
+    colors = fns["colors"](means, sh_dc, sh_rest, cams)
+    out = fns["render"](means, quats, scales[:, :dims], opac, colors, cams, impl="cpp")
     out["rgb"].sum().backward()
     return time.perf_counter() - t0
 
@@ -62,7 +75,7 @@ def time_pair(renders: dict, model: str, N: int, runs: int) -> dict[str, float]:
     times: dict[str, list[float]] = {k: [] for k in renders}
     for r in range(runs):
         for name, fns in renders.items():
-            t = run_once(fns[model], dims, params, cams)
+            t = run_once({"colors": fns["colors"], "render": fns[model]}, dims, params, cams)
             if r:
                 times[name].append(t)
     return {k: statistics.median(v) for k, v in times.items()}
@@ -76,11 +89,11 @@ def main() -> None:
     ap.add_argument("--models", default="3DGS")
     ap.add_argument("--sizes", default=",".join(map(str, SIZES)))
     a = ap.parse_args()
-    renders = {"this tree": {"2DGS": render_2dgs, "3DGS": render_3dgs}}
+    renders = {"this tree": {"2DGS": render_2dgs, "3DGS": render_3dgs, "colors": fused_colors}}
     if a.base != "none":
         from baseline import baseline_renderers
 
-        renders = {a.base: baseline_renderers(a.base), **renders}
+        renders = {a.base: {**baseline_renderers(a.base), "colors": torch_colors}, **renders}
     print(f"shared scene 256x256, fwd+bwd of sum(rgb), median of the last {a.runs - 1} of {a.runs} runs, "
           f"alternating; load average {os.getloadavg()[0]:.2f}")
     names = list(renders)

@@ -73,8 +73,9 @@ class GaussianBackbone(Backbone):
         """
         m = self.model
         cams = cams.to(device=m.means.device, dtype=m.means.dtype)
+        impl = self._impl(m.means.device)
         with region("arcsem::render/sh"):  # profiler regions: benchmarks/profile_step.py
-            colors = m.colors(cams)  # [C, N, 3]
+            colors = m.colors(cams, impl=impl)  # [C, N, 3]
         if self.act is not None:
             with region("arcsem::render/act"):
                 colors = self.act.apply(colors, cams.image_ids)
@@ -82,10 +83,17 @@ class GaussianBackbone(Backbone):
             background = torch.tensor(self.cfg.background, dtype=m.means.dtype, device=m.means.device)
         means, quats, scales, opacities = self.splat_params()
         out = self._rasterize(means, quats, scales, opacities, colors, cams, background=background,
-                              tile=self.cfg.tile, chunk_tiles=self.cfg.chunk_tiles, impl=self.cfg.rasterizer)
+                              tile=self.cfg.tile, chunk_tiles=self.cfg.chunk_tiles, impl=impl)
         if torch.is_grad_enabled():
             self._last_cams = cams  # the cameras whose gradient post_backward reads
         return out
+
+    def _impl(self, device) -> str:
+        """The ``rasterizer`` choice resolved for ``device``: ``cpp`` (fused kernels: SH colours and the rasteriser)
+        or ``torch``."""
+        from .fused import resolve_impl
+
+        return resolve_impl(self.cfg.rasterizer, str(device))
 
     def splat_params(self) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """What the rasteriser draws: means ``[N, 3]``, quaternions ``[N, 4]``, scales ``[N, S]``, opacities ``[N]``

@@ -30,13 +30,14 @@ __all__ = [
     "project_2dgs",
     "project_3dgs",
     "resolve_impl",
+    "sh_colors",
 ]
 
 CPP_DIR = Path(__file__).parent / "cpp"
 EXTENSION = cext.Extension(
     prefix="arcsem_fused_raster",
     sources=tuple(CPP_DIR / n for n in ("composite3d.cpp", "composite2d.cpp", "composite2d_backward.cpp", "binning.cpp",
-                                        "project.cpp", "pool.cpp", "module.cpp")),
+                                        "project.cpp", "sh.cpp", "pool.cpp", "module.cpp")),
     what="fused C++ Gaussian rasteriser",
     # the lane loops of the compositing kernels (`omp simd`) vectorise only when GCC may if-convert freely: no FP traps
     # (the kernels do not use them) and no partial-redundancy elimination hoisting loads into branches
@@ -228,6 +229,35 @@ def project_3dgs(means: Tensor, quats: Tensor, scales: Tensor, leaf: Tensor, P: 
     """
     c = lambda t: t.contiguous()
     return _Project3D.apply(c(means), c(quats), c(scales), leaf, c(P), float(near))
+
+
+class _ShColors(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means, sh_dc, sh_rest, origins, ortho, degree):
+        args = _args("ShColors", means=means, sh_dc=sh_dc, sh_rest=sh_rest, origins=origins, ortho=ortho, degree=degree)
+        ctx.save_for_backward(means, sh_dc, sh_rest, origins)
+        ctx.ortho, ctx.degree = ortho, degree
+        return load_extension().sh_colors_forward(args)
+
+    @staticmethod
+    def backward(ctx, g):
+        means, sh_dc, sh_rest, origins = ctx.saved_tensors
+        args = _args("ShColors", means=means, sh_dc=sh_dc, sh_rest=sh_rest, origins=origins, ortho=ctx.ortho,
+                     degree=ctx.degree)
+        gm, gdc, grest = load_extension().sh_colors_backward(args, g)
+        # degree 0 reads no rest coefficient and no direction: no gradient, as the PyTorch path
+        return (gm if ctx.degree > 0 else None), gdc, (grest if ctx.degree > 0 else None), None, None, None
+
+
+def sh_colors(means: Tensor, sh_dc: Tensor, sh_rest: Tensor, origins: Tensor, ortho: bool, degree: int) -> Tensor:
+    """Fused ``max(eval_sh(degree, sh, view direction) + 0.5, 0)`` of every (camera, splat) (sh.py is the reference).
+
+    Args: means ``[N, 3]``; sh_dc ``[N, 1, 3]``; sh_rest ``[N, R, 3]``; origins ``[C, 3]``: camera centres (pinhole,
+        direction ``mean - centre``) or forward axes (orthographic); degree 0..3.
+    Returns: ``[C, N, 3]``.
+    """
+    c = lambda t: t.contiguous()
+    return _ShColors.apply(c(means), c(sh_dc), c(sh_rest), c(origins.to(means.dtype)), bool(ortho), int(degree))
 
 
 @torch.no_grad()

@@ -7,9 +7,8 @@
 //                then by (depth, index) within the tile (the torch stable argsort rank); and, per entry,
 //                the positions of its pairs (tile order), the fixed order in which the kernels sum gradients.
 // Inputs are flattened (camera, splat) entries s = c * N + n; opacities are per splat n.
-#include <torch/extension.h>
-
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <numeric>
 #include <vector>
@@ -130,20 +129,54 @@ void footprint3d_impl(const T* m2d, const T* dep, const T* cov, const T* op, int
   });
 }
 
+// a double as an unsigned key with the same order (-0 = +0; NaN last, as torch.argsort)
+inline uint64_t sort_key(double d) {
+  if (std::isnan(d)) return ~uint64_t(0);
+  if (d == 0.0) d = 0.0;
+  uint64_t b;
+  std::memcpy(&b, &d, sizeof b);
+  return (b >> 63) ? ~b : b | (uint64_t(1) << 63);
+}
+
+// the entries that have tiles, by depth (ties: index order): a stable LSD radix sort, 11 bits a pass
+template <typename D>
+std::vector<int64_t> depth_order(const D* depth, const int64_t* rects, int64_t M) {
+  std::vector<uint64_t> key, key2;
+  std::vector<int64_t> idx, idx2;
+  for (int64_t s = 0; s < M; ++s) {
+    const int64_t* r = rects + 4 * s;
+    if (r[1] > r[0] && r[3] > r[2]) {
+      key.push_back(sort_key(double(depth[s])));
+      idx.push_back(s);
+    }
+  }
+  const size_t n = key.size();
+  key2.resize(n);
+  idx2.resize(n);
+  for (int shift = 0; shift < 64; shift += 11) {
+    size_t count[2049] = {0};
+    for (const uint64_t k : key) ++count[((k >> shift) & 2047) + 1];
+    if (count[((key.empty() ? 0 : key[0] >> shift) & 2047) + 1] == n) continue;  // one digit value: nothing moves
+    for (int b = 0; b < 2048; ++b) count[b + 1] += count[b];
+    for (size_t i = 0; i < n; ++i) {
+      const size_t at = count[(key[i] >> shift) & 2047]++;
+      key2[at] = key[i];
+      idx2[at] = idx[i];
+    }
+    key.swap(key2);
+    idx.swap(idx2);
+  }
+  return idx;
+}
+
 // raster.bin_tiles: pairs sorted by camera-tile, then by (depth, splat index); and per entry its pairs
 template <typename D>
 void bin_impl(const int64_t* rects, const D* depth, int64_t C, int64_t N, const Screen& sc, TileLists& out) {
   const int64_t M = C * N, TT = sc.TX * sc.TY;
   auto lo = out.rects.options();
-  std::vector<int64_t> order(M);
-  std::iota(order.begin(), order.end(), 0);
-  // NaN last (as torch.argsort); such entries have no tiles anyway
-  std::stable_sort(order.begin(), order.end(), [&](int64_t i, int64_t j) {
-    const double a = double(depth[i]), b = double(depth[j]);
-    return !std::isnan(a) && (std::isnan(b) || a < b);
-  });
-  out.offsets = torch::zeros({C * TT + 1}, lo);
-  out.entry_offsets = torch::empty({M + 1}, lo);
+  const std::vector<int64_t> order = depth_order(depth, rects, M);
+  out.offsets = at::zeros({C * TT + 1}, lo);
+  out.entry_offsets = at::empty({M + 1}, lo);
   int64_t* off = out.offsets.data_ptr<int64_t>();
   int64_t* eoff = out.entry_offsets.data_ptr<int64_t>();
   eoff[0] = 0;
@@ -155,8 +188,8 @@ void bin_impl(const int64_t* rects, const D* depth, int64_t C, int64_t N, const 
     eoff[s + 1] = eoff[s] + std::max<int64_t>(r[1] - r[0], 0) * std::max<int64_t>(r[3] - r[2], 0);
   }
   for (int64_t t = 0; t < C * TT; ++t) off[t + 1] += off[t];
-  out.ids = torch::empty({off[C * TT]}, lo);
-  out.pair_of = torch::empty({off[C * TT]}, lo);
+  out.ids = at::empty({off[C * TT]}, lo);
+  out.pair_of = at::empty({off[C * TT]}, lo);
   int64_t* ids = out.ids.data_ptr<int64_t>();
   int64_t* pof = out.pair_of.data_ptr<int64_t>();
   std::vector<int64_t> cur(off, off + C * TT);
@@ -174,8 +207,8 @@ void bin_impl(const int64_t* rects, const D* depth, int64_t C, int64_t N, const 
 }
 
 // render._outputs: visible = radius > 0 and a non-empty tile rectangle; radii zeroed where not visible
-torch::Tensor visibility(torch::Tensor& radius, const torch::Tensor& rects) {
-  auto vis = torch::empty({radius.numel()}, radius.options().dtype(torch::kBool));
+at::Tensor visibility(at::Tensor& radius, const at::Tensor& rects) {
+  auto vis = at::empty({radius.numel()}, radius.options().dtype(at::kBool));
   int64_t* r = radius.data_ptr<int64_t>();
   const int64_t* rc = rects.data_ptr<int64_t>();
   bool* v = vis.data_ptr<bool>();
@@ -190,29 +223,29 @@ Screen screen(const Raster& r) {
   return Screen{r.W, r.H, r.tile, (r.W + r.tile - 1) / r.tile, (r.H + r.tile - 1) / r.tile};
 }
 
-void check(const torch::Tensor& t, const char* name) {
+void check(const at::Tensor& t, const char* name) {
   TORCH_CHECK(t.is_contiguous() && t.device().is_cpu(), name, " must be a contiguous CPU tensor");
 }
 
-TileLists allocate(int64_t M, const torch::TensorOptions& lo) {
+TileLists allocate(int64_t M, const at::TensorOptions& lo) {
   TileLists l;
-  l.radii = torch::empty({M}, lo);
-  l.rects = torch::empty({M, 4}, lo);
-  l.box = torch::empty({M, 4}, lo);
+  l.radii = at::empty({M}, lo);
+  l.rects = at::empty({M, 4}, lo);
+  l.box = at::empty({M, 4}, lo);
   return l;
 }
 
 }  // namespace
 
-TileLists footprint_bin2d(const torch::Tensor& Hm, const torch::Tensor& Dz, const torch::Tensor& op, const Raster& raster,
+TileLists footprint_bin2d(const at::Tensor& Hm, const at::Tensor& Dz, const at::Tensor& op, const Raster& raster,
                           double near, double sigma) {
   check(Hm, "homographies"); check(Dz, "depth rows"); check(op, "opacities");
   const int64_t M = Hm.size(0), N = op.numel(), C = raster.C;
   TORCH_CHECK(M == C * N && Hm.size(1) == 9 && Dz.size(1) == 3, "footprint_bin2d: Hm, Dz must be [C*N, 9], [C*N, 3]");
   TORCH_CHECK(sigma > 0, "footprint_bin2d: the low-pass sigma must be > 0");
   const Screen sc = screen(raster);
-  TileLists l = allocate(M, Hm.options().dtype(torch::kLong));
-  auto depth = torch::empty({M}, Hm.options().dtype(torch::kDouble));
+  TileLists l = allocate(M, Hm.options().dtype(at::kLong));
+  auto depth = at::empty({M}, Hm.options().dtype(at::kDouble));
   AT_DISPATCH_FLOATING_TYPES(Hm.scalar_type(), "footprint2d", [&] {
     footprint2d_impl<scalar_t>(Hm.data_ptr<scalar_t>(), Dz.data_ptr<scalar_t>(), op.data_ptr<scalar_t>(), M, N, near, sigma, sc,
                                l.radii.data_ptr<int64_t>(), l.rects.data_ptr<int64_t>(), l.box.data_ptr<int64_t>(),
@@ -223,14 +256,14 @@ TileLists footprint_bin2d(const torch::Tensor& Hm, const torch::Tensor& Dz, cons
   return l;
 }
 
-TileLists footprint_bin3d(const torch::Tensor& m2d, const torch::Tensor& depth, const torch::Tensor& cov,
-                          const torch::Tensor& op, const Raster& raster, double near) {
+TileLists footprint_bin3d(const at::Tensor& m2d, const at::Tensor& depth, const at::Tensor& cov,
+                          const at::Tensor& op, const Raster& raster, double near) {
   for (auto* t : {&m2d, &depth, &cov, &op}) check(*t, "footprint_bin3d input");
   const int64_t M = depth.numel(), N = op.numel(), C = raster.C;
   TORCH_CHECK(M == C * N, "footprint_bin3d: depth must have C*N entries");
   const Screen sc = screen(raster);
-  TileLists l = allocate(M, depth.options().dtype(torch::kLong));
-  auto ok = torch::empty({M}, depth.options().dtype(torch::kBool));
+  TileLists l = allocate(M, depth.options().dtype(at::kLong));
+  auto ok = at::empty({M}, depth.options().dtype(at::kBool));
   AT_DISPATCH_FLOATING_TYPES(depth.scalar_type(), "footprint3d", [&] {
     footprint3d_impl<scalar_t>(m2d.data_ptr<scalar_t>(), depth.data_ptr<scalar_t>(), cov.data_ptr<scalar_t>(),
                                op.data_ptr<scalar_t>(), M, N, near, sc, l.radii.data_ptr<int64_t>(),

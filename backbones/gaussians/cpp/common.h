@@ -86,14 +86,12 @@ inline void concat_rows(const T* a, int64_t K1, const T* b, int64_t K2, int64_t 
 
 }  // namespace arcsem
 
-#include <torch/extension.h>
-
 namespace arcsem {
 
 // columns [k0, k0 + n) of a contiguous [M, K] tensor as a new contiguous tensor (a plain loop)
-inline torch::Tensor split_cols(const torch::Tensor& x, int64_t k0, int64_t n) {
+inline at::Tensor split_cols(const at::Tensor& x, int64_t k0, int64_t n) {
   const int64_t M = x.size(0), K = x.size(1);
-  auto out = torch::empty({M, n}, x.options());
+  auto out = at::empty({M, n}, x.options());
   AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "split_cols", [&] {
     const scalar_t* src = x.data_ptr<scalar_t>();
     scalar_t* dst = out.data_ptr<scalar_t>();
@@ -101,7 +99,7 @@ inline torch::Tensor split_cols(const torch::Tensor& x, int64_t k0, int64_t n) {
   });
   return out;
 }
-inline torch::Tensor split_cols(const torch::Tensor& x, int64_t n) { return split_cols(x, 0, n); }
+inline at::Tensor split_cols(const at::Tensor& x, int64_t n) { return split_cols(x, 0, n); }
 
 // Final per-pixel outputs, in T arithmetic as the PyTorch path: rgb = f[0:3] + (1 - alpha) bg (bg may be
 // null), extra = f[3:K], depth = where(alpha > 0, wz / max(alpha, 1e-30), 0) with wz at wz[p * wz_stride].
@@ -148,18 +146,18 @@ namespace arcsem {
 
 // a gradient tensor's data, or null when autograd passed none (the output was not used)
 template <typename T>
-inline const T* grad_or_null(const torch::Tensor& g) { return g.defined() && g.numel() ? g.data_ptr<T>() : nullptr; }
+inline const T* grad_or_null(const at::Tensor& g) { return g.defined() && g.numel() ? g.data_ptr<T>() : nullptr; }
 
-inline void check_cpu(const torch::Tensor& t, const char* what) {
+inline void check_cpu(const at::Tensor& t, const char* what) {
   TORCH_CHECK(t.defined() && t.is_contiguous() && t.device().is_cpu(), what, " must be a contiguous CPU tensor");
 }
 
 // A per-pair work list kept from the forward pass for the backward pass: P records of type R as a byte tensor.
 template <typename R>
-inline torch::Tensor pair_storage(int64_t P, const torch::Tensor& like) {
-  return torch::empty({P * int64_t(sizeof(R))}, like.options().dtype(torch::kUInt8));
+inline at::Tensor pair_storage(int64_t P, const at::Tensor& like) {
+  return at::empty({P * int64_t(sizeof(R))}, like.options().dtype(at::kByte));
 }
 template <typename R>
-inline R* pair_records(const torch::Tensor& bytes) { return reinterpret_cast<R*>(bytes.data_ptr<uint8_t>()); }
+inline R* pair_records(const at::Tensor& bytes) { return reinterpret_cast<R*>(bytes.data_ptr<uint8_t>()); }
 
 }  // namespace arcsem

@@ -99,11 +99,11 @@ Composite2D forward_impl(const Surfels2D& s, const TileLists& l, const Grid& gr)
   Composite2D r;
   r.pairs = pair_storage<Pair2<T>>(l.ids.numel(), s.colors);
   for (auto* t : {&r.t_final, &r.alpha, &r.wz, &r.depth, &r.median, &r.distortion, &r.m1, &r.m2, &r.mref})
-    *t = torch::empty({gr.C, gr.H, gr.W, 1}, o);
-  r.rgb = torch::empty({gr.C, gr.H, gr.W, 3}, o);
-  r.normal = torch::empty({gr.C, gr.H, gr.W, 3}, o);
-  r.last = torch::empty({gr.C, gr.H, gr.W}, o.dtype(torch::kInt32));
-  r.median_pair = torch::empty_like(r.last);
+    *t = at::empty({gr.C, gr.H, gr.W, 1}, o);
+  r.rgb = at::empty({gr.C, gr.H, gr.W, 3}, o);
+  r.normal = at::empty({gr.C, gr.H, gr.W, 3}, o);
+  r.last = at::empty({gr.C, gr.H, gr.W}, o.dtype(at::kInt));
+  r.median_pair = at::empty_like(r.last);
   Pair2<T>* pairs = pair_records<Pair2<T>>(r.pairs);
   const Out2<T> out{r.rgb.data_ptr<T>(), r.normal.data_ptr<T>(), r.t_final.data_ptr<T>(), r.alpha.data_ptr<T>(),
                     r.wz.data_ptr<T>(), r.depth.data_ptr<T>(), r.median.data_ptr<T>(), r.distortion.data_ptr<T>(),

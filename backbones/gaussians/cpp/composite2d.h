@@ -20,8 +20,6 @@
 // the tile does not lose digits to large pixel coordinates. Tiles, lanes, the per-pair work list and the
 // per-entry gradient sums work as in composite3d.cpp.
 #pragma once
-#include <torch/extension.h>
-
 #include <cmath>
 #include <vector>
 

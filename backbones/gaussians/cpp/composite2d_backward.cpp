@@ -145,7 +145,7 @@ inline void adjugate_to_rows(const double* H, const double* gA, double* gH) {
 
 template <typename T>
 Grads2D backward_impl(const Surfels2D& s, const TileLists& l, const Grid& gr, const Composite2D& fw,
-                      const std::vector<torch::Tensor>& og) {
+                      const std::vector<at::Tensor>& og) {
   const In2<T> in = inputs<T>(s, l);
   const int64_t M = s.colors.size(0), P = l.ids.numel();
   const Pair2<T>* pairs = pair_records<Pair2<T>>(fw.pairs);
@@ -164,12 +164,12 @@ Grads2D backward_impl(const Surfels2D& s, const TileLists& l, const Grid& gr, co
                   gr.x0(ct), gr.y0(ct), st, rows.data() + start * D2);
   });
   Grads2D g;
-  g.H = torch::empty_like(s.H);
-  g.Dz = torch::empty_like(s.Dz);
-  g.centres = torch::empty_like(s.centres);
-  g.opacities = torch::empty_like(s.opacities);
-  g.colors = torch::empty_like(s.colors);
-  g.normals = torch::empty_like(s.normals);
+  g.H = at::empty_like(s.H);
+  g.Dz = at::empty_like(s.Dz);
+  g.centres = at::empty_like(s.centres);
+  g.opacities = at::empty_like(s.opacities);
+  g.colors = at::empty_like(s.colors);
+  g.normals = at::empty_like(s.normals);
   T *gH = g.H.data_ptr<T>(), *gDz = g.Dz.data_ptr<T>(), *gc = g.centres.data_ptr<T>(), *gop = g.opacities.data_ptr<T>(),
     *gcol = g.colors.data_ptr<T>(), *gn = g.normals.data_ptr<T>();
   reduce_pairs(M, D2, rows.data(), l.entry_offsets.data_ptr<int64_t>(), l.pair_of.data_ptr<int64_t>(),
@@ -194,11 +194,11 @@ Grads2D backward_impl(const Surfels2D& s, const TileLists& l, const Grid& gr, co
 }  // namespace c2d
 
 Grads2D composite2d_backward(const Surfels2D& s, const TileLists& lists, const Raster& raster, const Composite2D& fwd,
-                             const torch::Tensor& g_rgb, const torch::Tensor& g_normal, const torch::Tensor& g_alpha,
-                             const torch::Tensor& g_depth, const torch::Tensor& g_median,
-                             const torch::Tensor& g_distortion) {
+                             const at::Tensor& g_rgb, const at::Tensor& g_normal, const at::Tensor& g_alpha,
+                             const at::Tensor& g_depth, const at::Tensor& g_median,
+                             const at::Tensor& g_distortion) {
   const Grid gr = make_grid(raster.C, raster.H, raster.W, raster.tile);
-  const std::vector<torch::Tensor> og{g_rgb, g_normal, g_alpha, g_depth, g_median, g_distortion};
+  const std::vector<at::Tensor> og{g_rgb, g_normal, g_alpha, g_depth, g_median, g_distortion};
   Grads2D g;
   AT_DISPATCH_FLOATING_TYPES(s.colors.scalar_type(), "composite2d_backward", [&] {
     g = c2d::backward_impl<scalar_t>(s, lists, gr, fwd, og);

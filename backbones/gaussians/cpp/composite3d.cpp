@@ -9,8 +9,6 @@
 // lanes that the compiler vectorises; float arithmetic for float tensors, double for double). The forward
 // pass keeps its per-pair work list (the splat in the tile's pixel frame) for the backward pass, which
 // writes one gradient row per pair; the rows are then summed per splat in the fixed order of the tile lists.
-#include <torch/extension.h>
-
 #include <cmath>
 #include <vector>
 
@@ -149,12 +147,12 @@ Composite3D forward_impl(const Splats3D& s, const TileLists& l, const Grid& gr) 
   auto o = s.colors.options();
   Composite3D r;
   r.pairs = pair_storage<Pair3<T>>(P, s.colors);
-  r.t_final = torch::empty({gr.C, gr.H, gr.W, 1}, o);
-  r.wz = torch::empty_like(r.t_final);
-  r.alpha = torch::empty_like(r.t_final);
-  r.depth = torch::empty_like(r.t_final);
-  r.rgb = torch::empty({gr.C, gr.H, gr.W, 3}, o);
-  r.last = torch::empty({gr.C, gr.H, gr.W}, o.dtype(torch::kInt32));
+  r.t_final = at::empty({gr.C, gr.H, gr.W, 1}, o);
+  r.wz = at::empty_like(r.t_final);
+  r.alpha = at::empty_like(r.t_final);
+  r.depth = at::empty_like(r.t_final);
+  r.rgb = at::empty({gr.C, gr.H, gr.W, 3}, o);
+  r.last = at::empty({gr.C, gr.H, gr.W}, o.dtype(at::kInt));
   Pair3<T>* pairs = pair_records<Pair3<T>>(r.pairs);
   T *rgb = r.rgb.data_ptr<T>(), *tf = r.t_final.data_ptr<T>(), *wz = r.wz.data_ptr<T>(), *al = r.alpha.data_ptr<T>(),
     *dep = r.depth.data_ptr<T>();
@@ -238,7 +236,7 @@ void backward_tile(const Pair3<T>* pr, int64_t n, int ny, Tile3<T>& st, T* grow)
 
 template <typename T>
 Grads3D backward_impl(const Splats3D& s, const TileLists& l, const Grid& gr, const Composite3D& fw,
-                      const torch::Tensor& g_rgb, const torch::Tensor& g_alpha, const torch::Tensor& g_depth) {
+                      const at::Tensor& g_rgb, const at::Tensor& g_alpha, const at::Tensor& g_depth) {
   const In3<T> in = inputs<T>(s, l);
   const int64_t M = s.colors.size(0), P = l.ids.numel();
   const Pair3<T>* pairs = pair_records<Pair3<T>>(fw.pairs);
@@ -277,11 +275,11 @@ Grads3D backward_impl(const Splats3D& s, const TileLists& l, const Grid& gr, con
     backward_tile(pairs + start, in.off[ct + 1] - start, int(gr.ny(ct)), st, rows.data() + start * D3);
   });
   Grads3D g;
-  g.means2d = torch::empty_like(s.means2d);
-  g.conics = torch::empty_like(s.conics);
-  g.opacities = torch::empty_like(s.opacities);
-  g.colors = torch::empty_like(s.colors);
-  g.depth = torch::empty_like(s.depth);
+  g.means2d = at::empty_like(s.means2d);
+  g.conics = at::empty_like(s.conics);
+  g.opacities = at::empty_like(s.opacities);
+  g.colors = at::empty_like(s.colors);
+  g.depth = at::empty_like(s.depth);
   T *gm = g.means2d.data_ptr<T>(), *gc = g.conics.data_ptr<T>(), *go = g.opacities.data_ptr<T>(),
     *gcol = g.colors.data_ptr<T>(), *gd = g.depth.data_ptr<T>();
   reduce_pairs(M, D3, rows.data(), l.entry_offsets.data_ptr<int64_t>(), l.pair_of.data_ptr<int64_t>(),
@@ -307,7 +305,7 @@ Composite3D composite3d_forward(const Splats3D& s, const TileLists& lists, const
 }
 
 Grads3D composite3d_backward(const Splats3D& s, const TileLists& lists, const Raster& raster, const Composite3D& fwd,
-                             const torch::Tensor& g_rgb, const torch::Tensor& g_alpha, const torch::Tensor& g_depth) {
+                             const at::Tensor& g_rgb, const at::Tensor& g_alpha, const at::Tensor& g_depth) {
   const Grid gr = make_grid(raster.C, raster.H, raster.W, raster.tile);
   Grads3D g;
   AT_DISPATCH_FLOATING_TYPES(s.colors.scalar_type(), "composite3d_backward", [&] {

@@ -17,6 +17,9 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   py::class_<TileLists>(m, "TileLists")
       .def(py::init<>()) FIELD(TileLists, radii) FIELD(TileLists, visible) FIELD(TileLists, rects) FIELD(TileLists, box)
           FIELD(TileLists, offsets) FIELD(TileLists, ids) FIELD(TileLists, entry_offsets) FIELD(TileLists, pair_of);
+  py::class_<ShColors>(m, "ShColors")
+      .def(py::init<>()) FIELD(ShColors, means) FIELD(ShColors, sh_dc) FIELD(ShColors, sh_rest) FIELD(ShColors, origins)
+          FIELD(ShColors, ortho) FIELD(ShColors, degree);
   py::class_<Splats3D>(m, "Splats3D")
       .def(py::init<>()) FIELD(Splats3D, means2d) FIELD(Splats3D, conics) FIELD(Splats3D, opacities)
           FIELD(Splats3D, colors) FIELD(Splats3D, depth) FIELD(Splats3D, background);
@@ -49,6 +52,8 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("project3d_forward", &project3d_forward, "3DGS EWA projection and conics", py::arg("p"));
   m.def("project3d_backward", &project3d_backward, "3DGS projection, backward", py::arg("p"), py::arg("g_means2d"),
         py::arg("g_depth"), py::arg("g_conics"));
+  m.def("sh_colors_forward", &sh_colors_forward, "SH colours of every (camera, splat)", py::arg("a"));
+  m.def("sh_colors_backward", &sh_colors_backward, "SH colours, backward", py::arg("a"), py::arg("g_colors"));
   m.def("composite3d_forward", &composite3d_forward, "3DGS tile compositing", py::arg("splats"), py::arg("lists"),
         py::arg("raster"));
   m.def("composite3d_backward", &composite3d_backward, "3DGS tile compositing, backward", py::arg("splats"),

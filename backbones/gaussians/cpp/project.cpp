@@ -6,8 +6,6 @@
 // P [C, 4, 4] is raster_camera.pixel_projection: world -> (x w, y w, w, z). Entries s = c * N + n.
 // The screen-position leaf enters as a shift of value zero (raster.screen_position_leaf), so the
 // forward ignores it and the backward returns its gradient.
-#include <torch/extension.h>
-
 #include <cmath>
 #include <vector>
 
@@ -99,19 +97,19 @@ inline bool conic_ok(const T* cov, T depth, double near) {
   return det > 0 && depth > T(near) && std::isfinite(mid + std::sqrt(std::max(mid * mid - det, 0.1)));
 }
 
-void check(const torch::Tensor& t) { TORCH_CHECK(t.is_contiguous() && t.device().is_cpu(), "project: inputs must be contiguous CPU tensors"); }
+void check(const at::Tensor& t) { TORCH_CHECK(t.is_contiguous() && t.device().is_cpu(), "project: inputs must be contiguous CPU tensors"); }
 
 }  // namespace
 
 // -> H [C*N, 9] (rows Tu, Tv, Tw), Dz [C*N, 3] (row Tz), centre [C*N, 2], normals [C*N, 3]
-std::vector<torch::Tensor> project2d_forward(const Projection& pr) {
+std::vector<at::Tensor> project2d_forward(const Projection& pr) {
   const auto &means = pr.means, &quats = pr.quats, &scales = pr.scales, &P = pr.P, &view = pr.view;
   const bool ortho = pr.ortho;
   for (auto* t : {&means, &quats, &scales, &P, &view}) check(*t);
   const int64_t N = means.size(0), C = P.size(0);
   auto o = means.options();
-  auto Hm = torch::empty({C * N, 9}, o), Dz = torch::empty({C * N, 3}, o), ctr = torch::empty({C * N, 2}, o), nrm = torch::empty({C * N, 3}, o);
-  auto Pd = P.to(torch::kDouble).contiguous(), Vd = view.to(torch::kDouble).contiguous();
+  auto Hm = at::empty({C * N, 9}, o), Dz = at::empty({C * N, 3}, o), ctr = at::empty({C * N, 2}, o), nrm = at::empty({C * N, 3}, o);
+  auto Pd = P.to(at::kDouble).contiguous(), Vd = view.to(at::kDouble).contiguous();
   AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "project2d_forward", [&] {
     const scalar_t *m = means.data_ptr<scalar_t>(), *q = quats.data_ptr<scalar_t>(), *sc = scales.data_ptr<scalar_t>();
     scalar_t *H = Hm.data_ptr<scalar_t>(), *Z = Dz.data_ptr<scalar_t>(), *ct = ctr.data_ptr<scalar_t>(), *nr = nrm.data_ptr<scalar_t>();
@@ -136,15 +134,15 @@ std::vector<torch::Tensor> project2d_forward(const Projection& pr) {
 }
 
 // -> g_means [N,3], g_quats [N,4], g_scales [N,2], g_shift [C*N, 2]
-std::vector<torch::Tensor> project2d_backward(const Projection& pr, const torch::Tensor& gH, const torch::Tensor& gDz,
-                                              const torch::Tensor& gctr, const torch::Tensor& gnrm) {
+std::vector<at::Tensor> project2d_backward(const Projection& pr, const at::Tensor& gH, const at::Tensor& gDz,
+                                              const at::Tensor& gctr, const at::Tensor& gnrm) {
   const auto &means = pr.means, &quats = pr.quats, &scales = pr.scales, &P = pr.P, &view = pr.view;
   const bool ortho = pr.ortho;
   for (auto* t : {&means, &quats, &scales, &P, &view, &gH, &gDz, &gctr, &gnrm}) check(*t);
   const int64_t N = means.size(0), C = P.size(0);
-  auto gm = torch::empty_like(means), gq = torch::empty_like(quats), gs = torch::empty_like(scales);
-  auto gsh = torch::empty({C * N, 2}, means.options());
-  auto Pd = P.to(torch::kDouble).contiguous(), Vd = view.to(torch::kDouble).contiguous();
+  auto gm = at::empty_like(means), gq = at::empty_like(quats), gs = at::empty_like(scales);
+  auto gsh = at::empty({C * N, 2}, means.options());
+  auto Pd = P.to(at::kDouble).contiguous(), Vd = view.to(at::kDouble).contiguous();
   AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "project2d_backward", [&] {
     const scalar_t *m = means.data_ptr<scalar_t>(), *q = quats.data_ptr<scalar_t>(), *sc = scales.data_ptr<scalar_t>();
     const scalar_t *GH = gH.data_ptr<scalar_t>(), *GZ = gDz.data_ptr<scalar_t>(), *GC = gctr.data_ptr<scalar_t>(), *GN = gnrm.data_ptr<scalar_t>();
@@ -193,15 +191,15 @@ std::vector<torch::Tensor> project2d_backward(const Projection& pr, const torch:
 }
 
 // -> means2d [C*N, 2], depth [C*N], conics [C*N, 3], cov (a, b, c) [C*N, 3]
-std::vector<torch::Tensor> project3d_forward(const Projection& pr) {
+std::vector<at::Tensor> project3d_forward(const Projection& pr) {
   const auto &means = pr.means, &quats = pr.quats, &scales = pr.scales, &P = pr.P;
   const double near = pr.near;
   for (auto* t : {&means, &quats, &scales, &P}) check(*t);
   const int64_t N = means.size(0), C = P.size(0);
   auto o = means.options();
-  auto m2 = torch::empty({C * N, 2}, o), dep = torch::empty({C * N}, o), con = torch::empty({C * N, 3}, o),
-       cov = torch::empty({C * N, 3}, o);
-  auto Pd = P.to(torch::kDouble).contiguous();
+  auto m2 = at::empty({C * N, 2}, o), dep = at::empty({C * N}, o), con = at::empty({C * N, 3}, o),
+       cov = at::empty({C * N, 3}, o);
+  auto Pd = P.to(at::kDouble).contiguous();
   AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "project3d_forward", [&] {
     const scalar_t *m = means.data_ptr<scalar_t>(), *q = quats.data_ptr<scalar_t>(), *sc = scales.data_ptr<scalar_t>();
     scalar_t *om = m2.data_ptr<scalar_t>(), *od = dep.data_ptr<scalar_t>(), *oc = con.data_ptr<scalar_t>(),
@@ -230,14 +228,14 @@ std::vector<torch::Tensor> project3d_forward(const Projection& pr) {
 }
 
 // -> g_means [N,3], g_quats [N,4], g_scales [N,3], g_shift [C*N, 2] (= g_means2d)
-std::vector<torch::Tensor> project3d_backward(const Projection& pr, const torch::Tensor& gm2, const torch::Tensor& gdep,
-                                              const torch::Tensor& gcon) {
+std::vector<at::Tensor> project3d_backward(const Projection& pr, const at::Tensor& gm2, const at::Tensor& gdep,
+                                              const at::Tensor& gcon) {
   const auto &means = pr.means, &quats = pr.quats, &scales = pr.scales, &P = pr.P;
   const double near = pr.near;
   for (auto* t : {&means, &quats, &scales, &P, &gm2, &gdep, &gcon}) check(*t);
   const int64_t N = means.size(0), C = P.size(0);
-  auto gm = torch::empty_like(means), gq = torch::empty_like(quats), gs = torch::empty_like(scales);
-  auto Pd = P.to(torch::kDouble).contiguous();
+  auto gm = at::empty_like(means), gq = at::empty_like(quats), gs = at::empty_like(scales);
+  auto Pd = P.to(at::kDouble).contiguous();
   AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "project3d_backward", [&] {
     const scalar_t *m = means.data_ptr<scalar_t>(), *q = quats.data_ptr<scalar_t>(), *sc = scales.data_ptr<scalar_t>();
     const scalar_t *G2 = gm2.data_ptr<scalar_t>(), *GD = gdep.data_ptr<scalar_t>(), *GC = gcon.data_ptr<scalar_t>();

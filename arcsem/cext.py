@@ -20,9 +20,25 @@ from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
 
-__all__ = ["CHOICES", "Extension", "build_name", "load", "resolve_impl"]
+__all__ = ["CHOICES", "NATIVE_CFLAGS", "Extension", "build_name", "cpu_fingerprint", "load", "resolve_impl"]
 
 CHOICES = ("auto", "torch", "cpp")
+NATIVE_CFLAGS = ("-O3", "-fopenmp", "-march=native")
+"""Flags for kernels written to be vectorised: the instruction set of the machine that builds (the JIT build runs
+where the kernels run; the build folder's name then carries :func:`cpu_fingerprint`, so a cache shared by
+machines of different kinds holds one build per kind)."""
+
+
+def cpu_fingerprint() -> str:
+    """The CPU's model and instruction-set flags (``/proc/cpuinfo``; the platform's name elsewhere)."""
+    import platform
+
+    try:
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+    except OSError:
+        return platform.machine() + platform.processor()
+    keep = [ln for ln in lines if ln.split(":")[0].strip() in ("model name", "flags", "Features", "CPU part")]
+    return "\n".join(sorted(set(keep)))
 
 
 @dataclass(frozen=True)
@@ -37,9 +53,12 @@ class Extension:
 
 
 def build_name(ext: Extension) -> str:
-    """``<prefix>_<12 hex>``: a hash of the flags, the source folder, the sources and the headers beside them."""
+    """``<prefix>_<12 hex>``: a hash of the flags, the source folder, the sources and the headers beside them (and of
+    the CPU with ``-march=native``)."""
     folders = sorted({s.parent for s in ext.sources})
     h = hashlib.sha1(" ".join([*ext.cflags, *ext.ldflags, *map(str, folders)]).encode())
+    if "-march=native" in ext.cflags:
+        h.update(cpu_fingerprint().encode())
     headers = [p for d in folders for p in d.glob("*.h")]
     for f in sorted({*ext.sources, *headers}):
         h.update(f.name.encode() + f.read_bytes())

@@ -186,7 +186,7 @@ def test_fused_footprint_and_binning_equal_torch(kind, model):
         cov = torch.stack([cov2d[..., 0, 0], cov2d[..., 0, 1], cov2d[..., 1, 1]], -1)
         got = fused.footprint_bin_3dgs(m2.reshape(C * N, 2), depth.reshape(-1), cov.reshape(C * N, 3), s.opacities,
                                        C, near, W, H, tile)
-    radii, visible, rects_c, eff_c, offsets, ids = got
+    radii, visible, rects_c, eff_c, offsets, ids = got.radii, got.visible, got.rects, got.box, got.offsets, got.ids
     b = bin_tiles(rects, depth, W, H, tile)
     vis = (radius > 0) & (rects[..., 1] > rects[..., 0]) & (rects[..., 3] > rects[..., 2])
     assert 0 < int(vis.sum()) < C * N, "the scene should have visible and culled splats"
@@ -229,3 +229,34 @@ def test_unavailable_extension_falls_back_with_one_warning(monkeypatch):
         assert "no compiler here" in msgs[0]
     finally:
         fused.load_extension.cache_clear()
+
+
+@pytest.mark.parametrize("model", ["pinhole", "orthographic"])
+@pytest.mark.parametrize("degree", [0, 1, 2, 3])
+def test_fused_sh_colors_match_torch(model, degree):
+    """The fused SH colours (every camera, splat) and their gradients to means and coefficients equal
+    GaussianModel.colors' PyTorch path in float64, clamped colours included; degree 0 leaves means and the rest
+    coefficients without a gradient, as the PyTorch path."""
+    from arcsem.backbones.gaussians.model import GaussianModel
+
+    g = torch.Generator().manual_seed(degree)
+    n = 50
+    params = {"means": torch.randn(n, 3, generator=g, dtype=torch.float64), "quats": torch.randn(n, 4, dtype=torch.float64),
+              "log_scales": torch.zeros(n, 3, dtype=torch.float64), "opacity_logits": torch.zeros(n, dtype=torch.float64),
+              "sh_dc": torch.randn(n, 1, 3, generator=g, dtype=torch.float64),  # some colours clamp at 0
+              "sh_rest": torch.randn(n, 15, 3, generator=g, dtype=torch.float64) * 0.5}
+    _, cams = _scene("gs3d", model, 0)
+    res = {}
+    for impl in ("torch", "cpp"):
+        m = GaussianModel(params).double()
+        rgb = m.colors(cams, degree=degree, impl=impl)
+        cot = torch.rand(rgb.shape, generator=torch.Generator().manual_seed(9), dtype=torch.float64)
+        grads = torch.autograd.grad((rgb * cot).sum(), [m.means, m.sh_dc, m.sh_rest], allow_unused=True)
+        res[impl] = rgb.detach(), grads
+    assert (res["torch"][0] == 0).any() and (res["torch"][0] > 0).any(), "some colours should be clamped"
+    assert_rel(res["cpp"][0], res["torch"][0], 1e-12, "colours")
+    for name, a, b in zip(("means", "sh_dc", "sh_rest"), res["cpp"][1], res["torch"][1]):
+        if b is None:
+            assert a is None or not a.any(), f"{name}: the PyTorch path has no gradient"
+        else:
+            assert_rel(a, b, 1e-12, f"d/d{name}")

@@ -27,6 +27,7 @@ from typing import Any
 
 import torch
 from torch import nn
+from torch.profiler import record_function as region
 from tqdm.auto import tqdm
 
 from ..errors import ConfigError, Interrupted, TrainingError
@@ -139,7 +140,8 @@ class _Run:
 
     def save(self) -> None:
         if self.path is not None:
-            ckpt.save_checkpoint(self.path, self.state())
+            with region("arcsem::checkpoint"):
+                ckpt.save_checkpoint(self.path, self.state())
             self.saved_step = self.step
 
     def on_disk(self) -> str:
@@ -185,27 +187,37 @@ def _device(backbone: nn.Module) -> torch.device:
 
 
 def _step(run: _Run, losses: LossSet, batch_hook, step: int) -> tuple[float, float, dict]:
-    """One optimisation step; returns (loss, batch PSNR, {term: value})."""
+    """One optimisation step; returns (loss, batch PSNR, {term: value}).
+
+    The parts run in named profiler regions (``arcsem::sample``, ``arcsem::render``, ...; free when no profiler
+    runs): benchmarks/profile_step.py attributes time, backward passes included, to them."""
     bb = run.backbone
     apply_schedules(run.optimizers, run.schedules, step, run.loop.steps, run.optim.lr_scale)
-    batch = run.sampler.next()
-    if batch_hook is not None:
-        batch = batch_hook(batch)
-    out = render_batch(bb, batch)
+    with region("arcsem::sample"):
+        batch = run.sampler.next()
+        if batch_hook is not None:
+            batch = batch_hook(batch)
+    with region("arcsem::render"):
+        out = render_batch(bb, batch)
     total, terms = losses(out, batch, step)
-    _check_finite(run, step, "loss", terms, "loss term")
+    with region("arcsem::checks"):
+        _check_finite(run, step, "loss", terms, "loss term")
     bb.pre_backward(step, out)
-    bb.zero_grad(set_to_none=True)
-    for o in run.optimizers.values():
-        o.zero_grad(set_to_none=True)
-    total.backward()
-    grads = {g: [p.grad for pg in o.param_groups for p in pg["params"]] for g, o in run.optimizers.items()}
-    _check_finite(run, step, "gradient", grads, "gradient of group")
+    with region("arcsem::backward"):
+        bb.zero_grad(set_to_none=True)
+        for o in run.optimizers.values():
+            o.zero_grad(set_to_none=True)
+        total.backward()
+    with region("arcsem::checks"):
+        grads = {g: [p.grad for pg in o.param_groups for p in pg["params"]] for g, o in run.optimizers.items()}
+        _check_finite(run, step, "gradient", grads, "gradient of group")
     bb.post_backward(step, out, run.optimizers)
-    for o in run.optimizers.values():
-        o.step()
-    params = {g: [p for pg in o.param_groups for p in pg["params"]] for g, o in run.optimizers.items()}
-    _check_finite(run, step, "after the optimiser step", params, "parameter group")
+    with region("arcsem::optimizer"):
+        for o in run.optimizers.values():
+            o.step()
+    with region("arcsem::checks"):
+        params = {g: [p for pg in o.param_groups for p in pg["params"]] for g, o in run.optimizers.items()}
+        _check_finite(run, step, "after the optimiser step", params, "parameter group")
     return float(total.detach()), batch_psnr(out["rgb"], batch.images), {k: float(v.detach()) for k, v in terms.items()}
 
 

@@ -18,6 +18,7 @@ from typing import Any
 
 import torch
 from torch import Tensor, nn
+from torch.profiler import record_function as region
 
 from ..errors import ConfigError
 from ..plugins import LOSSES, Batch, Loss, RenderOutput
@@ -39,7 +40,10 @@ class LossSet(nn.Module):
 
     def forward(self, out: RenderOutput, batch: Batch, step: int) -> tuple[Tensor, dict[str, Tensor]]:
         """Returns ``(total, {name: unweighted term})`` for the terms active at ``step``."""
-        terms = {n: self.terms[n](out, batch, step) for n in self.active(step)}
+        terms = {}
+        for n in self.active(step):
+            with region(f"arcsem::loss/{n}"):  # a profiler region (benchmarks/profile_step.py), free otherwise
+                terms[n] = self.terms[n](out, batch, step)
         if not terms:
             raise ConfigError(f"no loss term is active at step {step}; losses: {', '.join(self.terms) or 'none'}")
         total = sum(self.terms[n].cfg.weight * v for n, v in terms.items())

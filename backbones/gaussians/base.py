@@ -15,6 +15,7 @@ from typing import Any, ClassVar
 
 import torch
 from torch import Tensor, nn
+from torch.profiler import record_function as region
 
 from arcsem.cameras import Cameras
 from arcsem.configs import GroupSchedule
@@ -72,17 +73,27 @@ class GaussianBackbone(Backbone):
         """
         m = self.model
         cams = cams.to(device=m.means.device, dtype=m.means.dtype)
-        colors = m.colors(cams)  # [C, N, 3]
+        impl = self._impl(m.means.device)
+        with region("arcsem::render/sh"):  # profiler regions: benchmarks/profile_step.py
+            colors = m.colors(cams, impl=impl)  # [C, N, 3]
         if self.act is not None:
-            colors = self.act.apply(colors, cams.image_ids)
+            with region("arcsem::render/act"):
+                colors = self.act.apply(colors, cams.image_ids)
         if background is None:
             background = torch.tensor(self.cfg.background, dtype=m.means.dtype, device=m.means.device)
         means, quats, scales, opacities = self.splat_params()
         out = self._rasterize(means, quats, scales, opacities, colors, cams, background=background,
-                              tile=self.cfg.tile, chunk_tiles=self.cfg.chunk_tiles, impl=self.cfg.rasterizer)
+                              tile=self.cfg.tile, chunk_tiles=self.cfg.chunk_tiles, impl=impl)
         if torch.is_grad_enabled():
             self._last_cams = cams  # the cameras whose gradient post_backward reads
         return out
+
+    def _impl(self, device) -> str:
+        """The ``rasterizer`` choice resolved for ``device``: ``cpp`` (fused kernels: SH colours and the rasteriser)
+        or ``torch``."""
+        from .fused import resolve_impl
+
+        return resolve_impl(self.cfg.rasterizer, str(device))
 
     def splat_params(self) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """What the rasteriser draws: means ``[N, 3]``, quaternions ``[N, 4]``, scales ``[N, S]``, opacities ``[N]``
@@ -136,11 +147,13 @@ class GaussianBackbone(Backbone):
         if not c.densify or it >= c.densify_until:
             return
         with torch.no_grad():
-            self._accumulate(out)
-            if it > c.densify_from and it % c.densify_every == 0:
-                self.densify_and_prune(optimizers, screen=it > c.opacity_reset_every)
-            if it % c.opacity_reset_every == 0:
-                reset_opacity(self.model, optimizers)
+            with region("arcsem::densify/stats"):
+                self._accumulate(out)
+            with region("arcsem::densify/passes"):
+                if it > c.densify_from and it % c.densify_every == 0:
+                    self.densify_and_prune(optimizers, screen=it > c.opacity_reset_every)
+                if it % c.opacity_reset_every == 0:
+                    reset_opacity(self.model, optimizers)
 
     def _accumulate(self, out: RenderOutput) -> None:
         grad, cams = self.model.means.grad, self._last_cams

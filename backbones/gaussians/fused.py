@@ -30,13 +30,18 @@ __all__ = [
     "project_2dgs",
     "project_3dgs",
     "resolve_impl",
+    "sh_colors",
 ]
 
 CPP_DIR = Path(__file__).parent / "cpp"
 EXTENSION = cext.Extension(
     prefix="arcsem_fused_raster",
-    sources=tuple(CPP_DIR / n for n in ("composite3d.cpp", "composite2d.cpp", "binning.cpp", "project.cpp", "module.cpp")),
+    sources=tuple(CPP_DIR / n for n in ("composite3d.cpp", "composite2d.cpp", "composite2d_backward.cpp", "binning.cpp",
+                                        "project.cpp", "sh.cpp", "pool.cpp", "module.cpp")),
     what="fused C++ Gaussian rasteriser",
+    # the lane loops of the compositing kernels (`omp simd`) vectorise only when GCC may if-convert freely: no FP traps
+    # (the kernels do not use them) and no partial-redundancy elimination hoisting loads into branches
+    cflags=(*cext.NATIVE_CFLAGS, "-fno-trapping-math", "-fno-tree-pre"),
 )
 
 
@@ -58,23 +63,39 @@ def _grad(g: Tensor | None) -> Tensor:
     return torch.empty(0) if g is None else g.contiguous()
 
 
+def _args(kind: str, **fields):
+    """The kernels' argument struct ``kind`` (cpp/api.h) with its fields set by name."""
+    s = getattr(load_extension(), kind)()
+    for k, v in fields.items():
+        setattr(s, k, v)
+    return s
+
+
+def _raster(C: int, H: int, W: int, tile: int):
+    return _args("Raster", C=int(C), H=int(H), W=int(W), tile=int(tile))
+
+
 class _Composite3D(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, colors, depth, offsets, ids, box, bg, C, H, W, tile):
-        ext = load_extension()
-        rgb, alpha, dep, f, tf, last, wz = ext.forward3d(means2d, conics, opacities, colors, depth, offsets, ids, box,
-                                                          bg, C, H, W, tile)
-        ctx.save_for_backward(means2d, conics, opacities, f, offsets, ids, box, bg, tf, last, alpha, wz)
-        ctx.dims = (C, H, W, tile)
+    def forward(ctx, means2d, conics, opacities, colors, depth, bg, lists, raster):
+        splats = _args("Splats3D", means2d=means2d, conics=conics, opacities=opacities, colors=colors, depth=depth,
+                       background=bg)
+        res = load_extension().composite3d_forward(splats, lists, raster)
+        ctx.save_for_backward(means2d, conics, opacities, colors, depth, bg, res.pairs, res.t_final, res.wz, res.last,
+                              res.alpha)
+        ctx.lists, ctx.raster = lists, raster
         ctx.set_materialize_grads(False)
-        return rgb, alpha, dep
+        return res.rgb, res.alpha, res.depth
 
     @staticmethod
     def backward(ctx, g_rgb, g_alpha, g_depth):
-        means2d, conics, opacities, f, offsets, ids, box, bg, tf, last, alpha, wz = ctx.saved_tensors
-        grads = load_extension().backward3d(means2d, conics, opacities, f, offsets, ids, box, bg, tf, last, alpha, wz,
-                                            _grad(g_rgb), _grad(g_alpha), _grad(g_depth), *ctx.dims)
-        return (*grads, None, None, None, None, None, None, None, None)
+        means2d, conics, opacities, colors, depth, bg, pairs, t_final, wz, last, alpha = ctx.saved_tensors
+        splats = _args("Splats3D", means2d=means2d, conics=conics, opacities=opacities, colors=colors, depth=depth,
+                       background=bg)
+        fwd = _args("Composite3D", pairs=pairs, t_final=t_final, wz=wz, last=last, alpha=alpha)
+        g = load_extension().composite3d_backward(splats, ctx.lists, ctx.raster, fwd, _grad(g_rgb), _grad(g_alpha),
+                                                  _grad(g_depth))
+        return g.means2d, g.conics, g.opacities, g.colors, g.depth, None, None, None
 
 
 def _background(bg: Tensor | None, like: Tensor) -> Tensor:
@@ -85,58 +106,58 @@ def _background(bg: Tensor | None, like: Tensor) -> Tensor:
     return bg.to(like).contiguous()
 
 
-def composite3d(means2d: Tensor, conics: Tensor, opacities: Tensor, colors: Tensor, depth: Tensor, offsets: Tensor,
-                ids: Tensor, C: int, H: int, W: int, tile: int, box: Tensor,
-                background: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
+def composite3d(means2d: Tensor, conics: Tensor, opacities: Tensor, colors: Tensor, depth: Tensor, lists,
+                C: int, H: int, W: int, tile: int, background: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
     """Composite sorted 3-D Gaussians front to back (the outputs of ``render_3dgs``).
 
     Args:
         means2d: ``[M, 2]`` pixel centres of the ``M = C*N`` (camera, splat) entries.
         conics: ``[M, 3]`` inverse 2-D covariance ``(a, b, c)``: power = -0.5(a dx^2 + c dy^2) - b dx dy.
         opacities: ``[M]``; colors ``[M, 3]``; depth ``[M]`` centre depth (composited into the depth map).
-        offsets: ``[C*TY*TX + 1]`` int64 start of each (camera, tile) in ``ids``; ids: ``[P]`` int64 into M,
-            sorted by depth within each tile.
-        box: ``[M, 4]`` int64 inclusive pixel box ``(x0, x1, y0, y1)`` outside which the splat's alpha is
-            below 1/255 (pixels outside are skipped without evaluation).
+        lists: the tile lists of :func:`footprint_bin_3dgs` (sorted pairs, pixel boxes outside which alpha < 1/255).
         background: ``[3]`` constant composited as ``rgb + (1 - alpha) bg`` (None: none).
     Returns:
         rgb ``[C, H, W, 3]``, alpha ``[C, H, W, 1]``, depth ``[C, H, W, 1]`` (``sum w z / alpha``, 0 where alpha = 0).
     """
     c = lambda t: t.contiguous()
-    return _Composite3D.apply(c(means2d), c(conics), c(opacities), c(colors), c(depth), c(offsets), c(ids), c(box),
-                              _background(background, colors), C, H, W, tile)
+    return _Composite3D.apply(c(means2d), c(conics), c(opacities), c(colors), c(depth), _background(background, colors),
+                              lists, _raster(C, H, W, tile))
+
+
+_SURFEL_FIELDS = ("H", "Dz", "centres", "opacities", "colors", "normals", "mcoef", "background")
 
 
 class _Composite2D(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, Hm, Dz, centers, opacities, colors, normals, mcoef, offsets, ids, box, bg, near, inv2, C, H, W,
-                tile):
-        rgb, normal, alpha, depth, med, dist, f, tf, m1, m2, mref, last, medi, dsum = load_extension().forward2d(
-            Hm, Dz, centers, opacities, colors, normals, mcoef, offsets, ids, box, bg, near, inv2, C, H, W, tile)
-        ctx.save_for_backward(Hm, Dz, centers, opacities, f, mcoef, offsets, ids, box, bg, tf, m1, m2, mref, last,
-                              medi, alpha, dsum)
-        ctx.dims = (near, inv2, C, H, W, tile)
+    def forward(ctx, Hm, Dz, centres, opacities, colors, normals, mcoef, bg, near, lowpass, lists, raster):
+        inputs = (Hm, Dz, centres, opacities, colors, normals, mcoef, bg)
+        surfels = _args("Surfels2D", **dict(zip(_SURFEL_FIELDS, inputs)), near=near, lowpass=lowpass)
+        r = load_extension().composite2d_forward(surfels, lists, raster)
+        ctx.save_for_backward(*inputs, r.pairs, r.t_final, r.wz, r.m1, r.m2, r.mref, r.last, r.median_pair, r.alpha)
+        ctx.near, ctx.lowpass, ctx.lists, ctx.raster = near, lowpass, lists, raster
         ctx.set_materialize_grads(False)
-        return rgb, normal, alpha, depth, med, dist
+        return r.rgb, r.normal, r.alpha, r.depth, r.median, r.distortion
 
     @staticmethod
     def backward(ctx, *g):
-        Hm, Dz, centers, opacities, f, mcoef, offsets, ids, box, bg, *saved = ctx.saved_tensors
-        grads = load_extension().backward2d(Hm, Dz, centers, opacities, f, mcoef, offsets, ids, box, bg, *ctx.dims,
-                                            *saved, *(_grad(x) for x in g))
-        return (*grads, None, None, None, None, None, None, None, None, None, None, None)
+        saved = ctx.saved_tensors
+        surfels = _args("Surfels2D", **dict(zip(_SURFEL_FIELDS, saved[:8])), near=ctx.near, lowpass=ctx.lowpass)
+        fwd = _args("Composite2D", **dict(zip(("pairs", "t_final", "wz", "m1", "m2", "mref", "last", "median_pair",
+                                                "alpha"), saved[8:])))
+        r = load_extension().composite2d_backward(surfels, ctx.lists, ctx.raster, fwd, *(_grad(x) for x in g))
+        return r.H, r.Dz, r.centres, r.opacities, r.colors, r.normals, None, None, None, None, None, None
 
 
 def composite2d(Hm: Tensor, Dz: Tensor, centers: Tensor, opacities: Tensor, colors: Tensor, normals: Tensor,
-                mcoef: Tensor, offsets: Tensor, ids: Tensor, near: float, C: int, H: int, W: int, tile: int, box: Tensor,
+                mcoef: Tensor, lists, near: float, C: int, H: int, W: int, tile: int,
                 background: Tensor | None = None, lowpass_sigma: float = 2**-0.5):
-    """Composite sorted 2-D Gaussian surfels front to back (official 2DGS rules, see cpp/composite2d.cpp).
+    """Composite sorted 2-D Gaussian surfels front to back (official 2DGS rules, see cpp/composite2d.h).
 
     Args:
         Hm: ``[M, 9]`` homography rows Tu, Tv, Tw per (camera, splat) entry; Dz: ``[M, 3]`` camera-z row;
         centers: ``[M, 2]`` projected centres (low-pass filter); opacities ``[M]``; colors, normals ``[M, 3]``;
         mcoef: ``[C, 3]`` normalised depth m = m0 + m1 z + m2 / z of the distortion term;
-        offsets, ids, box: tile ranges and pixel boxes as in :func:`composite3d`; near: minimum depth;
+        lists: the tile lists of :func:`footprint_bin_2dgs`; near: minimum depth;
         background: ``[3]`` constant or None; lowpass_sigma: sigma (pixels) of the screen-space low-pass filter
         (``rho2d = |pixel - centre|^2 / sigma^2``; official ``1/sqrt(2)``).
     Returns:
@@ -144,15 +165,20 @@ def composite2d(Hm: Tensor, Dz: Tensor, centers: Tensor, opacities: Tensor, colo
         distortion ``[C,H,W,1]``.
     """
     c = lambda t: t.contiguous()
-    return _Composite2D.apply(c(Hm), c(Dz), c(centers), c(opacities), c(colors), c(normals), c(mcoef), c(offsets),
-                              c(ids), c(box), _background(background, colors), float(near),
-                              1.0 / float(lowpass_sigma) ** 2, C, H, W, tile)
+    return _Composite2D.apply(c(Hm), c(Dz), c(centers), c(opacities), c(colors), c(normals), c(mcoef),
+                              _background(background, colors), float(near), 1.0 / float(lowpass_sigma) ** 2, lists,
+                              _raster(C, H, W, tile))
+
+
+def _projection(means, quats, scales, P, view=None, ortho=False, near=0.01):
+    return _args("Projection", means=means, quats=quats, scales=scales, P=P,
+                 view=view if view is not None else P.new_empty(0), ortho=bool(ortho), near=float(near))
 
 
 class _Project2D(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means, quats, scales, leaf, P, view, ortho):
-        outs = load_extension().project2d_forward(means, quats, scales, P, view, ortho)
+        outs = load_extension().project2d_forward(_projection(means, quats, scales, P, view, ortho))
         ctx.save_for_backward(means, quats, scales, P, view)
         ctx.ortho, ctx.leaf_shape = ortho, leaf.shape
         return tuple(outs)
@@ -161,7 +187,7 @@ class _Project2D(torch.autograd.Function):
     def backward(ctx, g_H, g_Dz, g_centre, g_normal):
         means, quats, scales, P, view = ctx.saved_tensors
         gm, gq, gs, gsh = load_extension().project2d_backward(
-            means, quats, scales, P, view, ctx.ortho, *(g.contiguous() for g in (g_H, g_Dz, g_centre, g_normal)))
+            _projection(means, quats, scales, P, view, ctx.ortho), *(g.contiguous() for g in (g_H, g_Dz, g_centre, g_normal)))
         return gm, gq, gs, gsh.reshape(ctx.leaf_shape), None, None, None
 
 
@@ -180,7 +206,7 @@ def project_2dgs(means: Tensor, quats: Tensor, scales: Tensor, leaf: Tensor, P: 
 class _Project3D(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means, quats, scales, leaf, P, near):
-        m2, depth, conics, cov = load_extension().project3d_forward(means, quats, scales, P, near)
+        m2, depth, conics, cov = load_extension().project3d_forward(_projection(means, quats, scales, P, near=near))
         ctx.save_for_backward(means, quats, scales, P)
         ctx.near, ctx.leaf_shape = near, leaf.shape
         ctx.mark_non_differentiable(cov)
@@ -190,7 +216,7 @@ class _Project3D(torch.autograd.Function):
     def backward(ctx, g_m2, g_depth, g_conics, _g_cov):
         means, quats, scales, P = ctx.saved_tensors
         gm, gq, gs, gsh = load_extension().project3d_backward(
-            means, quats, scales, P, ctx.near, *(g.contiguous() for g in (g_m2, g_depth, g_conics)))
+            _projection(means, quats, scales, P, near=ctx.near), *(g.contiguous() for g in (g_m2, g_depth, g_conics)))
         return gm, gq, gs, gsh.reshape(ctx.leaf_shape), None, None
 
 
@@ -205,21 +231,52 @@ def project_3dgs(means: Tensor, quats: Tensor, scales: Tensor, leaf: Tensor, P: 
     return _Project3D.apply(c(means), c(quats), c(scales), leaf, c(P), float(near))
 
 
+class _ShColors(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means, sh_dc, sh_rest, origins, ortho, degree):
+        args = _args("ShColors", means=means, sh_dc=sh_dc, sh_rest=sh_rest, origins=origins, ortho=ortho, degree=degree)
+        ctx.save_for_backward(means, sh_dc, sh_rest, origins)
+        ctx.ortho, ctx.degree = ortho, degree
+        return load_extension().sh_colors_forward(args)
+
+    @staticmethod
+    def backward(ctx, g):
+        means, sh_dc, sh_rest, origins = ctx.saved_tensors
+        args = _args("ShColors", means=means, sh_dc=sh_dc, sh_rest=sh_rest, origins=origins, ortho=ctx.ortho,
+                     degree=ctx.degree)
+        gm, gdc, grest = load_extension().sh_colors_backward(args, g)
+        # degree 0 reads no rest coefficient and no direction: no gradient, as the PyTorch path
+        return (gm if ctx.degree > 0 else None), gdc, (grest if ctx.degree > 0 else None), None, None, None
+
+
+def sh_colors(means: Tensor, sh_dc: Tensor, sh_rest: Tensor, origins: Tensor, ortho: bool, degree: int) -> Tensor:
+    """Fused ``max(eval_sh(degree, sh, view direction) + 0.5, 0)`` of every (camera, splat) (sh.py is the reference).
+
+    Args: means ``[N, 3]``; sh_dc ``[N, 1, 3]``; sh_rest ``[N, R, 3]``; origins ``[C, 3]``: camera centres (pinhole,
+        direction ``mean - centre``) or forward axes (orthographic); degree 0..3.
+    Returns: ``[C, N, 3]``.
+    """
+    c = lambda t: t.contiguous()
+    return _ShColors.apply(c(means), c(sh_dc), c(sh_rest), c(origins.to(means.dtype)), bool(ortho), int(degree))
+
+
 @torch.no_grad()
 def footprint_bin_2dgs(H: Tensor, Dz: Tensor, opacities: Tensor, C: int, near: float, W: int, Hh: int, tile: int,
                        lowpass_sigma: float = 2**-0.5):
-    """``footprint_2dgs`` + ``bin_tiles`` fused: radii ``[C*N]`` (0 where not visible), visible ``[C*N]``,
-    rects ``[C*N, 4]``, effective pixel boxes ``[C*N, 4]``, tile offsets ``[C*TY*TX + 1]``, sorted ids ``[P]``."""
-    return load_extension().footprint_bin2d(H.contiguous(), Dz.contiguous(), opacities.contiguous(), C, float(near),
-                                            W, Hh, tile, float(lowpass_sigma))
+    """``footprint_2dgs`` + ``bin_tiles`` fused: the tile lists (cpp/api.h ``TileLists``): radii ``[C*N]`` (0 where
+    not visible), visible ``[C*N]``, rects ``[C*N, 4]``, effective pixel boxes ``box [C*N, 4]``, tile ``offsets``
+    ``[C*TY*TX + 1]``, sorted ``ids [P]``, and each entry's pairs (``entry_offsets``, ``pair_of``)."""
+    return load_extension().footprint_bin2d(H.contiguous(), Dz.contiguous(), opacities.contiguous(),
+                                            _raster(C, Hh, W, tile), float(near), float(lowpass_sigma))
 
 
 @torch.no_grad()
 def footprint_bin_3dgs(means2d: Tensor, depth: Tensor, cov: Tensor, opacities: Tensor, C: int, near: float, W: int,
                        H: int, tile: int):
-    """``footprint_3dgs`` + ``bin_tiles`` fused; returns as :func:`footprint_bin_2dgs`."""
+    """``footprint_3dgs`` + ``bin_tiles`` fused; returns the tile lists as :func:`footprint_bin_2dgs`."""
     c = lambda t: t.contiguous()
-    return load_extension().footprint_bin3d(c(means2d), c(depth), c(cov), c(opacities), C, float(near), W, H, tile)
+    return load_extension().footprint_bin3d(c(means2d), c(depth), c(cov), c(opacities), _raster(C, H, W, tile),
+                                            float(near))
 
 
 if __name__ == "__main__":  # `python -m arcsem.backbones.gaussians.fused`: build now (make setup does this)

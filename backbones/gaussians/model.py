@@ -88,13 +88,19 @@ class GaussianModel(nn.Module):
             return cams.forward[:, None, :].to(self.means.dtype).expand(len(cams), len(self), 3)
         return self.means[None] - cams.centers[:, None, :].to(self.means.dtype)
 
-    def colors(self, cams: Cameras, degree: int | None = None) -> Tensor:
+    def colors(self, cams: Cameras, degree: int | None = None, impl: str = "torch") -> Tensor:
         """``[C, N, 3]`` colours seen by each camera: ``max(SH(view dir) + 0.5, 0)``.
 
-        ``degree`` defaults to :attr:`active_sh_degree`.
+        ``degree`` defaults to :attr:`active_sh_degree`; ``impl``: ``torch`` (:func:`eval_sh`, the reference) or
+        ``cpp`` (the fused kernel, :func:`arcsem.backbones.gaussians.fused.sh_colors`; CPU tensors).
         """
         deg = int(self.active_sh_degree) if degree is None else degree
         deg = min(deg, self.sh_degree)
+        if impl == "cpp":
+            from .fused import sh_colors
+
+            origins = cams.forward if cams.is_ortho else cams.centers
+            return sh_colors(self.means, self.sh_dc, self.sh_rest, origins, cams.is_ortho, deg)
         sh = self.sh if deg > 0 else self.sh_dc
         rgb = eval_sh(deg, sh[None], self.view_dirs(cams))
         return torch.clamp_min(rgb + 0.5, 0.0)

@@ -20,6 +20,7 @@ from arcsem.backbones.gaussians.raster import (
 )
 from arcsem.backbones.gaussians.raster_camera import camera_facing_normals, pixel_projection
 from torch import Tensor
+from torch.profiler import record_function as region
 
 from arcsem.cameras import Cameras
 from arcsem.rotations import quat_to_rotmat
@@ -229,22 +230,23 @@ def _render_2dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
     P = pixel_projection(cams).to(means.dtype)
     view = (cams.forward if cams.is_ortho else cams.centers).to(means.dtype)
     leaf = means.new_empty(C, N, 2).requires_grad_(torch.is_grad_enabled())
-    H9, Dz, centre2d, normals = fused.project_2dgs(means, quats, scales, leaf, P, view, cams.is_ortho)
-    with torch.no_grad():
-        leaf.copy_(centre2d.view(C, N, 2))
+    with region("arcsem::render/project"):  # profiler regions: benchmarks/profile_step.py
+        H9, Dz, centre2d, normals = fused.project_2dgs(means, quats, scales, leaf, P, view, cams.is_ortho)
+        with torch.no_grad():
+            leaf.copy_(centre2d.view(C, N, 2))
     opac = opacities.expand(C, N).reshape(C * N)
     bg = None if background is not None and background.requires_grad else background  # else composited here
-    radii, visible, _, eff, offsets, ids = fused.footprint_bin_2dgs(H9, Dz, opacities, C, near, W, Hh, tile,
-                                                                             lowpass_sigma)
-    rgb, normal, alpha, depth, med, dist = fused.composite2d(
-        H9, Dz, centre2d, opac, colors.expand(C, N, 3).reshape(C * N, 3), normals, means.new_tensor(mcoef).expand(C, 3),
-        offsets, ids,
-        float("-inf"), C, Hh, W, tile, eff, bg, lowpass_sigma)
+    with region("arcsem::render/bin"):
+        lists = fused.footprint_bin_2dgs(H9, Dz, opacities, C, near, W, Hh, tile, lowpass_sigma)
+    with region("arcsem::render/composite"):
+        rgb, normal, alpha, depth, med, dist = fused.composite2d(
+            H9, Dz, centre2d, opac, colors.expand(C, N, 3).reshape(C * N, 3), normals,
+            means.new_tensor(mcoef).expand(C, 3), lists, float("-inf"), C, Hh, W, tile, bg, lowpass_sigma)
     if background is not None and bg is None:
         rgb = rgb + (1 - alpha) * background.to(rgb)
     return {
         "rgb": rgb, "alpha": alpha, "depth": depth, "median_depth": med, "normal": normal, "distortion": dist,
-        "radii": radii.view(C, N), "visible": visible.view(C, N), "means2d": leaf,
+        "radii": lists.radii.view(C, N), "visible": lists.visible.view(C, N), "means2d": leaf,
     }
 
 

@@ -20,6 +20,7 @@ from arcsem.backbones.gaussians.raster import (
 from arcsem.backbones.gaussians.raster_camera import pixel_projection
 from arcsem.backbones.gs2d.render import _resolve
 from torch import Tensor
+from torch.profiler import record_function as region
 
 from arcsem.cameras import Cameras
 from arcsem.rotations import quat_to_rotmat
@@ -143,17 +144,20 @@ def _render_3dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
     C, N, H, W = len(cams), means.shape[0], cams.height, cams.width
     P = pixel_projection(cams).to(means.dtype)
     leaf = means.new_empty(C, N, 2).requires_grad_(torch.is_grad_enabled())
-    m2, depth, conics, cov = fused.project_3dgs(means, quats, scales, leaf, P, near)
-    with torch.no_grad():
-        leaf.copy_(m2.view(C, N, 2))
+    with region("arcsem::render/project"):  # profiler regions: benchmarks/profile_step.py
+        m2, depth, conics, cov = fused.project_3dgs(means, quats, scales, leaf, P, near)
+        with torch.no_grad():
+            leaf.copy_(m2.view(C, N, 2))
     opac = opacities.expand(C, N).reshape(C * N)
     bg = None if background is not None and background.requires_grad else background  # else composited here
-    radii, visible, _, eff, offsets, ids = fused.footprint_bin_3dgs(m2, depth, cov, opacities, C, near, W, H, tile)
-    rgb, alpha, dmap = fused.composite3d(m2, conics, opac, colors.expand(C, N, 3).reshape(C * N, 3), depth, offsets,
-                                         ids, C, H, W, tile, eff, bg)
+    with region("arcsem::render/bin"):
+        lists = fused.footprint_bin_3dgs(m2, depth, cov, opacities, C, near, W, H, tile)
+    with region("arcsem::render/composite"):
+        rgb, alpha, dmap = fused.composite3d(m2, conics, opac, colors.expand(C, N, 3).reshape(C * N, 3), depth, lists,
+                                             C, H, W, tile, bg)
     if background is not None and bg is None:
         rgb = rgb + (1 - alpha) * background.to(rgb)
     return {
         "rgb": rgb, "alpha": alpha, "depth": dmap,
-        "radii": radii.view(C, N), "visible": visible.view(C, N), "means2d": leaf,
+        "radii": lists.radii.view(C, N), "visible": lists.visible.view(C, N), "means2d": leaf,
     }

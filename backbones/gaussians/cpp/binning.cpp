@@ -4,18 +4,22 @@
 //   footprint2d: backbones/gs2d/render.py footprint_2dgs (+ raster.tile_rects, effective_cutoff2)
 //   footprint3d: backbones/gs3d/render.py footprint_3dgs
 //   binning:     backbones/gaussians/raster.py bin_tiles -> offsets [C*TY*TX+1], ids [P] sorted by tile,
-//                then by (depth, index) within the tile (the torch stable argsort rank).
+//                then by (depth, index) within the tile (the torch stable argsort rank); and, per entry,
+//                the positions of its pairs (tile order), the fixed order in which the kernels sum gradients.
 // Inputs are flattened (camera, splat) entries s = c * N + n; opacities are per splat n.
-#include <torch/extension.h>
-#include <ATen/Parallel.h>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <numeric>
 #include <vector>
 
+#include "api.h"
+#include "pool.h"
+
+namespace arcsem {
 namespace {
 
-constexpr int64_t kGrain = 1 << 16;  // per-splat loops: small inputs run on the calling thread (no fork/join stall)
+constexpr int64_t kGrain = 1 << 14;  // splats per chunk of the per-splat loops
 
 inline double cutoff2(double op) {  // raster.effective_cutoff2
   const double c2 = 2.0 * std::log(255.0 * std::max(op, 1e-30));
@@ -78,7 +82,7 @@ inline bool conic_box(const double* T, double cut2, double c[2], double e[2]) {
 template <typename T>
 void footprint2d_impl(const T* Hm, const T* Dz, const T* op, int64_t M, int64_t N, double near, double sigma,
                       const Screen& sc, int64_t* radius, int64_t* rects, int64_t* eff, double* depth) {
-  at::parallel_for(0, M, kGrain, [&](int64_t b, int64_t e) {
+  parallel_range(M, kGrain, [&](int64_t b, int64_t e, int) {
     for (int64_t s = b; s < e; ++s) {
       double Td[12];
       for (int j = 0; j < 9; ++j) Td[j] = double(Hm[9 * s + j]);
@@ -107,7 +111,7 @@ void footprint2d_impl(const T* Hm, const T* Dz, const T* op, int64_t M, int64_t 
 template <typename T>
 void footprint3d_impl(const T* m2d, const T* dep, const T* cov, const T* op, int64_t M, int64_t N, double near,
                       const Screen& sc, int64_t* radius, int64_t* rects, int64_t* eff, bool* okout) {
-  at::parallel_for(0, M, kGrain, [&](int64_t b, int64_t e) {
+  parallel_range(M, kGrain, [&](int64_t b, int64_t e, int) {
     for (int64_t s = b; s < e; ++s) {
       const double a = cov[3 * s], bb = cov[3 * s + 1], c = cov[3 * s + 2];
       const double det = a * c - bb * bb, mid = 0.5 * (a + c);
@@ -125,42 +129,86 @@ void footprint3d_impl(const T* m2d, const T* dep, const T* cov, const T* op, int
   });
 }
 
-// raster.bin_tiles: pairs sorted by camera-tile, then by (depth, splat index)
+// a double as an unsigned key with the same order (-0 = +0; NaN last, as torch.argsort)
+inline uint64_t sort_key(double d) {
+  if (std::isnan(d)) return ~uint64_t(0);
+  if (d == 0.0) d = 0.0;
+  uint64_t b;
+  std::memcpy(&b, &d, sizeof b);
+  return (b >> 63) ? ~b : b | (uint64_t(1) << 63);
+}
+
+// the entries that have tiles, by depth (ties: index order): a stable LSD radix sort, 11 bits a pass
 template <typename D>
-std::vector<torch::Tensor> bin_impl(const int64_t* rects, const D* depth, int64_t C, int64_t N, const Screen& sc,
-                                    const torch::TensorOptions& lo) {
+std::vector<int64_t> depth_order(const D* depth, const int64_t* rects, int64_t M) {
+  std::vector<uint64_t> key, key2;
+  std::vector<int64_t> idx, idx2;
+  for (int64_t s = 0; s < M; ++s) {
+    const int64_t* r = rects + 4 * s;
+    if (r[1] > r[0] && r[3] > r[2]) {
+      key.push_back(sort_key(double(depth[s])));
+      idx.push_back(s);
+    }
+  }
+  const size_t n = key.size();
+  key2.resize(n);
+  idx2.resize(n);
+  for (int shift = 0; shift < 64; shift += 11) {
+    size_t count[2049] = {0};
+    for (const uint64_t k : key) ++count[((k >> shift) & 2047) + 1];
+    if (count[((key.empty() ? 0 : key[0] >> shift) & 2047) + 1] == n) continue;  // one digit value: nothing moves
+    for (int b = 0; b < 2048; ++b) count[b + 1] += count[b];
+    for (size_t i = 0; i < n; ++i) {
+      const size_t at = count[(key[i] >> shift) & 2047]++;
+      key2[at] = key[i];
+      idx2[at] = idx[i];
+    }
+    key.swap(key2);
+    idx.swap(idx2);
+  }
+  return idx;
+}
+
+// raster.bin_tiles: pairs sorted by camera-tile, then by (depth, splat index); and per entry its pairs
+template <typename D>
+void bin_impl(const int64_t* rects, const D* depth, int64_t C, int64_t N, const Screen& sc, TileLists& out) {
   const int64_t M = C * N, TT = sc.TX * sc.TY;
-  std::vector<int64_t> order(M);
-  std::iota(order.begin(), order.end(), 0);
-  // NaN last (as torch.argsort); such entries have no tiles anyway
-  std::stable_sort(order.begin(), order.end(), [&](int64_t i, int64_t j) {
-    const double a = double(depth[i]), b = double(depth[j]);
-    return !std::isnan(a) && (std::isnan(b) || a < b);
-  });
-  auto offsets = torch::zeros({C * TT + 1}, lo);
-  int64_t* off = offsets.data_ptr<int64_t>();
+  auto lo = out.rects.options();
+  const std::vector<int64_t> order = depth_order(depth, rects, M);
+  out.offsets = at::zeros({C * TT + 1}, lo);
+  out.entry_offsets = at::empty({M + 1}, lo);
+  int64_t* off = out.offsets.data_ptr<int64_t>();
+  int64_t* eoff = out.entry_offsets.data_ptr<int64_t>();
+  eoff[0] = 0;
   for (int64_t s = 0; s < M; ++s) {
     const int64_t* r = rects + 4 * s;
     const int64_t base = (s / N) * TT;
     for (int64_t ty = r[2]; ty < r[3]; ++ty)
       for (int64_t tx = r[0]; tx < r[1]; ++tx) ++off[base + ty * sc.TX + tx + 1];
+    eoff[s + 1] = eoff[s] + std::max<int64_t>(r[1] - r[0], 0) * std::max<int64_t>(r[3] - r[2], 0);
   }
   for (int64_t t = 0; t < C * TT; ++t) off[t + 1] += off[t];
-  auto ids = torch::empty({off[C * TT]}, lo);
-  int64_t* out = ids.data_ptr<int64_t>();
+  out.ids = at::empty({off[C * TT]}, lo);
+  out.pair_of = at::empty({off[C * TT]}, lo);
+  int64_t* ids = out.ids.data_ptr<int64_t>();
+  int64_t* pof = out.pair_of.data_ptr<int64_t>();
   std::vector<int64_t> cur(off, off + C * TT);
   for (const int64_t s : order) {  // depth order (ties: index) per tile by construction
     const int64_t* r = rects + 4 * s;
     const int64_t base = (s / N) * TT;
+    int64_t k = eoff[s];
     for (int64_t ty = r[2]; ty < r[3]; ++ty)
-      for (int64_t tx = r[0]; tx < r[1]; ++tx) out[cur[base + ty * sc.TX + tx]++] = s;
+      for (int64_t tx = r[0]; tx < r[1]; ++tx) {
+        const int64_t p = cur[base + ty * sc.TX + tx]++;
+        ids[p] = s;
+        pof[k++] = p;
+      }
   }
-  return {offsets, ids};
 }
 
 // render._outputs: visible = radius > 0 and a non-empty tile rectangle; radii zeroed where not visible
-torch::Tensor visibility(torch::Tensor& radius, const torch::Tensor& rects) {
-  auto vis = torch::empty({radius.numel()}, radius.options().dtype(torch::kBool));
+at::Tensor visibility(at::Tensor& radius, const at::Tensor& rects) {
+  auto vis = at::empty({radius.numel()}, radius.options().dtype(at::kBool));
   int64_t* r = radius.data_ptr<int64_t>();
   const int64_t* rc = rects.data_ptr<int64_t>();
   bool* v = vis.data_ptr<bool>();
@@ -171,53 +219,59 @@ torch::Tensor visibility(torch::Tensor& radius, const torch::Tensor& rects) {
   return vis;
 }
 
-Screen screen(int64_t W, int64_t H, int64_t tile) { return Screen{W, H, tile, (W + tile - 1) / tile, (H + tile - 1) / tile}; }
+Screen screen(const Raster& r) {
+  return Screen{r.W, r.H, r.tile, (r.W + r.tile - 1) / r.tile, (r.H + r.tile - 1) / r.tile};
+}
 
-void check(const torch::Tensor& t, const char* name) {
+void check(const at::Tensor& t, const char* name) {
   TORCH_CHECK(t.is_contiguous() && t.device().is_cpu(), name, " must be a contiguous CPU tensor");
+}
+
+TileLists allocate(int64_t M, const at::TensorOptions& lo) {
+  TileLists l;
+  l.radii = at::empty({M}, lo);
+  l.rects = at::empty({M, 4}, lo);
+  l.box = at::empty({M, 4}, lo);
+  return l;
 }
 
 }  // namespace
 
-// Hm [M, 9] rows Tu, Tv, Tw and Dz [M, 3] row Tz (detached), opacities [N], sigma of the low-pass filter (px)
-// -> radii [M] (0 where not visible), visible [M], rects [M, 4], eff [M, 4], offsets, ids
-std::vector<torch::Tensor> footprint_bin2d(torch::Tensor Hm, torch::Tensor Dz, torch::Tensor op, int64_t C, double near, int64_t W,
-                                           int64_t H, int64_t tile, double sigma) {
+TileLists footprint_bin2d(const at::Tensor& Hm, const at::Tensor& Dz, const at::Tensor& op, const Raster& raster,
+                          double near, double sigma) {
   check(Hm, "homographies"); check(Dz, "depth rows"); check(op, "opacities");
-  const int64_t M = Hm.size(0), N = op.numel();
+  const int64_t M = Hm.size(0), N = op.numel(), C = raster.C;
   TORCH_CHECK(M == C * N && Hm.size(1) == 9 && Dz.size(1) == 3, "footprint_bin2d: Hm, Dz must be [C*N, 9], [C*N, 3]");
   TORCH_CHECK(sigma > 0, "footprint_bin2d: the low-pass sigma must be > 0");
-  const Screen sc = screen(W, H, tile);
-  auto lo = Hm.options().dtype(torch::kLong);
-  auto radius = torch::empty({M}, lo), rects = torch::empty({M, 4}, lo), eff = torch::empty({M, 4}, lo);
-  auto depth = torch::empty({M}, Hm.options().dtype(torch::kDouble));
+  const Screen sc = screen(raster);
+  TileLists l = allocate(M, Hm.options().dtype(at::kLong));
+  auto depth = at::empty({M}, Hm.options().dtype(at::kDouble));
   AT_DISPATCH_FLOATING_TYPES(Hm.scalar_type(), "footprint2d", [&] {
     footprint2d_impl<scalar_t>(Hm.data_ptr<scalar_t>(), Dz.data_ptr<scalar_t>(), op.data_ptr<scalar_t>(), M, N, near, sigma, sc,
-                               radius.data_ptr<int64_t>(), rects.data_ptr<int64_t>(), eff.data_ptr<int64_t>(),
+                               l.radii.data_ptr<int64_t>(), l.rects.data_ptr<int64_t>(), l.box.data_ptr<int64_t>(),
                                depth.data_ptr<double>());
   });
-  auto b = bin_impl<double>(rects.data_ptr<int64_t>(), depth.data_ptr<double>(), C, N, sc, lo);
-  auto vis = visibility(radius, rects);
-  return {radius, vis, rects, eff, b[0], b[1]};
+  bin_impl<double>(l.rects.data_ptr<int64_t>(), depth.data_ptr<double>(), C, N, sc, l);
+  l.visible = visibility(l.radii, l.rects);
+  return l;
 }
 
-// means2d [M,2], depth [M], cov (a, b, c) [M,3], opacities [N] -> as footprint_bin2d
-std::vector<torch::Tensor> footprint_bin3d(torch::Tensor m2d, torch::Tensor depth, torch::Tensor cov, torch::Tensor op,
-                                           int64_t C, double near, int64_t W, int64_t H, int64_t tile) {
+TileLists footprint_bin3d(const at::Tensor& m2d, const at::Tensor& depth, const at::Tensor& cov,
+                          const at::Tensor& op, const Raster& raster, double near) {
   for (auto* t : {&m2d, &depth, &cov, &op}) check(*t, "footprint_bin3d input");
-  const int64_t M = depth.numel(), N = op.numel();
+  const int64_t M = depth.numel(), N = op.numel(), C = raster.C;
   TORCH_CHECK(M == C * N, "footprint_bin3d: depth must have C*N entries");
-  const Screen sc = screen(W, H, tile);
-  auto lo = depth.options().dtype(torch::kLong);
-  auto radius = torch::empty({M}, lo), rects = torch::empty({M, 4}, lo), eff = torch::empty({M, 4}, lo);
-  auto ok = torch::empty({M}, depth.options().dtype(torch::kBool));
-  std::vector<torch::Tensor> b;
+  const Screen sc = screen(raster);
+  TileLists l = allocate(M, depth.options().dtype(at::kLong));
+  auto ok = at::empty({M}, depth.options().dtype(at::kBool));
   AT_DISPATCH_FLOATING_TYPES(depth.scalar_type(), "footprint3d", [&] {
     footprint3d_impl<scalar_t>(m2d.data_ptr<scalar_t>(), depth.data_ptr<scalar_t>(), cov.data_ptr<scalar_t>(),
-                               op.data_ptr<scalar_t>(), M, N, near, sc, radius.data_ptr<int64_t>(),
-                               rects.data_ptr<int64_t>(), eff.data_ptr<int64_t>(), ok.data_ptr<bool>());
-    b = bin_impl<scalar_t>(rects.data_ptr<int64_t>(), depth.data_ptr<scalar_t>(), C, N, sc, lo);
+                               op.data_ptr<scalar_t>(), M, N, near, sc, l.radii.data_ptr<int64_t>(),
+                               l.rects.data_ptr<int64_t>(), l.box.data_ptr<int64_t>(), ok.data_ptr<bool>());
+    bin_impl<scalar_t>(l.rects.data_ptr<int64_t>(), depth.data_ptr<scalar_t>(), C, N, sc, l);
   });
-  auto vis = visibility(radius, rects);
-  return {radius, vis, rects, eff, b[0], b[1]};
+  l.visible = visibility(l.radii, l.rects);
+  return l;
 }
+
+}  // namespace arcsem

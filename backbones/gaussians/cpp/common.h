@@ -1,12 +1,13 @@
-// Shared by the fused compositing kernels: the official thresholds, the tile grid, row bucketing,
-// dynamic tile scheduling.
+// Shared by the fused compositing kernels: the official thresholds, the tile grid, a vectorisable exp, the
+// per-entry reduction of per-pair gradients, output finishing.
 #pragma once
-#include <ATen/Parallel.h>
-
 #include <algorithm>
-#include <atomic>
+#include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <vector>
+
+#include "pool.h"
 
 namespace arcsem {
 
@@ -14,7 +15,7 @@ constexpr double kMinAlpha = 1.0 / 255.0;  // skip fainter splats
 constexpr double kMaxAlpha = 0.99;         // clamp
 constexpr double kMinT = 1e-4;             // stop before the transmittance would fall below this
 
-struct Grid {
+struct Grid {  // tiles of ct = c * tiles() + t
   int64_t C, H, W, tile, tx, ty;
   int64_t tiles() const { return tx * ty; }
   int64_t x0(int64_t ct) const { return (ct % tiles() % tx) * tile; }
@@ -27,47 +28,45 @@ inline Grid make_grid(int64_t C, int64_t H, int64_t W, int64_t tile) {
   return Grid{C, H, W, tile, (W + tile - 1) / tile, (H + tile - 1) / tile};
 }
 
-// A pair in a row bucket: local index j in the tile and its pixel columns [x0, x1] (scanned per pixel, so
-// kept small and contiguous: the pair's data is read only when the pixel lies inside its box).
-struct RowEntry {
-  int32_t j, x0, x1;
-};
+constexpr int kLanes = 16;  // pixels of a tile row evaluated together (one AVX-512 / two AVX2 registers of float)
 
-// Per-tile bucketing: local pairs j in [0, n) with inclusive pixel box box(j) = {x0, x1, y0, y1}.
-template <class Box>
-inline void bucket_rows_local(int64_t n, const Box& box, int64_t y0, int64_t ny, std::vector<std::vector<RowEntry>>& rows) {
-  rows.resize(ny);
-  for (auto& r : rows) r.clear();
-  for (int64_t j = 0; j < n; ++j) {
-    const int64_t* b = box(j);
-    const int64_t lo = std::max(b[2], y0), hi = std::min(b[3], y0 + ny - 1);
-    for (int64_t y = lo; y <= hi; ++y) rows[y - y0].push_back(RowEntry{int32_t(j), int32_t(b[0]), int32_t(b[1])});
-  }
+// exp(x) for x <= 0, vectorisable (no libm call inside `omp simd` loops). float: Cody-Waite reduction and the
+// degree-6 polynomial of Cephes' expf (about 2 ulp; 0 below -87); double: std::exp (the parity tests' type).
+inline float vexp(float x) {
+  x = std::min(std::max(x, -87.0f), 0.0f);
+  const float n = std::floor(x * 1.44269504088896341f + 0.5f);
+  float r = x - n * 0.693359375f;
+  r = r + n * 2.12194440e-4f;
+  float p = 1.9875691500e-4f;
+  p = p * r + 1.3981999507e-3f;
+  p = p * r + 8.3334519073e-3f;
+  p = p * r + 4.1665795894e-2f;
+  p = p * r + 1.6666665459e-1f;
+  p = p * r + 5.0000001201e-1f;
+  p = p * r * r + r + 1.0f;
+  const int32_t bits = (int32_t(n) + 127) << 23;
+  float scale;
+  std::memcpy(&scale, &bits, sizeof scale);
+  return p * scale;
 }
+inline double vexp(double x) { return std::exp(std::min(x, 0.0)); }
 
-// Entries of a row up to local pair index jmax (inclusive), for the back-to-front backward pass.
-inline std::vector<RowEntry>::const_iterator row_end(const std::vector<RowEntry>& row, int64_t jmax) {
-  return std::upper_bound(row.begin(), row.end(), jmax, [](int64_t k, const RowEntry& e) { return k < e.j; });
-}
-
-// Runs f(t) for t in [0, n), handing tiles one at a time to whichever thread is running: a static split
-// stalls on a shared machine whenever one thread is descheduled. f may use at::get_thread_num().
-template <class F>
-inline void for_each_tile(int64_t n, const F& f) {
-  std::atomic<int64_t> next{0};
-  const int64_t nt = std::max<int64_t>(1, std::min<int64_t>(at::get_num_threads(), n));
-  at::parallel_for(0, nt, 1, [&](int64_t, int64_t) {
-    for (int64_t t = next++; t < n; t = next++) f(t);
+// Per-pair gradient rows [P, D] summed per entry in the fixed order of the tile lists' pair_of (so the result
+// does not depend on threads or timing), in double: f(s, sum) for every entry s with pairs, in parallel.
+template <typename T, class F>
+inline void reduce_pairs(int64_t M, int64_t D, const T* rows, const int64_t* entry_offsets, const int64_t* pair_of,
+                         const F& f) {
+  parallel_range(M, 2048, [&](int64_t b, int64_t e, int) {
+    std::vector<double> acc(D);
+    for (int64_t s = b; s < e; ++s) {
+      std::fill(acc.begin(), acc.end(), 0.0);
+      for (int64_t k = entry_offsets[s]; k < entry_offsets[s + 1]; ++k) {
+        const T* r = rows + pair_of[k] * D;
+        for (int64_t d = 0; d < D; ++d) acc[d] += double(r[d]);
+      }
+      f(s, acc.data());
+    }
   });
-}
-
-// g[0, D) = splat s's gradient row summed over the per-thread buffers (threads that got no tile left
-// theirs empty). Buffers are [M, D] row-major doubles.
-inline void sum_thread_rows(const std::vector<std::vector<double>>& bufs, int64_t s, int64_t D, double* g) {
-  std::fill(g, g + D, 0.0);
-  for (const auto& buf : bufs)
-    if (!buf.empty())
-      for (int64_t k = 0; k < D; ++k) g[k] += buf[s * D + k];
 }
 
 inline void cross(const double* x, const double* y, double* out) {
@@ -87,14 +86,12 @@ inline void concat_rows(const T* a, int64_t K1, const T* b, int64_t K2, int64_t 
 
 }  // namespace arcsem
 
-#include <torch/extension.h>
-
 namespace arcsem {
 
 // columns [k0, k0 + n) of a contiguous [M, K] tensor as a new contiguous tensor (a plain loop)
-inline torch::Tensor split_cols(const torch::Tensor& x, int64_t k0, int64_t n) {
+inline at::Tensor split_cols(const at::Tensor& x, int64_t k0, int64_t n) {
   const int64_t M = x.size(0), K = x.size(1);
-  auto out = torch::empty({M, n}, x.options());
+  auto out = at::empty({M, n}, x.options());
   AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "split_cols", [&] {
     const scalar_t* src = x.data_ptr<scalar_t>();
     scalar_t* dst = out.data_ptr<scalar_t>();
@@ -102,7 +99,7 @@ inline torch::Tensor split_cols(const torch::Tensor& x, int64_t k0, int64_t n) {
   });
   return out;
 }
-inline torch::Tensor split_cols(const torch::Tensor& x, int64_t n) { return split_cols(x, 0, n); }
+inline at::Tensor split_cols(const at::Tensor& x, int64_t n) { return split_cols(x, 0, n); }
 
 // Final per-pixel outputs, in T arithmetic as the PyTorch path: rgb = f[0:3] + (1 - alpha) bg (bg may be
 // null), extra = f[3:K], depth = where(alpha > 0, wz / max(alpha, 1e-30), 0) with wz at wz[p * wz_stride].
@@ -142,5 +139,25 @@ inline void finish_backward(int64_t P, int64_t K, const T* alpha, const T* wz, i
     g_wz[p * g_wz_stride] = gw;
   }
 }
+
+}  // namespace arcsem
+
+namespace arcsem {
+
+// a gradient tensor's data, or null when autograd passed none (the output was not used)
+template <typename T>
+inline const T* grad_or_null(const at::Tensor& g) { return g.defined() && g.numel() ? g.data_ptr<T>() : nullptr; }
+
+inline void check_cpu(const at::Tensor& t, const char* what) {
+  TORCH_CHECK(t.defined() && t.is_contiguous() && t.device().is_cpu(), what, " must be a contiguous CPU tensor");
+}
+
+// A per-pair work list kept from the forward pass for the backward pass: P records of type R as a byte tensor.
+template <typename R>
+inline at::Tensor pair_storage(int64_t P, const at::Tensor& like) {
+  return at::empty({P * int64_t(sizeof(R))}, like.options().dtype(at::kByte));
+}
+template <typename R>
+inline R* pair_records(const at::Tensor& bytes) { return reinterpret_cast<R*>(bytes.data_ptr<uint8_t>()); }
 
 }  // namespace arcsem

@@ -1,245 +1,317 @@
-// Fused CPU compositing of 3-D Gaussians (3DGS) over 16x16 tiles: forward and backward.
+// Fused CPU compositing of 3-D Gaussians (3DGS) over tiles: forward and backward.
 //
-// The projection (EWA, conics, binning, depth sort) stays in PyTorch; these kernels replace only the
-// per-pixel front-to-back loop, which is where a vectorised PyTorch compositor spends its time.
 // Semantics equal the PyTorch reference path (backbones/gs3d/render.py) and the official rasteriser:
 //   power = -0.5 (a dx^2 + c dy^2) - b dx dy; skip if power > 0
 //   alpha = min(0.99, opacity exp(power)); skip if alpha < 1/255
 //   stop before a splat whose composite would leave T < 1e-4
-// Parallel over (camera, tile); gradients of splats shared by tiles go to per-thread buffers.
-#include <torch/extension.h>
-#include <ATen/Parallel.h>
+// Work: tiles are handed to threads one at a time (pool.h). Within a tile the splats are taken in depth order
+// and each is evaluated on the tile rows its pixel box covers, kLanes pixels of a row at once (branch-free
+// lanes that the compiler vectorises; float arithmetic for float tensors, double for double). The forward
+// pass keeps its per-pair work list (the splat in the tile's pixel frame) for the backward pass, which
+// writes one gradient row per pair; the rows are then summed per splat in the fixed order of the tile lists.
 #include <cmath>
 #include <vector>
 
+#include "api.h"
 #include "common.h"
 
+namespace arcsem {
 namespace {
 
-using arcsem::Grid;
-using arcsem::kMaxAlpha;
-using arcsem::kMinAlpha;
-using arcsem::kMinT;
+constexpr int K3 = 4;  // composited features: rgb, depth
+constexpr int D3 = 6 + K3;  // gradient row: mean (2), conic (3), opacity, features
 
-// One pair of a tile, gathered once per tile (contiguous, double): mean, conic, opacity, pixel box
-struct Splat2 {
-  double m[2], con[3], op;
-  int64_t x0, x1, y0, y1, s;
+// One (tile, splat) pair in the tile's pixel frame: mean - tile origin, conic, opacity, features, and the
+// splat's pixel box clipped to the tile (local, inclusive; empty when x1 < x0).
+template <typename T>
+struct Pair3 {
+  T mx, my, ca, cb, cc, op, f[K3];
+  int32_t x0, x1, y0, y1;
+};
+
+// Per-tile pixel state, lane-major: pixel (ly, lx) at ly * stride + lx, stride = tile rounded up to kLanes; the
+// K-vectors (acc, go) in blocks of kLanes pixels: component k of pixel (ly, lx) at vec(ly, lx) + k * kLanes.
+template <typename T>
+struct Tile3 {
+  int stride = 0, rows = 0;
+  std::vector<T> tr, live, wsum, acc, sg, go, ga, tf;
+  std::vector<int32_t> last, row_live;
+  void reset(int64_t tile) {
+    stride = int((tile + kLanes - 1) / kLanes * kLanes);
+    rows = int(tile);
+    const size_t n = size_t(stride) * rows;
+    for (auto* v : {&tr, &live, &wsum, &sg, &ga, &tf}) v->assign(n, T(0));
+    acc.assign(n * K3, T(0));
+    go.assign(n * K3, T(0));
+    last.assign(n, -1);
+    row_live.assign(rows, 0);
+  }
+  size_t vec(int ly, int lx) const { return size_t(ly * stride + lx / kLanes * kLanes) * K3 + lx % kLanes; }
 };
 
 template <typename T>
-struct TileData {
-  std::vector<Splat2> sp;
-  std::vector<double> f;
-  std::vector<std::vector<arcsem::RowEntry>> rows;
-  void gather(const T* means2d, const T* conics, const T* opac, const T* feats, int64_t K, const int64_t* ids,
-              const int64_t* box, int64_t start, int64_t end, int64_t y0, int64_t ny) {
-    const int64_t n = end - start;
-    sp.resize(n);
-    f.resize(n * K);
-    for (int64_t j = 0; j < n; ++j) {
-      const int64_t s = ids[start + j];
-      Splat2& q = sp[j];
-      q.m[0] = means2d[2 * s]; q.m[1] = means2d[2 * s + 1];
-      for (int k = 0; k < 3; ++k) q.con[k] = conics[3 * s + k];
-      q.op = opac[s];
-      const int64_t* b = box + 4 * s;
-      q.x0 = b[0]; q.x1 = b[1]; q.y0 = b[2]; q.y1 = b[3]; q.s = s;
-      for (int64_t k = 0; k < K; ++k) f[j * K + k] = feats[s * K + k];
-    }
-    arcsem::bucket_rows_local(n, [&](int64_t j) { return &sp[j].x0; }, y0, ny, rows);
-  }
+struct In3 {
+  const T *m2, *con, *op, *col, *dep, *bg;
+  const int64_t *off, *ids, *box;
 };
 
-// evaluated in double whatever the storage type
-inline bool eval_splat(const Splat2& q, double px, double py, double& dx, double& dy, double& g, double& alpha) {
-  dx = px - q.m[0];
-  dy = py - q.m[1];
-  const double power = -0.5 * (q.con[0] * dx * dx + q.con[2] * dy * dy) - q.con[1] * dx * dy;
-  if (power > 0.0) return false;
-  g = std::exp(power);
-  alpha = std::min(kMaxAlpha, q.op * g);
-  return alpha >= kMinAlpha;
+template <typename T>
+In3<T> inputs(const Splats3D& s, const TileLists& l) {
+  for (auto* t : {&s.means2d, &s.conics, &s.opacities, &s.colors, &s.depth}) check_cpu(*t, "composite3d input");
+  for (auto* t : {&l.offsets, &l.ids, &l.box}) check_cpu(*t, "composite3d tile lists");
+  return In3<T>{s.means2d.data_ptr<T>(), s.conics.data_ptr<T>(), s.opacities.data_ptr<T>(), s.colors.data_ptr<T>(),
+                s.depth.data_ptr<T>(), grad_or_null<T>(s.background), l.offsets.data_ptr<int64_t>(),
+                l.ids.data_ptr<int64_t>(), l.box.data_ptr<int64_t>()};
 }
 
 template <typename T>
-void forward_impl(const Grid& gr, const T* means2d, const T* conics, const T* opac, const T* feats, int64_t K,
-                  const int64_t* offsets, const int64_t* ids, const int64_t* box, T* out, T* t_final, T* alpha_out,
-                  int32_t* last) {
-  std::vector<TileData<T>> tds(at::get_num_threads());
-  arcsem::for_each_tile(gr.C * gr.tiles(), [&](int64_t ct) {
-    TileData<T>& td = tds[at::get_thread_num()];
-    std::vector<double> acc(K);  // per-pixel sums and transmittance in double, whatever T is
-    const int64_t c = ct / gr.tiles(), x0 = gr.x0(ct), y0 = gr.y0(ct), start = offsets[ct];
-    td.gather(means2d, conics, opac, feats, K, ids, box, start, offsets[ct + 1], y0, gr.ny(ct));
-    for (int64_t y = y0; y < y0 + gr.ny(ct); ++y) {
-      const auto& row = td.rows[y - y0];
-      for (int64_t x = x0; x < x0 + gr.nx(ct); ++x) {
-        const double px = x + 0.5, py = y + 0.5;
-        std::fill(acc.begin(), acc.end(), 0.0);
-        double Tr = 1.0;
-        int32_t lastc = -1;
-        for (const arcsem::RowEntry& e : row) {
-          if (x < e.x0 || x > e.x1) continue;
-          const int32_t j = e.j;
-          const Splat2& q = td.sp[j];
-          double dx, dy, g, alpha;
-          if (!eval_splat(q, px, py, dx, dy, g, alpha)) continue;
-          const double next = Tr * (1.0 - alpha);
-          if (next < kMinT) break;
-          const double w = alpha * Tr;
-          const double* fj = td.f.data() + j * K;
-          for (int64_t k = 0; k < K; ++k) acc[k] += w * fj[k];
-          Tr = next;
-          lastc = int32_t(start + j);
-        }
-        const int64_t pix = (c * gr.H + y) * gr.W + x;
-        for (int64_t k = 0; k < K; ++k) out[pix * K + k] = T(acc[k]);
-        t_final[pix] = T(Tr);
-        alpha_out[pix] = T(1.0 - Tr);  // from the double transmittance: no cancellation for faint pixels
-        last[pix] = lastc;
-      }
-    }
-  });
-}
-
-template <typename T>
-void backward_impl(const Grid& gr, const T* means2d, const T* conics, const T* opac, const T* feats, int64_t K,
-                   const int64_t* offsets, const int64_t* ids, const int64_t* box, const T* t_final, const int32_t* last,
-                   const T* g_out, const T* g_alpha, T* g_means2d, T* g_conics, T* g_opac, T* g_feats,
-                   int64_t M) {
-  const int nth = at::get_num_threads();
-  const int64_t D = 6 + K;  // gradient row: mean (2), conic (3), opacity, features (K)
-  std::vector<std::vector<double>> bufs(nth);  // per-thread [M, D] sums (double)
-  std::vector<TileData<T>> tds(nth);
-  arcsem::for_each_tile(gr.C * gr.tiles(), [&](int64_t ct) {
-    const int tid = at::get_thread_num();
-    auto& buf = bufs[tid];
-    if (buf.empty()) buf.assign(M * D, 0.0);
-    TileData<T>& td = tds[tid];
-    std::vector<double> S(K);
-    const int64_t c = ct / gr.tiles(), x0 = gr.x0(ct), y0 = gr.y0(ct), start = offsets[ct];
-    td.gather(means2d, conics, opac, feats, K, ids, box, start, offsets[ct + 1], y0, gr.ny(ct));
-    std::vector<double> lg(td.sp.size() * D, 0.0);  // this tile's gradients per local pair
-    for (int64_t y = y0; y < y0 + gr.ny(ct); ++y) {
-      const auto& row = td.rows[y - y0];
-      for (int64_t x = x0; x < x0 + gr.nx(ct); ++x) {
-        const int64_t pix = (c * gr.H + y) * gr.W + x;
-        const double px = x + 0.5, py = y + 0.5;
-        const double Tf = t_final[pix];
-        const T* go = g_out + pix * K;
-        // alpha_out = 1 - T_final: dL/dalpha_i gets +g_alpha * T_final / (1 - alpha_i)
-        const double ga = g_alpha[pix];
-        std::fill(S.begin(), S.end(), 0.0);
-        double Tr = Tf;
-        // back to front from the last composited pair (row is in pair order)
-        for (auto it = arcsem::row_end(row, int64_t(last[pix]) - start); it != row.begin();) {
-          const arcsem::RowEntry& e = *--it;
-          if (x < e.x0 || x > e.x1) continue;
-          const int32_t j = e.j;
-          const Splat2& q = td.sp[j];
-          double dx, dy, g, alpha;
-          if (!eval_splat(q, px, py, dx, dy, g, alpha)) continue;
-          const double inv = 1.0 / (1.0 - alpha);
-          const double Ti = Tr * inv;  // transmittance before splat i
-          const double w = alpha * Ti;
-          double* gb = lg.data() + j * D;
-          const double* fj = td.f.data() + j * K;
-          double dalpha = ga * Tf * inv;
-          for (int64_t k = 0; k < K; ++k) {
-            gb[6 + k] += w * go[k];
-            dalpha += go[k] * (Ti * fj[k] - S[k] * inv);
-            S[k] += w * fj[k];
-          }
-          Tr = Ti;
-          if (q.op * g > kMaxAlpha) continue;  // clamped: no gradient through alpha
-          gb[5] += dalpha * g;                 // d alpha / d opacity
-          const double dpow = dalpha * q.op * g;  // d alpha / d power
-          gb[0] += dpow * (q.con[0] * dx + q.con[1] * dy);  // d power / d mean = -(d / d dx)
-          gb[1] += dpow * (q.con[1] * dx + q.con[2] * dy);
-          gb[2] += dpow * -0.5 * dx * dx;
-          gb[3] += dpow * (-dx * dy);
-          gb[4] += dpow * -0.5 * dy * dy;
-        }
-      }
-    }
-    for (size_t j = 0; j < td.sp.size(); ++j) {
-      double* dst = buf.data() + td.sp[j].s * D;
-      const double* src = lg.data() + j * D;
-      for (int64_t k = 0; k < D; ++k) dst[k] += src[k];
-    }
-  });
-  std::vector<double> g(D);
-  for (int64_t s = 0; s < M; ++s) {
-    arcsem::sum_thread_rows(bufs, s, D, g.data());
-    g_means2d[2 * s] = T(g[0]);
-    g_means2d[2 * s + 1] = T(g[1]);
-    for (int j = 0; j < 3; ++j) g_conics[3 * s + j] = T(g[2 + j]);
-    g_opac[s] = T(g[5]);
-    for (int64_t k = 0; k < K; ++k) g_feats[s * K + k] = T(g[6 + k]);
+void gather(const In3<T>& in, const Grid& gr, int64_t ct, Pair3<T>* out) {
+  const int64_t x0 = gr.x0(ct), y0 = gr.y0(ct), nx = gr.nx(ct), ny = gr.ny(ct);
+  for (int64_t p = in.off[ct]; p < in.off[ct + 1]; ++p) {
+    const int64_t s = in.ids[p];
+    Pair3<T>& q = out[p - in.off[ct]];
+    q.mx = in.m2[2 * s] - T(x0);
+    q.my = in.m2[2 * s + 1] - T(y0);
+    q.ca = in.con[3 * s]; q.cb = in.con[3 * s + 1]; q.cc = in.con[3 * s + 2];
+    q.op = in.op[s];
+    for (int k = 0; k < 3; ++k) q.f[k] = in.col[3 * s + k];
+    q.f[3] = in.dep[s];
+    const int64_t* b = in.box + 4 * s;
+    q.x0 = int32_t(std::max<int64_t>(b[0] - x0, 0)); q.x1 = int32_t(std::min<int64_t>(b[1] - x0, nx - 1));
+    q.y0 = int32_t(std::max<int64_t>(b[2] - y0, 0)); q.y1 = int32_t(std::min<int64_t>(b[3] - y0, ny - 1));
   }
 }
 
-void check(const torch::Tensor& t, const char* name, int64_t dim) {
-  TORCH_CHECK(t.is_contiguous() && t.device().is_cpu(), name, " must be a contiguous CPU tensor");
-  TORCH_CHECK(t.dim() == dim, name, " must have ", dim, " dims");
+// power and alpha of splat q at lane pixel (lx, .) with dy precomputed; ok: inside the box and drawn
+template <typename T>
+inline void eval3(const Pair3<T>& q, int lx, T dy, T& dx, T& g, T& alpha, bool& ok) {
+  dx = (T(lx) + T(0.5)) - q.mx;
+  const T power = T(-0.5) * (q.ca * dx * dx + q.cc * dy * dy) - q.cb * dx * dy;
+  g = vexp(power);
+  alpha = std::min(T(kMaxAlpha), q.op * g);
+  ok = (lx >= q.x0) & (lx <= q.x1) & (power <= T(0)) & (alpha >= T(kMinAlpha));  // no branches: vectorised
+}
+
+// front to back over the tile's n pairs (nx x ny pixels); leaves the pixels' state in st
+template <typename T>
+void forward_tile(const Pair3<T>* pr, int64_t n, int nx, int ny, Tile3<T>& st) {
+  const int S = st.stride;
+  int live_total = 0;
+  for (int y = 0; y < ny; ++y) {
+    st.row_live[y] = nx;
+    live_total += nx;
+    std::fill(st.live.begin() + y * S, st.live.begin() + y * S + nx, T(1));
+  }
+  std::fill(st.tr.begin(), st.tr.end(), T(1));
+  for (int64_t j = 0; j < n && live_total > 0; ++j) {
+    const Pair3<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
+    if (q.x1 < q.x0 || q.y1 < q.y0) continue;
+    for (int y = q.y0; y <= q.y1; ++y) {
+      if (st.row_live[y] == 0) continue;
+      const T dy = (T(y) + T(0.5)) - q.my;
+      for (int c = q.x0 / kLanes * kLanes; c <= q.x1; c += kLanes) {
+        const int base = y * S + c;
+        T *tr = st.tr.data() + base, *lv = st.live.data() + base, *acc = st.acc.data() + st.vec(y, c),
+          *ws = st.wsum.data() + base;
+        int32_t* ls = st.last.data() + base;
+        int stops = 0;
+#pragma omp simd reduction(+ : stops)
+        for (int i = 0; i < kLanes; ++i) {
+          T dx, g, alpha;
+          bool ok;
+          eval3(q, c + i, dy, dx, g, alpha, ok);
+          ok = ok & (lv[i] > T(0));
+          const T next = tr[i] * (T(1) - alpha);
+          const bool stop = ok & (next < T(kMinT));
+          const bool use = ok & !stop;
+          const T w = use ? alpha * tr[i] : T(0);
+#pragma GCC unroll 8
+          for (int k = 0; k < K3; ++k) acc[k * kLanes + i] += w * q.f[k];
+          ws[i] += w;
+          tr[i] = use ? next : tr[i];
+          ls[i] = use ? int32_t(j) : ls[i];
+          lv[i] = stop ? T(0) : lv[i];
+          stops += stop ? 1 : 0;
+        }
+        st.row_live[y] -= stops;
+        live_total -= stops;
+      }
+    }
+  }
+}
+
+template <typename T>
+Composite3D forward_impl(const Splats3D& s, const TileLists& l, const Grid& gr) {
+  const In3<T> in = inputs<T>(s, l);
+  const int64_t P = l.ids.numel();
+  auto o = s.colors.options();
+  Composite3D r;
+  r.pairs = pair_storage<Pair3<T>>(P, s.colors);
+  r.t_final = at::empty({gr.C, gr.H, gr.W, 1}, o);
+  r.wz = at::empty_like(r.t_final);
+  r.alpha = at::empty_like(r.t_final);
+  r.depth = at::empty_like(r.t_final);
+  r.rgb = at::empty({gr.C, gr.H, gr.W, 3}, o);
+  r.last = at::empty({gr.C, gr.H, gr.W}, o.dtype(at::kInt));
+  Pair3<T>* pairs = pair_records<Pair3<T>>(r.pairs);
+  T *rgb = r.rgb.data_ptr<T>(), *tf = r.t_final.data_ptr<T>(), *wz = r.wz.data_ptr<T>(), *al = r.alpha.data_ptr<T>(),
+    *dep = r.depth.data_ptr<T>();
+  int32_t* last = r.last.data_ptr<int32_t>();
+  std::vector<Tile3<T>> states(num_workers());
+  parallel_chunks(gr.C * gr.tiles(), [&](int64_t ct, int w) {
+    Tile3<T>& st = states[w];
+    st.reset(gr.tile);
+    const int64_t start = in.off[ct], n = in.off[ct + 1] - start, c = ct / gr.tiles();
+    gather(in, gr, ct, pairs + start);
+    forward_tile(pairs + start, n, int(gr.nx(ct)), int(gr.ny(ct)), st);
+    for (int ly = 0; ly < int(gr.ny(ct)); ++ly)
+      for (int lx = 0; lx < int(gr.nx(ct)); ++lx) {
+        const int64_t i = ly * st.stride + lx, pix = (c * gr.H + gr.y0(ct) + ly) * gr.W + gr.x0(ct) + lx;
+        const T* f = st.acc.data() + st.vec(ly, lx);
+        const T a = st.wsum[i];  // = 1 - T, without its cancellation for faint pixels
+        for (int k = 0; k < 3; ++k) rgb[3 * pix + k] = f[k * kLanes] + (in.bg ? st.tr[i] * in.bg[k] : T(0));
+        tf[pix] = st.tr[i];
+        al[pix] = a;
+        wz[pix] = f[3 * kLanes];
+        dep[pix] = a > T(0) ? wz[pix] / std::max(a, T(1e-30)) : T(0);
+        last[pix] = st.last[i] < 0 ? -1 : int32_t(start + st.last[i]);
+      }
+  });
+  return r;
+}
+
+// Back to front over the tile's pairs from the last one any pixel composited; one gradient row per pair.
+template <typename T>
+void backward_tile(const Pair3<T>* pr, int64_t n, int ny, Tile3<T>& st, T* grow) {
+  const int S = st.stride;
+  int64_t jmax = -1;
+  for (int y = 0; y < ny; ++y)
+    for (int x = 0; x < S; ++x) jmax = std::max<int64_t>(jmax, st.last[y * S + x]);
+  for (int64_t j = n - 1; j > jmax; --j) std::fill(grow + j * D3, grow + (j + 1) * D3, T(0));
+  alignas(64) T acc[D3][kLanes];
+  for (int32_t j = int32_t(jmax); j >= 0; --j) {
+    const Pair3<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
+    for (auto& a : acc) std::fill(a, a + kLanes, T(0));
+    for (int y = q.y0; y <= q.y1 && q.x0 <= q.x1; ++y) {
+      const T dy = (T(y) + T(0.5)) - q.my;
+      for (int c = q.x0 / kLanes * kLanes; c <= q.x1; c += kLanes) {
+        const int base = y * S + c;
+        T *tr = st.tr.data() + base, *sg = st.sg.data() + base;
+        const T *go = st.go.data() + st.vec(y, c), *ga = st.ga.data() + base, *tf = st.tf.data() + base;
+        const int32_t* ls = st.last.data() + base;
+#pragma omp simd
+        for (int i = 0; i < kLanes; ++i) {
+          T dx, g, alpha;
+          bool ok;
+          eval3(q, c + i, dy, dx, g, alpha, ok);
+          ok = ok & (j <= ls[i]);
+          const T inv = T(1) / (T(1) - alpha), Ti = tr[i] * inv, w = alpha * Ti;
+          T gof = 0;
+#pragma GCC unroll 8
+          for (int k = 0; k < K3; ++k) gof += go[k * kLanes + i] * q.f[k];
+          // alpha_out = 1 - T_final: d/d alpha_i gets g_alpha T_final / (1 - alpha_i)
+          const T dalpha = ga[i] * tf[i] * inv + Ti * gof - sg[i] * inv;
+          sg[i] = ok ? sg[i] + w * gof : sg[i];
+          tr[i] = ok ? Ti : tr[i];
+#pragma GCC unroll 8
+          for (int k = 0; k < K3; ++k) acc[6 + k][i] += ok ? w * go[k * kLanes + i] : T(0);
+          const bool grad = ok & (q.op * g <= T(kMaxAlpha));  // clamped alpha has no gradient
+          const T dpow = grad ? dalpha * q.op * g : T(0);
+          acc[5][i] += grad ? dalpha * g : T(0);
+          acc[0][i] += dpow * (q.ca * dx + q.cb * dy);  // d power / d mean
+          acc[1][i] += dpow * (q.cb * dx + q.cc * dy);
+          acc[2][i] += dpow * T(-0.5) * dx * dx;
+          acc[3][i] += -dpow * dx * dy;
+          acc[4][i] += dpow * T(-0.5) * dy * dy;
+        }
+      }
+    }
+    for (int d = 0; d < D3; ++d) {
+      T sum = 0;
+      for (int i = 0; i < kLanes; ++i) sum += acc[d][i];
+      grow[j * D3 + d] = sum;
+    }
+  }
+}
+
+template <typename T>
+Grads3D backward_impl(const Splats3D& s, const TileLists& l, const Grid& gr, const Composite3D& fw,
+                      const at::Tensor& g_rgb, const at::Tensor& g_alpha, const at::Tensor& g_depth) {
+  const In3<T> in = inputs<T>(s, l);
+  const int64_t M = s.colors.size(0), P = l.ids.numel();
+  const Pair3<T>* pairs = pair_records<Pair3<T>>(fw.pairs);
+  const T *tf = fw.t_final.data_ptr<T>(), *al = fw.alpha.data_ptr<T>(), *wz = fw.wz.data_ptr<T>();
+  const int32_t* last = fw.last.data_ptr<int32_t>();
+  const T *gr_rgb = grad_or_null<T>(g_rgb), *gr_al = grad_or_null<T>(g_alpha), *gr_dep = grad_or_null<T>(g_depth);
+  std::vector<T> rows(P * D3);
+  std::vector<Tile3<T>> states(num_workers());
+  parallel_chunks(gr.C * gr.tiles(), [&](int64_t ct, int w) {
+    Tile3<T>& st = states[w];
+    st.reset(gr.tile);
+    const int64_t start = in.off[ct], c = ct / gr.tiles();
+    for (int ly = 0; ly < int(gr.ny(ct)); ++ly)
+      for (int lx = 0; lx < int(gr.nx(ct)); ++lx) {
+        const int64_t i = ly * st.stride + lx, pix = (c * gr.H + gr.y0(ct) + ly) * gr.W + gr.x0(ct) + lx;
+        T* go = st.go.data() + st.vec(ly, lx);
+        // rgb = f + (1 - alpha) bg, depth = wz / alpha: gradients to the composited features and to alpha
+        const T a = al[pix];
+        T ga = gr_al ? gr_al[pix] : T(0);
+        for (int k = 0; k < 3; ++k) {
+          const T gk = gr_rgb ? gr_rgb[3 * pix + k] : T(0);
+          go[k * kLanes] = gk;
+          if (in.bg) ga -= gk * in.bg[k];
+        }
+        T gw = 0;
+        if (gr_dep && a > T(0)) {
+          const T ac = std::max(a, T(1e-30));
+          gw = gr_dep[pix] / ac;
+          if (a >= T(1e-30)) ga -= gr_dep[pix] * wz[pix] / (ac * ac);
+        }
+        go[3 * kLanes] = gw;
+        st.ga[i] = ga;
+        st.tf[i] = st.tr[i] = tf[pix];
+        st.last[i] = last[pix] < 0 ? -1 : int32_t(last[pix] - start);
+      }
+    backward_tile(pairs + start, in.off[ct + 1] - start, int(gr.ny(ct)), st, rows.data() + start * D3);
+  });
+  Grads3D g;
+  g.means2d = at::empty_like(s.means2d);
+  g.conics = at::empty_like(s.conics);
+  g.opacities = at::empty_like(s.opacities);
+  g.colors = at::empty_like(s.colors);
+  g.depth = at::empty_like(s.depth);
+  T *gm = g.means2d.data_ptr<T>(), *gc = g.conics.data_ptr<T>(), *go = g.opacities.data_ptr<T>(),
+    *gcol = g.colors.data_ptr<T>(), *gd = g.depth.data_ptr<T>();
+  reduce_pairs(M, D3, rows.data(), l.entry_offsets.data_ptr<int64_t>(), l.pair_of.data_ptr<int64_t>(),
+               [&](int64_t e, const double* r) {
+                 gm[2 * e] = T(r[0]);
+                 gm[2 * e + 1] = T(r[1]);
+                 for (int k = 0; k < 3; ++k) gc[3 * e + k] = T(r[2 + k]);
+                 go[e] = T(r[5]);
+                 for (int k = 0; k < 3; ++k) gcol[3 * e + k] = T(r[6 + k]);
+                 gd[e] = T(r[9]);
+               });
+  return g;
 }
 
 }  // namespace
 
-template <typename T>
-const T* grad_or_null(const torch::Tensor& g) { return g.defined() && g.numel() ? g.data_ptr<T>() : nullptr; }
-
-// colors [M, 3], depth [M] (features f = both), bg [3] or empty -> rgb [C, H, W, 3], alpha, depth [C, H, W, 1];
-// then, for the backward: f, transmittance, last, the sum w z
-std::vector<torch::Tensor> forward3d(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opac,
-                                     torch::Tensor colors, torch::Tensor depth, torch::Tensor offsets, torch::Tensor ids,
-                                     torch::Tensor box, torch::Tensor bg, int64_t C, int64_t H, int64_t W, int64_t tile) {
-  check(means2d, "means2d", 2); check(conics, "conics", 2); check(opac, "opacities", 1); check(colors, "colors", 2);
-  check(depth, "depth", 1); check(offsets, "tile offsets", 1); check(ids, "ids", 1); check(box, "pixel boxes", 2);
-  const Grid gr = arcsem::make_grid(C, H, W, tile);
-  TORCH_CHECK(offsets.numel() == C * gr.tiles() + 1, "tile offsets must have C*tiles+1 entries");
-  const int64_t M = colors.size(0), K = 4, P = C * H * W;
-  auto o = colors.options();
-  auto f = torch::empty({M, K}, o), out = torch::empty({C, H, W, K}, o);
-  auto tf = torch::empty({C, H, W, 1}, o), alpha = torch::empty_like(tf), dep = torch::empty_like(tf);
-  auto rgb = torch::empty({C, H, W, 3}, o), extra = torch::empty({C, H, W, 1}, o);
-  auto last = torch::empty({C, H, W}, o.dtype(torch::kInt32));
-  AT_DISPATCH_FLOATING_TYPES(colors.scalar_type(), "forward3d", [&] {
-    arcsem::concat_rows(colors.data_ptr<scalar_t>(), 3, depth.data_ptr<scalar_t>(), 1, M, f.data_ptr<scalar_t>());
-    forward_impl<scalar_t>(gr, means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
-                           opac.data_ptr<scalar_t>(), f.data_ptr<scalar_t>(), K,
-                           offsets.data_ptr<int64_t>(), ids.data_ptr<int64_t>(), box.data_ptr<int64_t>(), out.data_ptr<scalar_t>(),
-                           tf.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(), last.data_ptr<int32_t>());
-    arcsem::finish_outputs<scalar_t>(P, K, out.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(), out.data_ptr<scalar_t>() + 3,
-                                     K, grad_or_null<scalar_t>(bg), rgb.data_ptr<scalar_t>(), extra.data_ptr<scalar_t>(),
-                                     dep.data_ptr<scalar_t>());
-  });
-  return {rgb, alpha, dep, f, tf, last, extra};
+Composite3D composite3d_forward(const Splats3D& s, const TileLists& lists, const Raster& raster) {
+  const Grid gr = make_grid(raster.C, raster.H, raster.W, raster.tile);
+  TORCH_CHECK(lists.offsets.numel() == gr.C * gr.tiles() + 1, "composite3d: tile offsets must have C*tiles+1 entries");
+  Composite3D r;
+  AT_DISPATCH_FLOATING_TYPES(s.colors.scalar_type(), "composite3d_forward", [&] { r = forward_impl<scalar_t>(s, lists, gr); });
+  return r;
 }
 
-// -> g_means2d, g_conics, g_opacities, g_colors, g_depth (undefined / empty output gradients are zero)
-std::vector<torch::Tensor> backward3d(torch::Tensor means2d, torch::Tensor conics, torch::Tensor opac,
-                                      torch::Tensor f, torch::Tensor offsets, torch::Tensor ids, torch::Tensor box,
-                                      torch::Tensor bg, torch::Tensor t_final, torch::Tensor last, torch::Tensor alpha,
-                                      torch::Tensor wz, torch::Tensor g_rgb, torch::Tensor g_alpha,
-                                      torch::Tensor g_depth, int64_t C, int64_t H, int64_t W, int64_t tile) {
-  const Grid gr = arcsem::make_grid(C, H, W, tile);
-  const int64_t K = f.size(1), M = f.size(0), P = C * H * W;
-  auto gm = torch::empty_like(means2d), gc = torch::empty_like(conics), go = torch::empty_like(opac),
-       gf = torch::empty_like(f);
-  AT_DISPATCH_FLOATING_TYPES(f.scalar_type(), "backward3d", [&] {
-    std::vector<scalar_t> gout(P * K), ga(P);
-    arcsem::finish_backward<scalar_t>(P, K, alpha.data_ptr<scalar_t>(), wz.data_ptr<scalar_t>(), 1,
-                                      grad_or_null<scalar_t>(bg), grad_or_null<scalar_t>(g_rgb), nullptr,
-                                      grad_or_null<scalar_t>(g_alpha), grad_or_null<scalar_t>(g_depth), gout.data(),
-                                      ga.data(), gout.data() + 3, K);
-    backward_impl<scalar_t>(gr, means2d.data_ptr<scalar_t>(), conics.data_ptr<scalar_t>(),
-                            opac.data_ptr<scalar_t>(), f.data_ptr<scalar_t>(), K,
-                            offsets.data_ptr<int64_t>(), ids.data_ptr<int64_t>(), box.data_ptr<int64_t>(), t_final.data_ptr<scalar_t>(),
-                            last.data_ptr<int32_t>(), gout.data(), ga.data(),
-                            gm.data_ptr<scalar_t>(), gc.data_ptr<scalar_t>(), go.data_ptr<scalar_t>(),
-                            gf.data_ptr<scalar_t>(), M);
+Grads3D composite3d_backward(const Splats3D& s, const TileLists& lists, const Raster& raster, const Composite3D& fwd,
+                             const at::Tensor& g_rgb, const at::Tensor& g_alpha, const at::Tensor& g_depth) {
+  const Grid gr = make_grid(raster.C, raster.H, raster.W, raster.tile);
+  Grads3D g;
+  AT_DISPATCH_FLOATING_TYPES(s.colors.scalar_type(), "composite3d_backward", [&] {
+    g = backward_impl<scalar_t>(s, lists, gr, fwd, g_rgb, g_alpha, g_depth);
   });
-  return {gm, gc, go, arcsem::split_cols(gf, 3), arcsem::split_cols(gf, 3, 1).view({M})};
+  return g;
 }
+
+}  // namespace arcsem

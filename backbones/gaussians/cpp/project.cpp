@@ -6,14 +6,16 @@
 // P [C, 4, 4] is raster_camera.pixel_projection: world -> (x w, y w, w, z). Entries s = c * N + n.
 // The screen-position leaf enters as a shift of value zero (raster.screen_position_leaf), so the
 // forward ignores it and the backward returns its gradient.
-#include <torch/extension.h>
-#include <ATen/Parallel.h>
 #include <cmath>
 #include <vector>
 
+#include "api.h"
+#include "pool.h"
+
+namespace arcsem {
 namespace {
 
-constexpr int64_t kGrain = 1 << 16;  // per-splat loops: small inputs run on the calling thread (no fork/join stall)
+constexpr int64_t kGrain = 1 << 13;  // splats per chunk of the per-splat loops
 
 // raster_camera.quat_to_rotmat (row-major R[3 * i + j]) and its vector-Jacobian product
 inline void rotmat(const double q[4], double R[9], double qn[4], double& norm) {
@@ -95,22 +97,23 @@ inline bool conic_ok(const T* cov, T depth, double near) {
   return det > 0 && depth > T(near) && std::isfinite(mid + std::sqrt(std::max(mid * mid - det, 0.1)));
 }
 
-void check(const torch::Tensor& t) { TORCH_CHECK(t.is_contiguous() && t.device().is_cpu(), "project: inputs must be contiguous CPU tensors"); }
+void check(const at::Tensor& t) { TORCH_CHECK(t.is_contiguous() && t.device().is_cpu(), "project: inputs must be contiguous CPU tensors"); }
 
 }  // namespace
 
 // -> H [C*N, 9] (rows Tu, Tv, Tw), Dz [C*N, 3] (row Tz), centre [C*N, 2], normals [C*N, 3]
-std::vector<torch::Tensor> project2d_forward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
-                                             torch::Tensor P, torch::Tensor view, bool ortho) {
+std::vector<at::Tensor> project2d_forward(const Projection& pr) {
+  const auto &means = pr.means, &quats = pr.quats, &scales = pr.scales, &P = pr.P, &view = pr.view;
+  const bool ortho = pr.ortho;
   for (auto* t : {&means, &quats, &scales, &P, &view}) check(*t);
   const int64_t N = means.size(0), C = P.size(0);
   auto o = means.options();
-  auto Hm = torch::empty({C * N, 9}, o), Dz = torch::empty({C * N, 3}, o), ctr = torch::empty({C * N, 2}, o), nrm = torch::empty({C * N, 3}, o);
-  auto Pd = P.to(torch::kDouble).contiguous(), Vd = view.to(torch::kDouble).contiguous();
+  auto Hm = at::empty({C * N, 9}, o), Dz = at::empty({C * N, 3}, o), ctr = at::empty({C * N, 2}, o), nrm = at::empty({C * N, 3}, o);
+  auto Pd = P.to(at::kDouble).contiguous(), Vd = view.to(at::kDouble).contiguous();
   AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "project2d_forward", [&] {
     const scalar_t *m = means.data_ptr<scalar_t>(), *q = quats.data_ptr<scalar_t>(), *sc = scales.data_ptr<scalar_t>();
     scalar_t *H = Hm.data_ptr<scalar_t>(), *Z = Dz.data_ptr<scalar_t>(), *ct = ctr.data_ptr<scalar_t>(), *nr = nrm.data_ptr<scalar_t>();
-    at::parallel_for(0, N, kGrain, [&](int64_t b, int64_t e) {
+    parallel_range(N, kGrain, [&](int64_t b, int64_t e, int) {
       for (int64_t n = b; n < e; ++n) {
         const Splat<scalar_t> sp(m + 3 * n, q + 4 * n, sc + 2 * n, 2);
         for (int64_t c = 0; c < C; ++c) {
@@ -131,20 +134,21 @@ std::vector<torch::Tensor> project2d_forward(torch::Tensor means, torch::Tensor 
 }
 
 // -> g_means [N,3], g_quats [N,4], g_scales [N,2], g_shift [C*N, 2]
-std::vector<torch::Tensor> project2d_backward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
-                                              torch::Tensor P, torch::Tensor view, bool ortho, torch::Tensor gH,
-                                              torch::Tensor gDz, torch::Tensor gctr, torch::Tensor gnrm) {
+std::vector<at::Tensor> project2d_backward(const Projection& pr, const at::Tensor& gH, const at::Tensor& gDz,
+                                              const at::Tensor& gctr, const at::Tensor& gnrm) {
+  const auto &means = pr.means, &quats = pr.quats, &scales = pr.scales, &P = pr.P, &view = pr.view;
+  const bool ortho = pr.ortho;
   for (auto* t : {&means, &quats, &scales, &P, &view, &gH, &gDz, &gctr, &gnrm}) check(*t);
   const int64_t N = means.size(0), C = P.size(0);
-  auto gm = torch::empty_like(means), gq = torch::empty_like(quats), gs = torch::empty_like(scales);
-  auto gsh = torch::empty({C * N, 2}, means.options());
-  auto Pd = P.to(torch::kDouble).contiguous(), Vd = view.to(torch::kDouble).contiguous();
+  auto gm = at::empty_like(means), gq = at::empty_like(quats), gs = at::empty_like(scales);
+  auto gsh = at::empty({C * N, 2}, means.options());
+  auto Pd = P.to(at::kDouble).contiguous(), Vd = view.to(at::kDouble).contiguous();
   AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "project2d_backward", [&] {
     const scalar_t *m = means.data_ptr<scalar_t>(), *q = quats.data_ptr<scalar_t>(), *sc = scales.data_ptr<scalar_t>();
     const scalar_t *GH = gH.data_ptr<scalar_t>(), *GZ = gDz.data_ptr<scalar_t>(), *GC = gctr.data_ptr<scalar_t>(), *GN = gnrm.data_ptr<scalar_t>();
     scalar_t *om = gm.data_ptr<scalar_t>(), *oq = gq.data_ptr<scalar_t>(), *os = gs.data_ptr<scalar_t>();
     scalar_t* osh = gsh.data_ptr<scalar_t>();
-    at::parallel_for(0, N, kGrain, [&](int64_t b, int64_t e) {
+    parallel_range(N, kGrain, [&](int64_t b, int64_t e, int) {
       for (int64_t n = b; n < e; ++n) {
         const Splat<scalar_t> sp(m + 3 * n, q + 4 * n, sc + 2 * n, 2);
         double gR[9] = {0}, gmean[3] = {0}, gscale[2] = {0};
@@ -187,19 +191,20 @@ std::vector<torch::Tensor> project2d_backward(torch::Tensor means, torch::Tensor
 }
 
 // -> means2d [C*N, 2], depth [C*N], conics [C*N, 3], cov (a, b, c) [C*N, 3]
-std::vector<torch::Tensor> project3d_forward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
-                                             torch::Tensor P, double near) {
+std::vector<at::Tensor> project3d_forward(const Projection& pr) {
+  const auto &means = pr.means, &quats = pr.quats, &scales = pr.scales, &P = pr.P;
+  const double near = pr.near;
   for (auto* t : {&means, &quats, &scales, &P}) check(*t);
   const int64_t N = means.size(0), C = P.size(0);
   auto o = means.options();
-  auto m2 = torch::empty({C * N, 2}, o), dep = torch::empty({C * N}, o), con = torch::empty({C * N, 3}, o),
-       cov = torch::empty({C * N, 3}, o);
-  auto Pd = P.to(torch::kDouble).contiguous();
+  auto m2 = at::empty({C * N, 2}, o), dep = at::empty({C * N}, o), con = at::empty({C * N, 3}, o),
+       cov = at::empty({C * N, 3}, o);
+  auto Pd = P.to(at::kDouble).contiguous();
   AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "project3d_forward", [&] {
     const scalar_t *m = means.data_ptr<scalar_t>(), *q = quats.data_ptr<scalar_t>(), *sc = scales.data_ptr<scalar_t>();
     scalar_t *om = m2.data_ptr<scalar_t>(), *od = dep.data_ptr<scalar_t>(), *oc = con.data_ptr<scalar_t>(),
              *ov = cov.data_ptr<scalar_t>();
-    at::parallel_for(0, N, kGrain, [&](int64_t b, int64_t e) {
+    parallel_range(N, kGrain, [&](int64_t b, int64_t e, int) {
       for (int64_t n = b; n < e; ++n) {
         const Splat<scalar_t> sp(m + 3 * n, q + 4 * n, sc + 3 * n, 3);
         for (int64_t c = 0; c < C; ++c) {
@@ -223,18 +228,19 @@ std::vector<torch::Tensor> project3d_forward(torch::Tensor means, torch::Tensor 
 }
 
 // -> g_means [N,3], g_quats [N,4], g_scales [N,3], g_shift [C*N, 2] (= g_means2d)
-std::vector<torch::Tensor> project3d_backward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
-                                              torch::Tensor P, double near, torch::Tensor gm2, torch::Tensor gdep,
-                                              torch::Tensor gcon) {
+std::vector<at::Tensor> project3d_backward(const Projection& pr, const at::Tensor& gm2, const at::Tensor& gdep,
+                                              const at::Tensor& gcon) {
+  const auto &means = pr.means, &quats = pr.quats, &scales = pr.scales, &P = pr.P;
+  const double near = pr.near;
   for (auto* t : {&means, &quats, &scales, &P, &gm2, &gdep, &gcon}) check(*t);
   const int64_t N = means.size(0), C = P.size(0);
-  auto gm = torch::empty_like(means), gq = torch::empty_like(quats), gs = torch::empty_like(scales);
-  auto Pd = P.to(torch::kDouble).contiguous();
+  auto gm = at::empty_like(means), gq = at::empty_like(quats), gs = at::empty_like(scales);
+  auto Pd = P.to(at::kDouble).contiguous();
   AT_DISPATCH_FLOATING_TYPES(means.scalar_type(), "project3d_backward", [&] {
     const scalar_t *m = means.data_ptr<scalar_t>(), *q = quats.data_ptr<scalar_t>(), *sc = scales.data_ptr<scalar_t>();
     const scalar_t *G2 = gm2.data_ptr<scalar_t>(), *GD = gdep.data_ptr<scalar_t>(), *GC = gcon.data_ptr<scalar_t>();
     scalar_t *om = gm.data_ptr<scalar_t>(), *oq = gq.data_ptr<scalar_t>(), *os = gs.data_ptr<scalar_t>();
-    at::parallel_for(0, N, kGrain, [&](int64_t b, int64_t e) {
+    parallel_range(N, kGrain, [&](int64_t b, int64_t e, int) {
       for (int64_t n = b; n < e; ++n) {
         const Splat<scalar_t> sp(m + 3 * n, q + 4 * n, sc + 3 * n, 3);
         double gR[9] = {0}, gmean[3] = {0}, gscale[3] = {0};
@@ -286,3 +292,5 @@ std::vector<torch::Tensor> project3d_backward(torch::Tensor means, torch::Tensor
   });
   return {gm, gq, gs, gm2.clone()};
 }
+
+}  // namespace arcsem

@@ -1,0 +1,145 @@
+// Fused CPU compositing of 2-D Gaussian surfels (2DGS) over tiles: what the forward (composite2d.cpp) and the
+// backward pass (composite2d_backward.cpp) share.
+//
+// Per (camera, splat) entry s the PyTorch side supplies:
+//   H[s]  : 9 values, rows Tu, Tv, Tw of the splat-to-pixel homography; for pixel (x, y)
+//           k = x Tw - Tu, l = y Tw - Tv, p = k x l, (u, v) = (p.x / p.z, p.y / p.z)
+//   Dz[s] : 3 values, camera-z row of the splat: depth at (u, v) = u Dz.x + v Dz.y + Dz.z
+//           (for a pinhole camera Dz = Tw; an orthographic camera has constant w, hence the extra row)
+//   c[s]  : projected centre (pixels), for the low-pass rho2d = lp |pixel - c|^2 (lp = 1 / sigma^2; official 2)
+//   opacity, features (colour, normal)
+// Per camera, the normalised depth of the distortion loss is m = m0 + m1 z + m2 / z.
+// Rules (official 2DGS): rho = min(rho3d, rho2d); depth = hit depth if rho3d <= rho2d else centre depth;
+// skip depth < near, alpha < 1/255; alpha <= 0.99; stop before T would fall below 1e-4;
+// median depth = depth of the last splat composited while T > 0.5.
+// The distortion sum_ij w_i w_j (m_i - m_j)^2 is shift-invariant; m is shifted per pixel by the first
+// composited splat's m to avoid the cancellation of m^2 A + M2 - 2 m M1 in float32 (as the PyTorch path).
+//
+// p = k x l expands to p = x a + y b + c with the adjugate columns a = Tv x Tw, b = Tw x Tu, c = Tu x Tv. A pair
+// keeps them in its tile's pixel frame (c' = c + x0 a + y0 b, computed in double), so a float evaluation near
+// the tile does not lose digits to large pixel coordinates. Tiles, lanes, the per-pair work list and the
+// per-entry gradient sums work as in composite3d.cpp.
+#pragma once
+#include <cmath>
+#include <vector>
+
+#include "api.h"
+#include "common.h"
+
+namespace arcsem {
+namespace c2d {
+
+
+constexpr int K2 = 6;  // composited features: rgb, normal
+// gradient row of a pair: adjugate columns a, b, c (9), Dz (3), centre (2), opacity, features
+constexpr int GA = 0, GDZ = 9, GC = 12, GOP = 14, GF = 15, D2 = GF + K2;
+
+template <typename T>
+struct Pair2 {
+  T a[3], b[3], c[3], dz[3], cx, cy, op, f[K2];  // adjugate in the tile frame, depth row, centre - origin, ...
+  int32_t x0, x1, y0, y1;                         // pixel box clipped to the tile (local, inclusive)
+};
+
+// What a lane (pixel) sees of a pair: intersection (u, v), low-pass offset, depth, Gaussian, alpha.
+template <typename T>
+struct Hit2 {
+  T p0, p1, ip, u, v, dx, dy, z, g, alpha;
+  bool use3d, ok;
+};
+
+template <typename T>
+inline Hit2<T> eval2(const Pair2<T>& q, int lx, T py, T near, T lp) {
+  Hit2<T> h;
+  const T px = T(lx) + T(0.5);
+  h.p0 = px * q.a[0] + py * q.b[0] + q.c[0];
+  h.p1 = px * q.a[1] + py * q.b[1] + q.c[1];
+  const T p2 = px * q.a[2] + py * q.b[2] + q.c[2];
+  h.ip = p2 != T(0) ? T(1) / p2 : T(0);
+  h.u = h.p0 * h.ip;
+  h.v = h.p1 * h.ip;
+  const T rho3d = h.u * h.u + h.v * h.v;
+  h.dx = q.cx - px;
+  h.dy = q.cy - py;
+  const T rho2d = lp * (h.dx * h.dx + h.dy * h.dy);
+  h.use3d = rho3d <= rho2d;
+  h.z = h.use3d ? h.u * q.dz[0] + h.v * q.dz[1] + q.dz[2] : q.dz[2];
+  const T power = T(-0.5) * (h.use3d ? rho3d : rho2d);
+  h.g = vexp(power);
+  h.alpha = std::min(T(kMaxAlpha), q.op * h.g);
+  h.ok = (p2 != T(0)) & (lx >= q.x0) & (lx <= q.x1) & (h.z >= near) & (power <= T(0)) & (h.alpha >= T(kMinAlpha));
+  return h;
+}
+
+template <typename T>
+struct In2 {
+  const T *H, *Dz, *c, *op, *col, *nrm, *mc, *bg;
+  const int64_t *off, *ids, *box;
+  T near, lp;
+};
+
+template <typename T>
+In2<T> inputs(const Surfels2D& s, const TileLists& l) {
+  for (auto* t : {&s.H, &s.Dz, &s.centres, &s.opacities, &s.colors, &s.normals, &s.mcoef}) check_cpu(*t, "composite2d input");
+  for (auto* t : {&l.offsets, &l.ids, &l.box}) check_cpu(*t, "composite2d tile lists");
+  TORCH_CHECK(s.colors.size(1) == 3 && s.normals.size(1) == 3, "composite2d: colors, normals must be [M, 3]");
+  return In2<T>{s.H.data_ptr<T>(), s.Dz.data_ptr<T>(), s.centres.data_ptr<T>(), s.opacities.data_ptr<T>(),
+                s.colors.data_ptr<T>(), s.normals.data_ptr<T>(), s.mcoef.data_ptr<T>(), grad_or_null<T>(s.background),
+                l.offsets.data_ptr<int64_t>(), l.ids.data_ptr<int64_t>(), l.box.data_ptr<int64_t>(), T(s.near),
+                T(s.lowpass)};
+}
+
+template <typename T>
+void gather(const In2<T>& in, const Grid& gr, int64_t ct, Pair2<T>* out) {
+  const int64_t x0 = gr.x0(ct), y0 = gr.y0(ct), nx = gr.nx(ct), ny = gr.ny(ct);
+  for (int64_t p = in.off[ct]; p < in.off[ct + 1]; ++p) {
+    const int64_t s = in.ids[p];
+    Pair2<T>& q = out[p - in.off[ct]];
+    double H[9], A[9];
+    for (int k = 0; k < 9; ++k) H[k] = double(in.H[9 * s + k]);
+    cross(H + 3, H + 6, A);      // a = Tv x Tw
+    cross(H + 6, H, A + 3);      // b = Tw x Tu
+    cross(H, H + 3, A + 6);      // c = Tu x Tv
+    for (int k = 0; k < 3; ++k) {
+      q.a[k] = T(A[k]);
+      q.b[k] = T(A[3 + k]);
+      q.c[k] = T(A[6 + k] + double(x0) * A[k] + double(y0) * A[3 + k]);
+      q.dz[k] = in.Dz[3 * s + k];
+      q.f[k] = in.col[3 * s + k];
+      q.f[3 + k] = in.nrm[3 * s + k];
+    }
+    q.cx = in.c[2 * s] - T(x0);
+    q.cy = in.c[2 * s + 1] - T(y0);
+    q.op = in.op[s];
+    const int64_t* b = in.box + 4 * s;
+    q.x0 = int32_t(std::max<int64_t>(b[0] - x0, 0)); q.x1 = int32_t(std::min<int64_t>(b[1] - x0, nx - 1));
+    q.y0 = int32_t(std::max<int64_t>(b[2] - y0, 0)); q.y1 = int32_t(std::min<int64_t>(b[3] - y0, ny - 1));
+  }
+}
+
+// Per-tile pixel state, lane-major as in composite3d.cpp (fields used by the forward or the backward pass).
+template <typename T>
+struct Tile2 {
+  int stride = 0;
+  size_t np = 0;
+  // forward: transmittance, live flag, sum w, features, sum w z, m1, m2, distortion, first m, median depth
+  // backward: transmittance, S, T_final, m1, m2, first m, feature / alpha / depth / median / distortion grads
+  std::vector<T> tr, live, wsum, acc, wz, m1, m2, dist, mref, med, s, tf, go, ga, gd, gm, gdis;
+  std::vector<int32_t> last, medi;
+  std::vector<int> row_live;
+  void reset(int64_t tile) {
+    stride = int((tile + kLanes - 1) / kLanes * kLanes);
+    np = size_t(stride) * size_t(tile);
+    for (auto* v : {&tr, &live, &wsum, &wz, &m1, &m2, &dist, &mref, &med, &s, &tf, &ga, &gd, &gm, &gdis})
+      v->assign(np, T(0));
+    acc.assign(np * K2, T(0));
+    go.assign(np * K2, T(0));
+    last.assign(np, -1);
+    medi.assign(np, -1);
+    row_live.assign(size_t(tile), 0);
+  }
+  // component k of the K2-vectors (acc, go) of pixel (ly, lx) is at vec(ly, lx) + k * kLanes (blocks of kLanes pixels)
+  size_t vec(int ly, int lx) const { return size_t(ly * stride + lx / kLanes * kLanes) * K2 + lx % kLanes; }
+};
+
+}  // namespace c2d
+}  // namespace arcsem

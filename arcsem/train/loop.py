@@ -105,8 +105,9 @@ def _check_finite(run: _Run, step: int, what: str, named: Mapping[str, Any], kin
         tensors = value if isinstance(value, (list, tuple)) else [value]
         for t in tensors:
             if t is not None and t.is_sparse:  # sparse gradients (Plenoxels): their stored values
-                t = t.coalesce().values()
-            if t is not None and not bool(torch.isfinite(t).all()):
+                t = t._values()
+            # one pass: a finite sum means every element is finite (a non-finite one is checked element-wise)
+            if t is not None and not bool(torch.isfinite(t.sum())) and not bool(torch.isfinite(t).all()):
                 raise TrainingError(f"step {step}: {kind} '{name}' is not finite ({what}); training stopped, "
                                     f"{run.on_disk()}")
 

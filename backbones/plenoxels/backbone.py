@@ -18,6 +18,7 @@ from ...configs import GroupSchedule
 from ...errors import ConfigError
 from ...plugins import BACKBONES, Backbone
 from .background import build_background
+from .bounds import grid_bounds
 from .config import PlenoxelsConfig
 from .fused import max_weights as fused_max_weights
 from .fused import resolve_impl
@@ -58,7 +59,7 @@ class Plenoxels(Backbone):
     def __init__(self, cfg: Any, scene: Any = None, act: Any = None, **runtime: Any):
         super().__init__(cfg, scene)
         self._check_config(cfg)
-        bounds = scene.bounds.float() if scene is not None else torch.tensor([[-1.0] * 3, [1.0] * 3])
+        bounds = grid_bounds(scene) if scene is not None else torch.tensor([[-1.0] * 3, [1.0] * 3])
         self.register_buffer("bounds", bounds.clone())
         self.register_buffer("level", torch.tensor(0))
         reso = list(cfg.reso[0])
@@ -179,9 +180,10 @@ class Plenoxels(Backbone):
         """svox2's schedules: log-linear decay with a sine warm-up for ``density`` and ``sh``; ``background``
         constant."""
         c = self.cfg
-        rates = {"density": GroupSchedule(c.lr_sigma, c.lr_sigma_final, c.lr_sigma_decay_steps, c.lr_sigma_delay_steps,
+        rates = {"density": GroupSchedule(c.lr_sigma, c.lr_sigma_final, c.lr_sigma_decay_steps or None, c.lr_sigma_delay_steps,
                                           c.lr_sigma_delay_mult),
-                 "sh": GroupSchedule(c.lr_sh, c.lr_sh_final, c.lr_sh_decay_steps, c.lr_sh_delay_steps, c.lr_sh_delay_mult),
+                 "sh": GroupSchedule(c.lr_sh, c.lr_sh_final, c.lr_sh_decay_steps or None, c.lr_sh_delay_steps,
+                                       c.lr_sh_delay_mult),
                  "background": GroupSchedule(c.lr_background)}
         return {g: rates[g] for g in self.param_groups(stage)}
 

@@ -59,12 +59,14 @@ class PlenoxelsConfig:
     rms_eps: float = 1e-8
     lr_sigma: float = 3e1
     lr_sigma_final: float = 5e-2
-    lr_sigma_decay_steps: int = 250000
+    lr_sigma_decay_steps: int = checked(250000, ge=0)
+    """Steps of the log-linear decay to ``lr_sigma_final`` (svox2: 250,000; 0: the run's length)."""
     lr_sigma_delay_steps: int = 15000
     lr_sigma_delay_mult: float = 1e-2
     lr_sh: float = 1e-2
     lr_sh_final: float = 5e-6
-    lr_sh_decay_steps: int = 250000
+    lr_sh_decay_steps: int = checked(250000, ge=0)
+    """As ``lr_sigma_decay_steps`` (0: the run's length)."""
     lr_sh_delay_steps: int = 0
     lr_sh_delay_mult: float = 1e-2
     lambda_tv: float = 1e-5

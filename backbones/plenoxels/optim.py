@@ -52,8 +52,24 @@ def _update(p: torch.Tensor, g: torch.Tensor, sq: torch.Tensor, lr: float, alpha
         sq.mul_(alpha).addcmul_(g, g, value=1 - alpha)
         p.addcdiv_(g, sq.sqrt().add_(eps), value=-lr)
         return
-    g = g.coalesce()
-    rows, v = g.indices()[0], g.values()
+    rows, v = _rows_and_sums(g)
     s = sq.index_select(0, rows).mul_(alpha).addcmul_(v, v, value=1 - alpha)
     sq.index_copy_(0, rows, s)
     p.index_add_(0, rows, v / s.sqrt().add_(eps), alpha=-lr)
+
+
+def _rows_and_sums(g: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Sorted unique rows ``[n]`` of a sparse COO ``g`` and the sum of its values per row ``[n, ...]``.
+
+    A sum of sparse gradients (marcher + TV) is not coalesced; rather than sort its entries, mark the rows
+    in a byte mask (one pass over ``M`` bytes) and add the values into a dense table at those rows only."""
+    if g.is_coalesced():
+        return g.indices()[0], g.values()
+    idx, vals = g._indices()[0], g._values()
+    mark = torch.zeros(g.shape[0], dtype=torch.bool, device=idx.device)
+    mark[idx] = True
+    rows = mark.nonzero().squeeze(1)
+    where = torch.full((g.shape[0],), -1, dtype=torch.long, device=idx.device)
+    where[rows] = torch.arange(rows.numel(), device=idx.device)
+    out = torch.zeros(rows.numel(), *vals.shape[1:], dtype=vals.dtype, device=vals.device)
+    return rows, out.index_add_(0, where[idx], vals)

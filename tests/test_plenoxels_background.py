@@ -7,9 +7,10 @@ import torch
 from arcsem.backbones.plenoxels.background import MSIBackground, PlaneBackground
 from arcsem.backbones.plenoxels.bounds import grid_bounds
 from arcsem.backbones.plenoxels.optim import SparseRMSprop
-from arcsem.scene import Scene, Split
 from test_plenoxels import make, small_scene, with_ball
 from torch.func import functional_call
+
+from arcsem.scene import Scene, Split
 
 F64 = torch.float64
 UP = torch.tensor([0.0, 0.0, 1.0])
@@ -78,8 +79,9 @@ def test_msi_puts_near_crossings_in_front_and_far_ones_behind():
 
 def test_whole_render_float64_parity_of_the_two_paths_with_background_and_act():
     """rgb of render_rays, and gradients of density, SH, the plane's texture and constant, and ACT."""
-    from arcsem.act import ACT
     from test_plenoxels_fused import _cpp_or_skip
+
+    from arcsem.act import ACT
 
     _cpp_or_skip()
     scene = small_scene(n=3, w=16, h=12)

@@ -85,6 +85,8 @@ class Scene:
         micrometres_per_unit: the physical length of one world unit when the dataset gives its images'
             pixel size (transforms key ``pixel_size_um``), else None (lengths stay in scene units).
         extent: scene extent used by Gaussian learning rates (see :attr:`extent`).
+        bounds_source: where ``bounds`` come from: ``"given"`` (the dataset's ``aabb``, or whoever built
+            the scene), ``"points"`` (percentiles of the point cloud) or ``"cameras"`` (the frusta).
     """
 
     root: str
@@ -97,6 +99,7 @@ class Scene:
     reference_sets: dict[str, list[str]] = field(default_factory=dict)
     specimen_size: float | None = None
     micrometres_per_unit: float | None = None
+    bounds_source: str = "given"
 
     @property
     def extent(self) -> float:

@@ -1,9 +1,14 @@
-"""Plenoxels backbone performance: training rays/s, seconds per 256x192 image, memory.
+"""Plenoxels backbone performance: training rays/s, seconds per 256x192 image, memory; the ray marcher old vs new.
 
 Each case runs in its own process so that the process peak (ru_maxrss) belongs to that case:
 
     .venv/bin/python benchmarks/bench_plenoxels.py --compare-torch   # quick (128x128x96), dense 128^3, paper (304x304x128)
     .venv/bin/python benchmarks/bench_plenoxels.py --case quick --runs 5
+
+The fused marcher against the one before issue 20 (built from git, ``--old-ref``), side by side in one
+process (kernel calls only: forward + backward of 5000 rays, alternating, median of ``--runs``):
+
+    .venv/bin/python benchmarks/bench_plenoxels.py --marcher --threads 1
 
 Grids hold a sphere shell (radii 0.5..0.7 of the half box, ~11% of the voxels: a pollen-like shell)
 with density 5 (1 / normalised length) and random SH; ``dense128`` is svox2's dense initial grid.
@@ -131,12 +136,20 @@ def run_case(name, runs, renderer):
 
 def main():
     ap = argparse.ArgumentParser()
+    ap.add_argument("--marcher", action="store_true", help="old vs new fused marcher, side by side (bench_plenoxels_marcher.py)")
+    ap.add_argument("--threads", type=int, default=1, help="with --marcher: torch/OpenMP threads")
+    ap.add_argument("--old-ref", default=None, help="with --marcher: git revision of the old kernel")
     ap.add_argument("--case", default="all", choices=["all", "upsample", *CASES])
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--renderer", default="auto", choices=["auto", "cpp", "torch"])
     ap.add_argument("--compare-torch", action="store_true", help="also run the quick case with the PyTorch renderer")
     ap.add_argument("--child", action="store_true")
     a = ap.parse_args()
+    if a.marcher:
+        from bench_plenoxels_marcher import run_marcher
+
+        run_marcher(a.runs if a.runs != 3 else 7, a.threads, a.old_ref)
+        return
     if a.child:
         print(json.dumps(run_case(a.case, a.runs, a.renderer)))
         return

@@ -127,8 +127,14 @@ def test_tv_matches_dense_reference_and_gradcheck():
         sq = sq + torch.nn.functional.pad(dd, [0, 0] + [0, 0] * (2 - a) + [0, 1] + [0, 0] * a) ** 2
     ref = torch.sqrt(1e-5 + sq)[occ].sum()
     rows = torch.arange(m)
-    torch.testing.assert_close(tv_sparse(idx, occupied_coords(idx), table, rows), ref)
-    assert torch.autograd.gradcheck(lambda t: tv_sparse(idx, occupied_coords(idx), t, rows[::2]), (table,))
+    tv = tv_sparse(idx, occupied_coords(idx), table, rows)
+    torch.testing.assert_close(tv, ref)
+    (g_sparse,), (g_ref,) = torch.autograd.grad(tv, table), torch.autograd.grad(ref, table)
+    assert g_sparse.is_sparse and g_ref.abs().sum() > 0
+    torch.testing.assert_close(g_sparse.to_dense(), g_ref)  # sparse gradient = the dense reference's
+    twice = torch.cat([rows[::2], rows[::2]])  # repeated rows (random_rows draws with replacement) add up
+    assert torch.autograd.gradcheck(lambda t: tv_sparse(idx, occupied_coords(idx), t, twice, sparse_grad=False),
+                                    (table,))
 
 
 # ---------------------------------------------------------------------------- coarse to fine
@@ -355,7 +361,7 @@ def test_learned_background_fills_rays_that_miss_the_grid_and_is_trained():
     bb = make(scene, learn_background=True, background=[0.3, 0.3, 0.3])
     with_ball(bb)
     ref = make(scene, background=[0.3, 0.3, 0.3])
-    ref.load_state_dict({k: v for k, v in bb.state_dict().items() if k != "background_logit"})
+    ref.load_state_dict({k: v for k, v in bb.state_dict().items() if not k.startswith("background.")}, strict=False)
     out = bb.render(scene.train.cameras[:1])
     with torch.no_grad():
         expect = ref.render(scene.train.cameras[:1])  # the fixed background, composited by the renderer
@@ -363,8 +369,9 @@ def test_learned_background_fills_rays_that_miss_the_grid_and_is_trained():
     assert out["alpha"][0, 0, 0, 0] < 0.05 and abs(out["rgb"][0, 0, 0, 0].item() - 0.3) < 0.02
     miss = (1 - out["alpha"]).sum()
     out["rgb"].sum().backward()
-    sig = torch.sigmoid(bb.background_logit.detach())
-    torch.testing.assert_close(bb.background_logit.grad, (miss * sig * (1 - sig)).expand(3), rtol=1e-4, atol=1e-6)
+    logit = bb.background.const_logit
+    sig = torch.sigmoid(logit.detach())
+    torch.testing.assert_close(logit.grad, (miss * sig * (1 - sig)).expand(3), rtol=1e-4, atol=1e-6)
     assert set(bb.param_groups("geometry")) == {"density", "sh", "background"}
     assert set(bb.param_groups("color")) == {"sh"}
     assert bb.learning_rates("geometry")["background"].lr == bb.cfg.lr_background

@@ -244,11 +244,12 @@ def assemble_scene(root: Path, views: list[ViewSpec], opts: ReaderOptions, *, bo
             raise DataError(f"{root}: 'aabb' must be [[xmin, ymin, zmin], [xmax, ymax, zmax]], got {bounds}") from None
         if not (box[1] > box[0]).all():
             raise DataError(f"{root}: 'aabb' max {box[1].tolist()} must exceed min {box[0].tolist()}")
-    elif points is not None and len(points) > 0:
-        box = bounds_from_points(points)
-    else:
-        box = bounds_from_cameras(train.cameras)
+    source = "given"
+    if bounds is None and points is not None and len(points) > 0:
+        box, source = bounds_from_points(points), "points"
+    elif bounds is None:
+        box, source = bounds_from_cameras(train.cameras), "cameras"
     to_t = lambda a: None if a is None else torch.as_tensor(np.asarray(a, dtype=np.float32))
     return Scene(str(root), train, test, box, points=to_t(points), point_colors=to_t(point_colors),
-                 references=refs, reference_sets=sets, specimen_size=specimen_size)
+                 references=refs, reference_sets=sets, specimen_size=specimen_size, bounds_source=source)
 

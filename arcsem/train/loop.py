@@ -107,7 +107,10 @@ def _check_finite(run: _Run, step: int, what: str, named: Mapping[str, Any], kin
     for name, value in named.items():
         tensors = value if isinstance(value, (list, tuple)) else [value]
         for t in tensors:
-            if t is not None and not bool(torch.isfinite(t).all()):
+            if t is not None and t.is_sparse:  # sparse gradients (Plenoxels): their stored values
+                t = t._values()
+            # one pass: a finite sum means every element is finite (a non-finite one is checked element-wise)
+            if t is not None and not bool(torch.isfinite(t.sum())) and not bool(torch.isfinite(t).all()):
                 raise TrainingError(f"step {step + 1}: {kind} '{name}' is not finite ({what}); training stopped, "
                                     f"{run.on_disk()}")
 

@@ -17,14 +17,33 @@ from torch import Tensor, nn
 from ...configs import GroupSchedule
 from ...errors import ConfigError
 from ...plugins import BACKBONES, Backbone
+from .background import build_background
+from .bounds import grid_bounds
 from .config import PlenoxelsConfig
+from .fused import max_weights as fused_max_weights
 from .fused import resolve_impl
-from .grid import build_index, cell_occupancy, occupied_coords
-from .render import GridData, render_grid
+from .grid import build_index, cell_occupancy, occupied_coords, voxel_size
+from .optim import SparseRMSprop
+from .render import GridData, box_scale, composite, render_grid
 from .tv import random_rows, tv_sparse
-from .upsample import max_weights, prune, resample
+from .upsample import dilate, max_weights, prune, resample
 
 __all__ = ["Plenoxels"]
+
+
+def initial_density(cfg: Any, bounds: Tensor, reso: list[int], points: Tensor | None) -> Tensor:
+    """``[X*Y*Z]`` starting density: svox2's ``init_sigma`` everywhere; with ``init_points_sigma`` > 0 and a
+    point cloud, that value on the voxels within ``init_points_dilate`` voxels of a point (the specimen's
+    surface, where 3DGS/2DGS put their first Gaussians) and ``init_sigma`` elsewhere."""
+    dens = torch.full(reso, float(cfg.init_sigma))
+    if cfg.init_points_sigma <= 0 or points is None or len(points) == 0:
+        return dens.reshape(-1)
+    g = torch.round((points.float() - bounds[0]) / voxel_size(bounds, reso)).long()
+    inside = ((g >= 0) & (g < torch.tensor(reso))).all(-1)
+    near = torch.zeros(reso, dtype=torch.bool)
+    near[g[inside, 0], g[inside, 1], g[inside, 2]] = True
+    near = dilate(near, cfg.init_points_dilate)
+    return torch.where(near, float(cfg.init_points_sigma), dens).reshape(-1)
 
 
 @BACKBONES.register("plenoxels")
@@ -40,17 +59,16 @@ class Plenoxels(Backbone):
     def __init__(self, cfg: Any, scene: Any = None, act: Any = None, **runtime: Any):
         super().__init__(cfg, scene)
         self._check_config(cfg)
-        bounds = scene.bounds.float() if scene is not None else torch.tensor([[-1.0] * 3, [1.0] * 3])
+        bounds = grid_bounds(scene) if scene is not None else torch.tensor([[-1.0] * 3, [1.0] * 3])
         self.register_buffer("bounds", bounds.clone())
         self.register_buffer("level", torch.tensor(0))
         reso = list(cfg.reso[0])
         index = build_index(torch.ones(reso, dtype=torch.bool))
         self.register_buffer("index", index)
         m, k = int(index.numel()), (cfg.sh_degree + 1) ** 2
-        self.density = nn.Parameter(torch.full((m,), float(cfg.init_sigma)))
+        self.density = nn.Parameter(initial_density(cfg, bounds, reso, scene.points if scene is not None else None))
         self.sh = nn.Parameter(torch.full((m, k, 3), float(cfg.init_sh)))
-        if cfg.learn_background:
-            self.background_logit = nn.Parameter(torch.logit(torch.tensor(cfg.background).float().clamp(0.01, 0.99)))
+        self.background = build_background(cfg, bounds, scene.train.cameras if scene is not None else None)
         self.__dict__["act"] = act  # owned (and checkpointed) by the trainer, not a submodule
         self.__dict__["_train_cams"] = scene.train.cameras if scene is not None else None
         self._cache: dict[str, Tensor] = {}
@@ -76,7 +94,7 @@ class Plenoxels(Backbone):
         return self._cache[key]
 
     def grid(self) -> GridData:
-        return GridData(self.index, self.density, self.sh, self.bounds, self._cached("cell_occ"))
+        return GridData(self.index, self.density, self.sh, self.bounds, self._cached("cell_occ"), self._cached("coords"))
 
     def num_primitives(self) -> int:
         """Number of stored voxels ``M``."""
@@ -97,14 +115,13 @@ class Plenoxels(Backbone):
         c = self.cfg
         if "impl" not in kw:
             kw["impl"] = resolve_impl(c.rasterizer, self.bounds.device)
-        learned = c.learn_background
-        out = render_grid(
-            self.grid(), rays_o.to(self.bounds.dtype), rays_d.to(self.bounds.dtype), sh_degree=c.sh_degree,
-            step_size=c.step_size, stop_thresh=c.stop_thresh,
-            background=torch.zeros(3) if learned else torch.tensor(c.background), act=self.act, image_ids=image_ids, **kw,
-        )
-        if learned:  # composited here so that autograd reaches the colour: rgb + (1 - alpha) bg
-            out["rgb"] = out["rgb"] + (1.0 - out["alpha"]) * torch.sigmoid(self.background_logit).to(out["rgb"])
+        o, d = rays_o.to(self.bounds.dtype), rays_d.to(self.bounds.dtype)
+        out = render_grid(self.grid(), o, d, sh_degree=c.sh_degree, step_size=c.step_size, stop_thresh=c.stop_thresh,
+                          act=self.act, image_ids=image_ids, **kw)
+        front, back = self.background(o, d)
+        # a learned background is part of the scene (the substrate): ACT transforms it like the grid's samples
+        act = self.act if any(p.requires_grad for p in self.background.parameters()) else None
+        out["rgb"] = composite(out["rgb"], out["alpha"], front, back, act, image_ids)
         return out
 
     def render(self, cams, chunk: int | None = None, **kw: Any) -> dict:
@@ -129,21 +146,22 @@ class Plenoxels(Backbone):
         rows = random_rows(self.num_primitives(), c.tv_sparse_frac, device=self.bounds.device)
         coords, total, out = self._cached("coords"), zero, {}
         if self.density.requires_grad and c.lambda_tv > 0:
-            tvd = tv_sparse(self.index, coords, self.density[:, None], rows, c.tv_eps)
+            tvd = tv_sparse(self.index, coords, self.density, rows, c.tv_eps)
             total, out["tv_density"] = total + c.lambda_tv * tvd, tvd.detach()
         if self.sh.requires_grad and c.lambda_tv_sh > 0:
-            tvs = tv_sparse(self.index, coords, self.sh.reshape(self.sh.shape[0], -1), rows, c.tv_eps)
+            tvs = tv_sparse(self.index, coords, self.sh, rows, c.tv_eps)
             total, out["tv_sh"] = total + c.lambda_tv_sh * tvs, tvs.detach()
         out["tv"] = total
         return out
 
     # ------------------------------------------------------------------ optimisation
     def param_groups(self, stage: str) -> dict[str, list[nn.Parameter]]:
-        """``geometry``: density and SH (and ``background`` when learned); ``color``: SH only."""
+        """``geometry``: density and SH (and ``background`` when it learns); ``color``: SH only."""
         if stage == "geometry":
             groups = {"density": [self.density], "sh": [self.sh]}
-            if self.cfg.learn_background:
-                groups["background"] = [self.background_logit]
+            learned = [p for p in self.background.parameters() if p.requires_grad]
+            if learned:
+                groups["background"] = learned
             return groups
         if stage == "color":
             return {"sh": [self.sh]}
@@ -162,18 +180,20 @@ class Plenoxels(Backbone):
         """svox2's schedules: log-linear decay with a sine warm-up for ``density`` and ``sh``; ``background``
         constant."""
         c = self.cfg
-        rates = {"density": GroupSchedule(c.lr_sigma, c.lr_sigma_final, c.lr_sigma_decay_steps, c.lr_sigma_delay_steps,
+        rates = {"density": GroupSchedule(c.lr_sigma, c.lr_sigma_final, c.lr_sigma_decay_steps or None, c.lr_sigma_delay_steps,
                                           c.lr_sigma_delay_mult),
-                 "sh": GroupSchedule(c.lr_sh, c.lr_sh_final, c.lr_sh_decay_steps, c.lr_sh_delay_steps, c.lr_sh_delay_mult),
+                 "sh": GroupSchedule(c.lr_sh, c.lr_sh_final, c.lr_sh_decay_steps or None, c.lr_sh_delay_steps,
+                                       c.lr_sh_delay_mult),
                  "background": GroupSchedule(c.lr_background)}
         return {g: rates[g] for g in self.param_groups(stage)}
 
     def make_optimizers(self, stage: str, groups: dict[str, list[nn.Parameter]]) -> dict[str, torch.optim.Optimizer]:
-        """One RMSProp (beta ``rms_beta``) per group (svox2); the trainer sets the rates every step."""
+        """One RMSProp (beta ``rms_beta``) per group, over the rows each step touched (svox2); the trainer sets
+        the rates every step."""
         if self.cfg.optimizer != "rmsprop":
             raise ConfigError(f"backbone 'plenoxels': optimizer '{self.cfg.optimizer}' unsupported (rmsprop)")
-        return {g: torch.optim.RMSprop([{"params": list(ps), "name": g}], lr=0.0, alpha=self.cfg.rms_beta,
-                                       eps=self.cfg.rms_eps) for g, ps in groups.items()}
+        return {g: SparseRMSprop([{"params": list(ps), "name": g}], lr=0.0, alpha=self.cfg.rms_beta,
+                                 eps=self.cfg.rms_eps) for g, ps in groups.items()}
 
     def post_backward(self, step: int, out: dict, optimizers: dict[str, torch.optim.Optimizer]) -> None:
         """Upsample (and prune) every ``upsample_every`` steps until the last resolution.
@@ -220,15 +240,25 @@ class Plenoxels(Backbone):
         scale = min(self.cfg.prune_image_scale, budget)
         if scale < 1.0:
             cams = cams.scaled(scale)
-        best = torch.zeros(self.num_primitives())
+        fused = resolve_impl(self.cfg.rasterizer, self.bounds.device) == "cpp"
+        best = torch.zeros(self.num_primitives(), dtype=self.density.dtype)
         for i in range(len(cams)):
             o, d = cams[i].rays()
             o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+            if fused:
+                w = fused_max_weights(self.density, self.index, self._cached("coords"), self.bounds, o, d,
+                                      step=self.step_world(), scale=box_scale(self.bounds), stop=self.cfg.stop_thresh)
+                best = torch.maximum(best, w)
+                continue
             for j in range(0, o.shape[0], self.cfg.chunk):
                 out = self._render(o[j : j + self.cfg.chunk], d[j : j + self.cfg.chunk], None, return_samples=True,
                                    impl="torch")
-                best = torch.maximum(best, max_weights(best.numel(), [out["samples"]]))
+                best = torch.maximum(best, max_weights(best.numel(), [out["samples"]]).to(best))
         return best
+
+    def step_world(self) -> float:
+        """Ray-marching step in world units: ``step_size`` times the smallest voxel side."""
+        return self.cfg.step_size * float(voxel_size(self.bounds, self.reso).min())
 
     def set_grid(self, index: Tensor, density: Tensor, sh: Tensor, optimizers: dict | None = None) -> None:
         """Replace the grid (index ``[X,Y,Z]``, density ``[M]``, SH ``[M,K,3]``); optimisers follow, state reset."""

@@ -21,19 +21,36 @@ class PlenoxelsConfig:
     """SH degree (svox2: 2, 9 coefficients per channel)."""
     init_sigma: float = 0.1
     """Initial density (svox2), in 1 / normalised length (the box's longest half-side = 1)."""
+    init_points_sigma: float = 0.0
+    """With a point cloud: the starting density of the voxels near its points (0: svox2's uniform start)."""
+    init_points_dilate: int = checked(1, ge=0)
+    """... within this many voxels of a point."""
     init_sh: float = 0.0
     """Initial SH coefficients (svox2: 0, i.e. grey 0.5)."""
     step_size: float = 0.5
     """Ray-marching step in voxels (svox2: 0.5)."""
     stop_thresh: float = 1e-4
     """Early stop: samples with transmittance below this are masked (svox2: 1e-4 ... 1e-7)."""
+    background_model: str = checked("constant", choices=("constant", "plane", "msi"))
+    """What rays leaving the grid's box see (:mod:`.background`): "constant" (svox2), "plane" (a textured
+    SH plane under the specimen: the SEM stub; our extension), "msi" (svox2's multi-sphere image)."""
     background: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
-    """Background colour (SEM: black); with ``learn_background`` its initial value."""
+    """Constant background colour (SEM: black); with ``learn_background`` its initial value. The plane
+    and the MSI show it where they have nothing."""
     learn_background: bool = False
-    """Learn one background colour (group ``background``, stage 1 only): what rays leaving the grid's
-    box see. SEM views show the substrate far outside the specimen's box (our extension)."""
+    """Learn the constant (group ``background``, stage 1 only). SEM views show the substrate far outside
+    the specimen's box (our extension)."""
+    background_reso: int = checked(256, ge=2)
+    """Texels per side of the plane's texture; the MSI's images are reso/2 x reso."""
+    background_sh_degree: int = checked(1, ge=0, le=3)
+    """SH degree of the plane's texels (view-dependent substrate brightness)."""
+    background_layers: int = checked(16, ge=1)
+    """Spheres of the MSI (svox2: 32-64; 1 = a single image sphere)."""
+    msi_far: float = checked(8.0, gt=1.0)
+    """Radius of the MSI's outer sphere, in box half-diagonals (the substrate that grazing SEM views see
+    lies many specimen sizes behind it)."""
     lr_background: float = 1e-2
-    """RMSProp rate of the background colour's logit."""
+    """RMSProp rate of the background's parameters (constant logit, plane texture, MSI logits)."""
     batch_size: int = 5000
     """Rays per training step (svox2)."""
     optimizer: str = "rmsprop"
@@ -42,12 +59,14 @@ class PlenoxelsConfig:
     rms_eps: float = 1e-8
     lr_sigma: float = 3e1
     lr_sigma_final: float = 5e-2
-    lr_sigma_decay_steps: int = 250000
+    lr_sigma_decay_steps: int = checked(250000, ge=0)
+    """Steps of the log-linear decay to ``lr_sigma_final`` (svox2: 250,000; 0: the run's length)."""
     lr_sigma_delay_steps: int = 15000
     lr_sigma_delay_mult: float = 1e-2
     lr_sh: float = 1e-2
     lr_sh_final: float = 5e-6
-    lr_sh_decay_steps: int = 250000
+    lr_sh_decay_steps: int = checked(250000, ge=0)
+    """As ``lr_sigma_decay_steps`` (0: the run's length)."""
     lr_sh_delay_steps: int = 0
     lr_sh_delay_mult: float = 1e-2
     lambda_tv: float = 1e-5

@@ -1,8 +1,11 @@
 """Fused C++ CPU ray marching (forward + backward), built as a PyTorch JIT extension.
 
-``cpp/render.cpp`` marches one ray per loop iteration (OpenMP over rays) with early termination and
-no per-sample buffers; the backward marches again and scatters gradients into density, SH and the
-per-ray ACT transform. :func:`arcsem.backbones.plenoxels.render.render_grid` with ``impl="torch"``
+``cpp/render.cpp`` marches one ray per loop iteration (OpenMP over rays) with early termination, no
+per-sample buffers, and visits only samples in live cells: :func:`live_masks` marks the cells with a
+stored corner of positive density (the only ones where ``ReLU(trilinear)`` is not 0) and, over blocks of
+``2^SKIP_SHIFT`` cells per axis, the distance to the nearest live block, and a ray jumps over dead
+blocks (``cpp/march.h``). The backward marches
+again and scatters gradients into density, SH and the per-ray ACT transform. :func:`arcsem.backbones.plenoxels.render.render_grid` with ``impl="torch"``
 is the reference: tests/test_plenoxels.py compares values and gradients of both paths.
 ``load_extension()`` compiles once through :mod:`arcsem.cext` (the project's one extension loader) and
 returns None with one warning when no toolchain is available, so ``rasterizer: auto`` falls back to PyTorch.
@@ -17,13 +20,16 @@ from torch import Tensor
 
 from arcsem import cext
 
-__all__ = ["EXTENSION", "load_extension", "march", "resolve_impl"]
+__all__ = ["EXTENSION", "SKIP_SHIFT", "live_masks", "load_extension", "march", "max_weights", "resolve_impl"]
 
 EXTENSION = cext.Extension(prefix="arcsem_plenoxels_fused", sources=(Path(__file__).parent / "cpp" / "render.cpp",),
                            what="fused C++ Plenoxels ray marcher")
-# The backward gives each extra thread a private gradient buffer (no atomic adds) while they total at most
-# this many bytes; larger grids or more threads fall back to atomic adds into one buffer.
+# Empty-space skipping: blocks of 2^SKIP_SHIFT cells per axis (4: benchmarks/bench_plenoxels.py --shift).
+SKIP_SHIFT = int(os.environ.get("ARCSEM_PLX_SKIP_SHIFT", "2"))
+# The backward gives each thread a private gradient buffer (no atomic adds) while they total at most this
+# many bytes; larger grids or more threads fall back to atomic adds into one buffer.
 PRIVATE_GRAD_BYTES = float(os.environ.get("ARCSEM_PLX_PRIVATE_GRAD_BYTES", str(1 << 30)))
+_SCRATCH: dict[tuple, tuple[Tensor, Tensor, Tensor]] = {}
 
 
 def load_extension(verbose: bool = False):
@@ -36,34 +42,78 @@ def resolve_impl(impl: str, device: torch.device | str = "cpu") -> str:
     return cext.resolve_impl(impl, EXTENSION, str(device))
 
 
+def scratch(m: int, stride: int, dtype: torch.dtype) -> tuple[tuple[Tensor, Tensor, Tensor], bool]:
+    """Zero-at-rest gradient buffers of the backward for a grid of ``m`` rows (``stride`` SH floats per row):
+    ``([B, m], [B, m * stride], marks [B, m] uint8)``, one per thread, or one and ``atomic`` when that many
+    would exceed ``PRIVATE_GRAD_BYTES``. Kept between calls (two grids at most: the training grid and a test's)."""
+    nt = max(1, torch.get_num_threads())
+    per = m * (stride + 1) * torch.empty(0, dtype=dtype).element_size() + m
+    atomic = nt > 1 and nt * per > PRIVATE_GRAD_BYTES
+    nbuf = 1 if atomic else nt
+    key = (m, stride, dtype, nbuf)
+    if key not in _SCRATCH:
+        while len(_SCRATCH) >= 2:
+            _SCRATCH.pop(next(iter(_SCRATCH)))
+        _SCRATCH[key] = (torch.zeros(nbuf, m, dtype=dtype), torch.zeros(nbuf, m * stride, dtype=dtype),
+                         torch.zeros(nbuf, m, dtype=torch.uint8))
+    return _SCRATCH[key], atomic
+
+
+def _sparse(rows: Tensor, values: Tensor, like: Tensor) -> Tensor:
+    """Sparse COO gradient of ``like`` with rows ``rows [n]`` (sorted, unique) and ``values [n, ...]``."""
+    return torch.sparse_coo_tensor(rows[None], values, like.shape, is_coalesced=True, check_invariants=False)
+
+
+def live_masks(index: Tensor, coords: Tensor, density: Tensor, shift: int = SKIP_SHIFT) -> tuple[Tensor, Tensor]:
+    """``cell_live [X, Y, Z]`` and ``block_dist [BX, BY, BZ]`` uint8 of ``density [M]`` (rows at ``coords [M, 3]``).
+
+    A cell is live when one of its 8 corners is stored with a positive density; a block of ``2^shift``
+    cells per axis (``BX = (X - 2) // 2^shift + 1``) has distance 0 when one of its cells is live, else the
+    Chebyshev distance in blocks to the nearest live block (at most 16; ``cpp/live.h``).
+    """
+    cell, dist = load_extension().live(index.contiguous(), coords, density.detach().contiguous(), int(shift))
+    return cell, dist
+
+
 class _March(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, density, sh, act_w, act_b, rays_o, rays_d, index, cell_occ, bounds, consts):
-        step, scale, stop, degree, has_act = consts
-        args = (rays_o, rays_d, index, cell_occ, density, sh, act_w, act_b, bounds, step, scale, stop, degree, has_act)
-        rgb, alpha, wt = load_extension().forward(*args)
-        ctx.save_for_backward(density, sh, act_w, act_b, rays_o, rays_d, index, cell_occ, bounds, rgb, alpha, wt)
+    def forward(ctx, density, sh, act_w, act_b, rays_o, rays_d, index, cell_live, block_dist, bounds, consts):
+        shift, step, scale, stop, degree, has_act, _ = consts
+        grid = (index, cell_live, block_dist, shift, density, sh, act_w, act_b, bounds, step, scale, stop, degree,
+                has_act)
+        rgb, alpha, wt = load_extension().forward(rays_o, rays_d, *grid)
+        ctx.save_for_backward(density, sh, act_w, act_b, rays_o, rays_d, index, cell_live, block_dist, bounds, rgb,
+                              alpha, wt)
         ctx.consts = consts
         return rgb, alpha, wt
 
     @staticmethod
     def backward(ctx, g_rgb, g_alpha, g_wt):
-        density, sh, act_w, act_b, rays_o, rays_d, index, cell_occ, bounds, rgb, alpha, wt = ctx.saved_tensors
-        step, scale, stop, degree, has_act = ctx.consts
-        gd, gsh, gw, gb = load_extension().backward(
-            rays_o, rays_d, index, cell_occ, density, sh, act_w, act_b, bounds, step, scale, stop, degree, has_act,
-            rgb, alpha, wt, g_rgb.contiguous(), g_alpha.contiguous(), g_wt.contiguous(), PRIVATE_GRAD_BYTES,
+        density, sh, act_w, act_b, rays_o, rays_d, index, cell_live, block_dist, bounds, rgb, alpha, wt = \
+            ctx.saved_tensors
+        shift, step, scale, stop, degree, has_act, sparse = ctx.consts
+        bufs, atomic = scratch(density.shape[0], sh.shape[1] * 3, density.dtype)
+        rows, gd, gsh, gw, gb = load_extension().backward(
+            rays_o, rays_d, index, cell_live, block_dist, shift, density, sh, act_w, act_b, bounds, step, scale, stop,
+            degree, has_act, rgb, alpha, wt, g_rgb.contiguous(), g_alpha.contiguous(), g_wt.contiguous(), *bufs, atomic,
         )
-        return gd, gsh, (gw if has_act else None), (gb if has_act else None), None, None, None, None, None, None
+        gd, gsh = _sparse(rows, gd, density), _sparse(rows, gsh, sh)
+        if not sparse:
+            gd, gsh = gd.to_dense(), gsh.to_dense()
+        return gd, gsh, (gw if has_act else None), (gb if has_act else None), *([None] * 7)
 
 
-def march(density: Tensor, sh: Tensor, index: Tensor, cell_occ: Tensor, bounds: Tensor, rays_o: Tensor, rays_d: Tensor,
-          *, step: float, scale: float, stop: float, degree: int, act_w: Tensor | None = None,
-          act_b: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
+def march(density: Tensor, sh: Tensor, index: Tensor, live: tuple[Tensor, Tensor], bounds: Tensor, rays_o: Tensor,
+          rays_d: Tensor, *, step: float, scale: float, stop: float, degree: int, act_w: Tensor | None = None,
+          act_b: Tensor | None = None, shift: int = SKIP_SHIFT, sparse_grad: bool = True) -> tuple[Tensor, Tensor, Tensor]:
     """Fused march -> ``rgb [R, 3]`` (no background), ``alpha [R]``, ``wt [R]`` (= sum w t).
 
-    ``density [M]``, ``sh [M, K, 3]``, ``index [X, Y, Z]`` int32, ``cell_occ [X, Y, Z]`` bool, rays ``[R, 3]``;
-    ``act_w``/``act_b`` ``[R, 3]``: per-ray affine colour transform applied (and clamped) per sample.
+    The gradients of density and SH are sparse COO tensors over the rows the rays touched (svox2 updates
+    only those: :class:`~arcsem.backbones.plenoxels.optim.SparseRMSprop`); dense with ``sparse_grad=False``.
+
+    ``density [M]``, ``sh [M, K, 3]``, ``index [X, Y, Z]`` int32, ``live`` = :func:`live_masks` of this
+    density (with the same ``shift``), rays ``[R, 3]``; ``act_w``/``act_b`` ``[R, 3]``: per-ray affine colour
+    transform applied (and clamped) per sample.
     """
     has_act = act_w is not None
     dt = density.dtype
@@ -71,5 +121,15 @@ def march(density: Tensor, sh: Tensor, index: Tensor, cell_occ: Tensor, bounds: 
     return _March.apply(
         density.contiguous(), sh.contiguous(), act_w.contiguous() if has_act else empty,
         act_b.contiguous() if has_act else empty, rays_o.to(dt).contiguous(), rays_d.to(dt).contiguous(),
-        index.contiguous(), cell_occ.contiguous().view(torch.uint8), bounds, (step, scale, stop, degree, has_act),
+        index.contiguous(), live[0], live[1], bounds, (int(shift), step, scale, stop, degree, has_act, sparse_grad),
     )
+
+
+def max_weights(density: Tensor, index: Tensor, coords: Tensor, bounds: Tensor, rays_o: Tensor, rays_d: Tensor, *,
+                step: float, scale: float, stop: float) -> Tensor:
+    """``[M]`` largest rendering weight of each stored point over the rays ``[R, 3]`` (for pruning; the
+    fused counterpart of :func:`~.upsample.max_weights` over ``render_grid(..., return_samples=True)``)."""
+    dens = density.detach().contiguous()
+    cell, dist = live_masks(index, coords, dens)
+    return load_extension().max_weights(rays_o.to(dens.dtype).contiguous(), rays_d.to(dens.dtype).contiguous(),
+                                        index.contiguous(), cell, dist, SKIP_SHIFT, dens, bounds, step, scale, stop)

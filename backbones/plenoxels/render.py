@@ -20,9 +20,9 @@ import torch
 from torch import Tensor
 
 from ..gaussians.sh import sh_basis
-from .grid import cell_occupancy, corners, trilinear, voxel_size
+from .grid import cell_occupancy, corners, occupied_coords, trilinear, voxel_size
 
-__all__ = ["GridData", "box_scale", "ray_aabb", "render_grid", "sample_segments"]
+__all__ = ["GridData", "box_scale", "composite", "ray_aabb", "render_grid", "sample_segments"]
 
 
 @dataclass
@@ -35,6 +35,8 @@ class GridData:
         sh: ``[M, K, 3]`` SH coefficients, ``K = (degree + 1)^2``.
         bounds: ``[2, 3]`` scene box (grid points span it, vertices included).
         cell_occ: ``[X, Y, Z]`` bool from :func:`cell_occupancy` (computed if None).
+        coords: ``[M, 3]`` long grid coordinates of the rows (:func:`occupied_coords`; computed when the
+            fused kernel needs them).
     """
 
     index: Tensor
@@ -42,6 +44,7 @@ class GridData:
     sh: Tensor
     bounds: Tensor
     cell_occ: Tensor | None = None
+    coords: Tensor | None = None
 
     def __post_init__(self) -> None:
         if self.cell_occ is None:
@@ -112,6 +115,7 @@ def render_grid(
     image_ids: Tensor | None = None,
     return_samples: bool = False,
     impl: str = "torch",
+    sparse_grad: bool = True,
 ) -> dict[str, Tensor]:
     """Render rays through a sparse SH voxel grid.
 
@@ -127,6 +131,8 @@ def render_grid(
         return_samples: also return ``samples`` = (rows ``[A, 8]``, trilinear weights ``[A, 8]``,
             rendering weights ``[A]``) of the composited samples (for pruning; PyTorch path).
         impl: ``"torch"`` (reference) or ``"cpp"`` (fused kernel of :mod:`.fused`, CPU).
+        sparse_grad: with ``impl="cpp"``, density and SH get sparse COO gradients (the rows the rays
+            touched); False: dense, as the PyTorch path's.
     Returns:
         ``rgb [R, 3]``, ``alpha [R, 1]`` (= sum of weights), ``depth [R, 1]`` (expected z-depth
         ``sum(w t) / alpha``, 0 where alpha = 0).
@@ -135,7 +141,7 @@ def render_grid(
     bg = torch.zeros(3, dtype=dt_, device=dev) if background is None else torch.as_tensor(background, dtype=dt_, device=dev)
     step = step_size * float(voxel_size(grid.bounds, grid.reso).min())
     if impl == "cpp" and not return_samples:
-        return _render_fused(grid, rays_o, rays_d, step, sh_degree, stop_thresh, bg, act, image_ids)
+        return _render_fused(grid, rays_o, rays_d, step, sh_degree, stop_thresh, bg, act, image_ids, sparse_grad)
     t_near, t_far = ray_aabb(rays_o, rays_d, grid.bounds)
     dnorm = rays_d.norm(dim=-1)
     t_mid, delta = sample_segments(t_near, t_far, step / dnorm)
@@ -169,17 +175,41 @@ def render_grid(
     return out
 
 
-def _render_fused(grid: GridData, rays_o, rays_d, step, sh_degree, stop_thresh, bg, act, image_ids) -> dict:
+def _render_fused(grid: GridData, rays_o, rays_d, step, sh_degree, stop_thresh, bg, act, image_ids, sparse_grad) -> dict:
     """:func:`render_grid` through the fused C++ kernel (same outputs, CPU)."""
-    from .fused import march
+    from .fused import live_masks, march
 
     R = rays_o.shape[0]
     act_w = act_b = None
     if act is not None:
         ids = image_ids if image_ids is not None else torch.full((R,), -1, dtype=torch.long)
         act_w, act_b = (t.to(grid.density.dtype).expand(R, 3) for t in act.transforms(ids))
-    rgb, alpha, wt = march(grid.density, grid.sh, grid.index, grid.cell_occ, grid.bounds, rays_o, rays_d,
+    if grid.coords is None:
+        grid.coords = occupied_coords(grid.index)
+    live = live_masks(grid.index, grid.coords, grid.density)
+    rgb, alpha, wt = march(grid.density, grid.sh, grid.index, live, grid.bounds, rays_o, rays_d,
                            step=step, scale=box_scale(grid.bounds), stop=stop_thresh, degree=sh_degree,
-                           act_w=act_w, act_b=act_b)
+                           act_w=act_w, act_b=act_b, sparse_grad=sparse_grad)
     depth = torch.where(alpha > 0, wt / alpha.clamp_min(1e-10), torch.zeros_like(wt))
     return {"rgb": rgb + (1 - alpha)[:, None] * bg, "alpha": alpha[:, None], "depth": depth[:, None]}
+
+
+def composite(rgb: Tensor, alpha: Tensor, front: Tensor | None, back: Tensor, act=None,
+              image_ids: Tensor | None = None) -> Tensor:
+    """``front + (1 - front_alpha) (rgb + (1 - alpha) back)``: the grid's ``rgb [R, 3]``, ``alpha [R, 1]``
+    between a background's premultiplied ``front [R, 4]`` (or None) and ``back [R, 3]``.
+
+    With ``act``, the background's colours are transformed like the grid's samples: ``back`` as a colour,
+    ``front`` (premultiplied) as ``W c + b a`` clamped to ``[0, a]``.
+    """
+    if act is not None:
+        ids = image_ids if image_ids is not None else torch.full((rgb.shape[0],), -1, dtype=torch.long)
+        back = act.apply(back, ids)
+        if front is not None:
+            W, b = act.transforms(ids)
+            a = front[:, 3:]
+            front = torch.cat([torch.minimum((W * front[:, :3] + b * a).clamp_min(0), a), a], -1)
+    out = rgb + (1 - alpha) * back.to(rgb)
+    if front is not None:
+        out = front[:, :3].to(rgb) + (1 - front[:, 3:].to(rgb)) * out
+    return out

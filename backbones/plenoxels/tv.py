@@ -3,6 +3,7 @@
 ``TV = sum_{v in subset} sum_channels sqrt(eps + dx^2 + dy^2 + dz^2)`` with forward differences
 ``dx = V[x+1, y, z] - V[x, y, z]``; an empty neighbour reads 0 (as in rendering), a neighbour
 outside the grid gives a zero difference. svox2 evaluates it on a random 1% of voxels each step.
+The gradient is a sparse COO tensor over the voxels and neighbours it reached (dense on request).
 """
 from __future__ import annotations
 
@@ -18,17 +19,8 @@ def random_rows(num_rows: int, frac: float, generator: torch.Generator | None = 
     return torch.randint(num_rows, (k,), generator=generator, device=device)
 
 
-def tv_sparse(index: Tensor, coords: Tensor, table: Tensor, rows: Tensor, eps: float = 1e-5) -> Tensor:
-    """TV of ``table [M, C]`` at the stored points ``rows [K]``.
-
-    Args:
-        index: ``[X, Y, Z]`` int32 row per grid point (-1 empty).
-        coords: ``[M, 3]`` long grid coordinates of each row.
-        table: ``[M, C]`` values (raw density or flattened SH).
-        rows: ``[K]`` long, the points to evaluate.
-    Returns:
-        scalar: sum over the ``K`` points and ``C`` channels of ``sqrt(eps + |grad|^2)``.
-    """
+def _neighbours(index: Tensor, coords: Tensor, rows: Tensor) -> tuple[Tensor, Tensor]:
+    """Rows of the +x, +y, +z neighbours ``[3, K]`` (-1: empty or outside) and whether inside ``[3, K]``."""
     c = coords[rows]  # [K, 3]
     reso = torch.tensor(index.shape, device=c.device)
     nbr, inside = [], []
@@ -39,9 +31,44 @@ def tv_sparse(index: Tensor, coords: Tensor, table: Tensor, rows: Tensor, eps: f
         n[:, a] = torch.minimum(n[:, a], reso[a] - 1)
         nbr.append(index[n[:, 0], n[:, 1], n[:, 2]].long().masked_fill(~ok, -1))
         inside.append(ok)
-    nrow = torch.stack(nbr)  # [3, K]: neighbour rows, -1 empty or outside
-    vals = table[torch.cat([rows, nrow.clamp_min(0).reshape(-1)])]  # one gather: one dense backward
-    v, nv = vals[: rows.shape[0]], vals[rows.shape[0] :].reshape(3, rows.shape[0], -1)
-    nv = torch.where((nrow >= 0)[..., None], nv, torch.zeros_like(nv))  # empty neighbour reads 0
-    d = torch.where(torch.stack(inside)[..., None], nv - v[None], torch.zeros_like(nv))  # outside: no difference
-    return torch.sqrt(eps + (d * d).sum(0)).sum()
+    return torch.stack(nbr), torch.stack(inside)
+
+
+class _TV(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, table, index, coords, rows, eps, sparse):
+        flat = table.detach().reshape(table.shape[0], -1)
+        nrow, inside = _neighbours(index, coords, rows)
+        v = flat[rows]  # [K, C]
+        nv = torch.where((nrow >= 0)[..., None], flat[nrow.clamp_min(0)], torch.zeros((), dtype=flat.dtype))
+        d = torch.where(inside[..., None], nv - v[None], torch.zeros((), dtype=flat.dtype))  # [3, K, C]
+        s = torch.sqrt(eps + (d * d).sum(0))  # [K, C]
+        ctx.save_for_backward(rows, nrow, d, s)
+        ctx.shape, ctx.sparse = table.shape, sparse
+        return s.sum()
+
+    @staticmethod
+    def backward(ctx, g):
+        rows, nrow, d, s = ctx.saved_tensors
+        q = g * d / s[None]  # [3, K, C]: d TV / d neighbour (0 outside the grid)
+        stored = nrow >= 0
+        idx = torch.cat([rows, nrow[stored]])
+        vals = torch.cat([-q.sum(0), q[stored]]).reshape(-1, *ctx.shape[1:])
+        grad = torch.sparse_coo_tensor(idx[None], vals, ctx.shape, check_invariants=False).coalesce()
+        return (grad if ctx.sparse else grad.to_dense()), None, None, None, None, None
+
+
+def tv_sparse(index: Tensor, coords: Tensor, table: Tensor, rows: Tensor, eps: float = 1e-5,
+              sparse_grad: bool = True) -> Tensor:
+    """TV of ``table [M, ...]`` (channels: the trailing dimensions) at the stored points ``rows [K]``.
+
+    Args:
+        index: ``[X, Y, Z]`` int32 row per grid point (-1 empty).
+        coords: ``[M, 3]`` long grid coordinates of each row.
+        table: ``[M]`` or ``[M, ...]`` values (raw density ``[M]``, SH ``[M, K, 3]``).
+        rows: ``[K]`` long, the points to evaluate (repeats allowed).
+        sparse_grad: the gradient of ``table`` as a sparse COO tensor (else dense).
+    Returns:
+        scalar: sum over the ``K`` points and the channels of ``sqrt(eps + |grad|^2)``.
+    """
+    return _TV.apply(table, index, coords, rows, eps, sparse_grad)

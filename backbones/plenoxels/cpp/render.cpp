@@ -1,334 +1,380 @@
 // Fused CPU ray marching of a sparse SH voxel grid (forward + backward), one ray per loop iteration.
-// Same sampling, interpolation and compositing as render.py (the PyTorch reference):
-// segments of length `step` (world) partition [t_near, t_far]; samples at their midpoints; trilinear
-// interpolation on the vertex grid with empty corners = 0; tau = relu(sigma) * delta * |d| / scale;
-// colour = act(relu(SH . basis + 0.5)); samples with transmittance < stop_thresh end the ray.
+// Same sampling, interpolation and compositing as render.py (the PyTorch reference), see march.h:
+// trilinear interpolation on the vertex grid with empty corners = 0; tau = relu(sigma) * delta * |d| / scale;
+// colour = act(relu(SH . basis + 0.5)); the ray ends once its transmittance falls below stop_thresh.
+// Only samples in live cells are visited (empty-space skipping on the block distances of live()); a cell's
+// corners are read and their SH evaluated once per cell, not per sample (cell.h); the SH degree is a
+// template parameter, so those sums are fixed-length loops.
 // Outputs per ray: rgb (no background), alpha = sum w, wt = sum w t. The backward marches again and
 // uses Q = g . outputs for the suffix sums, so nothing per sample is stored.
 #include <omp.h>
 #include <torch/extension.h>
 
-#include <algorithm>
-#include <cmath>
 #include <vector>
+
+#include "cell.h"
+#include "live.h"
+#include "march.h"
+
+using plx::Cell;
+using plx::CellGrad;
+using plx::Grid;
+using plx::Sink;
+using plx::num_coef;
+using plx::Ray;
+using plx::Sample;
 
 namespace {
 
-template <typename T>
-void sh_basis(int degree, T x, T y, T z, T* b) {
-  const T C0 = 0.28209479177387814, C1 = 0.4886025119029199;
-  b[0] = C0;
-  if (degree >= 1) { b[1] = -C1 * y; b[2] = C1 * z; b[3] = -C1 * x; }
-  if (degree >= 2) {
-    b[4] = T(1.0925484305920792) * x * y;
-    b[5] = T(-1.0925484305920792) * y * z;
-    b[6] = T(0.31539156525252005) * (2 * z * z - x * x - y * y);
-    b[7] = T(-1.0925484305920792) * x * z;
-    b[8] = T(0.5462742152960396) * (x * x - y * y);
-  }
-  if (degree >= 3) {
-    T xx = x * x, yy = y * y, zz = z * z;
-    b[9] = T(-0.5900435899266435) * y * (3 * xx - yy);
-    b[10] = T(2.890611442640554) * x * y * z;
-    b[11] = T(-0.4570457994644658) * y * (4 * zz - xx - yy);
-    b[12] = T(0.3731763325901154) * z * (2 * zz - 3 * xx - 3 * yy);
-    b[13] = T(-0.4570457994644658) * x * (4 * zz - xx - yy);
-    b[14] = T(1.445305721320277) * z * (xx - yy);
-    b[15] = T(-0.5900435899266435) * x * (xx - 3 * yy);
-  }
-}
-
-struct Grid {
-  const int32_t* index;
-  const uint8_t* cell_occ;
-  int64_t X, Y, Z;
-  double lo[3], vs[3];
-};
-
-// The ray's sample range; returns the number of segments.
-template <typename T>
-int64_t ray_setup(const T* o, const T* d, const double* lo, const double* hi, double step, T& tn, T& tf, T& dt) {
-  T t_near = 0, t_far = std::numeric_limits<T>::infinity();
-  T t0s[3], t1s[3];
-  for (int a = 0; a < 3; ++a) {
-    T da = std::abs(d[a]) < T(1e-12) ? T(1e-12) : d[a];
-    T inv = T(1) / da;
-    t0s[a] = (T(lo[a]) - o[a]) * inv;
-    t1s[a] = (T(hi[a]) - o[a]) * inv;
-  }
-  T mx = std::max(std::min(t0s[0], t1s[0]), std::max(std::min(t0s[1], t1s[1]), std::min(t0s[2], t1s[2])));
-  T mn = std::min(std::max(t0s[0], t1s[0]), std::min(std::max(t0s[1], t1s[1]), std::max(t0s[2], t1s[2])));
-  t_near = std::max(mx, T(0));
-  t_far = mn;
-  T dn = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-  dt = T(step) / dn;
-  tn = t_near;
-  tf = t_far;
-  T n = std::ceil(std::max((t_far - t_near) / dt, T(0)) - T(1e-6));
-  return n > 0 ? (int64_t)n : 0;
-}
-
-// Corner rows and trilinear weights of grid coordinate g; false when the cell has no occupied corner.
-template <typename T>
-bool corners(const Grid& G, const T* g, int64_t* rows, T* w) {
-  int64_t b[3];
-  T f[3];
-  const int64_t R[3] = {G.X, G.Y, G.Z};
-  for (int a = 0; a < 3; ++a) {
-    T ga = std::min(std::max(g[a], T(0)), T(R[a] - 1));
-    int64_t fl = (int64_t)std::floor(ga);
-    b[a] = std::min(fl, R[a] - 2);
-    f[a] = ga - T(b[a]);
-  }
-  int64_t lin = (b[0] * G.Y + b[1]) * G.Z + b[2];
-  if (!G.cell_occ[lin]) return false;
-  int c = 0;
-  for (int i = 0; i < 2; ++i)
-    for (int j = 0; j < 2; ++j)
-      for (int k = 0; k < 2; ++k, ++c) {
-        int32_t r = G.index[lin + (i * G.Y + j) * G.Z + k];
-        T wc = (i ? f[0] : 1 - f[0]) * (j ? f[1] : 1 - f[1]) * (k ? f[2] : 1 - f[2]);
-        rows[c] = r < 0 ? 0 : r;
-        w[c] = r < 0 ? T(0) : wc;
-      }
-  return true;
-}
-
 struct Params {
-  double lo[3], hi[3], step, scale, stop;
-  int degree, K, Kstore;
+  double hi[3], step, scale, stop;
+  int64_t stride;  // floats per SH row (Kstore * 3)
   bool has_act;
 };
 
+// One sample of a ray in the cached cell: its weight ws = T (1 - e), e = exp(-tau), and colour v[3] (after ReLU
+// and ACT); false when its density is not positive (it contributes nothing).
 template <typename T>
+struct Shade {
+  T w[8], raw, e, ws, pre[3], v[3];
+};
+
+template <typename T, int DEG>
+inline bool shade(const Params& P, const Cell<T, DEG>& cell, const Sample<T>& smp, T kscale, T Tr, const T* aw,
+                  const T* ab, Shade<T>& o) {
+  o.raw = cell.weights(smp.f, o.w);
+  if (o.raw <= 0) return false;
+  o.e = std::exp(-o.raw * (smp.delta * kscale));
+  o.ws = Tr * (1 - o.e);
+  cell.colour(o.w, o.pre);
+  for (int ch = 0; ch < 3; ++ch) {
+    o.v[ch] = std::max(o.pre[ch], T(0));
+    if (P.has_act) o.v[ch] = std::min(std::max(aw[ch] * o.v[ch] + ab[ch], T(0)), T(1));
+  }
+  return true;
+}
+
+template <typename T, int DEG>
 void forward_impl(const Params& P, const Grid& G, const T* ro, const T* rd, const T* dens, const T* sh,
                   const T* actW, const T* actB, int64_t nrays, T* rgb, T* alpha, T* wt) {
 #pragma omp parallel for schedule(dynamic, 64)
   for (int64_t r = 0; r < nrays; ++r) {
-    const T* o = ro + 3 * r;
-    const T* d = rd + 3 * r;
-    T tn, tf, dt;
-    int64_t n = ray_setup<T>(o, d, P.lo, P.hi, P.step, tn, tf, dt);
-    T dn = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-    T basis[16];
-    sh_basis<T>(P.degree, d[0] / dn, d[1] / dn, d[2] / dn, basis);
+    Ray<T, DEG> ray;
+    plx::setup_ray<T, DEG>(G, P.hi, P.step, ro + 3 * r, rd + 3 * r, ray);
+    const T kscale = ray.dn / T(P.scale);
+    const T* aw = P.has_act ? actW + 3 * r : nullptr;
+    const T* ab = P.has_act ? actB + 3 * r : nullptr;
     T Tr = 1, acc[3] = {0, 0, 0}, a_sum = 0, wt_sum = 0;
-    int64_t rows[8];
-    T w[8], g[3];
-    for (int64_t s = 0; s < n; ++s) {
-      T t0 = tn + T(s) * dt;
-      T delta = std::min(std::max(tf - t0, T(0)), dt);
-      T tm = t0 + T(0.5) * delta;
-      for (int a = 0; a < 3; ++a) g[a] = (o[a] + tm * d[a] - T(G.lo[a])) / T(G.vs[a]);
-      if (!corners<T>(G, g, rows, w)) continue;
-      T raw = 0;
-      for (int c = 0; c < 8; ++c) raw += w[c] * dens[rows[c]];
-      if (raw <= 0) continue;
-      if (Tr < T(P.stop)) break;
-      T tau = raw * delta * dn / T(P.scale);
-      T ws = Tr * (1 - std::exp(-tau));
-      T col[3] = {T(0.5), T(0.5), T(0.5)};
-      for (int c = 0; c < 8; ++c) {
-        if (w[c] == 0) continue;
-        const T* q = sh + rows[c] * P.Kstore * 3;
-        for (int k = 0; k < P.K; ++k) {
-          T bw = basis[k] * w[c];
-          for (int ch = 0; ch < 3; ++ch) col[ch] += bw * q[k * 3 + ch];
-        }
-      }
-      for (int ch = 0; ch < 3; ++ch) {
-        T v = std::max(col[ch], T(0));
-        if (P.has_act) v = std::min(std::max(actW[3 * r + ch] * v + actB[3 * r + ch], T(0)), T(1));
-        acc[ch] += ws * v;
-      }
-      a_sum += ws;
-      wt_sum += ws * tm;
-      Tr *= std::exp(-tau);
-    }
+    Cell<T, DEG> cell;
+    Shade<T> o;
+    plx::march<T, DEG>(G, ray, [&](const Sample<T>& smp) {
+      if (smp.lin != cell.lin) cell.load(G, dens, sh, P.stride, ray.basis, smp.lin);
+      if (!shade<T, DEG>(P, cell, smp, kscale, Tr, aw, ab, o)) return true;
+      for (int ch = 0; ch < 3; ++ch) acc[ch] += o.ws * o.v[ch];
+      a_sum += o.ws;
+      wt_sum += o.ws * smp.tm;
+      Tr *= o.e;
+      return Tr >= T(P.stop);
+    });
     for (int ch = 0; ch < 3; ++ch) rgb[3 * r + ch] = acc[ch];
     alpha[r] = a_sum;
     wt[r] = wt_sum;
   }
 }
 
-// Gradient sink: with private buffers (one per thread) plain adds, else atomic adds into one buffer.
-template <typename T>
-inline void grad_add(T* p, T v, bool atomic) {
-  if (atomic) {
-#pragma omp atomic
-    *p += v;
-  } else {
-    *p += v;
-  }
-}
-
-template <typename T>
+template <typename T, int DEG, bool ATOMIC>
 void backward_impl(const Params& P, const Grid& G, const T* ro, const T* rd, const T* dens, const T* sh,
                    const T* actW, const T* actB, int64_t nrays, const T* rgb, const T* alpha, const T* wt,
-                   const T* g_rgb, const T* g_alpha, const T* g_wt, T* const* gd_t, T* const* gsh_t, bool atomic,
-                   T* gW, T* gB) {
+                   const T* g_rgb, const T* g_alpha, const T* g_wt, std::vector<Sink<T>>& sinks, T* gW, T* gB) {
   // static schedule: a fixed ray -> thread map, so private-buffer gradients are bitwise reproducible
 #pragma omp parallel for schedule(static)
   for (int64_t r = 0; r < nrays; ++r) {
-    const int tid = atomic ? 0 : omp_get_thread_num();
-    T* gd = gd_t[tid];
-    T* gsh = gsh_t[tid];
-    const T* o = ro + 3 * r;
-    const T* d = rd + 3 * r;
+    Sink<T> sink = sinks[ATOMIC ? 0 : omp_get_thread_num()];
+    if constexpr (ATOMIC) sink.touched = sinks[omp_get_thread_num()].touched;
     const T* gr = g_rgb + 3 * r;
-    T Q = gr[0] * rgb[3 * r] + gr[1] * rgb[3 * r + 1] + gr[2] * rgb[3 * r + 2] + g_alpha[r] * alpha[r] +
-          g_wt[r] * wt[r];
-    T tn, tf, dt;
-    int64_t n = ray_setup<T>(o, d, P.lo, P.hi, P.step, tn, tf, dt);
-    T dn = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-    T basis[16];
-    sh_basis<T>(P.degree, d[0] / dn, d[1] / dn, d[2] / dn, basis);
+    const T Q = gr[0] * rgb[3 * r] + gr[1] * rgb[3 * r + 1] + gr[2] * rgb[3 * r + 2] + g_alpha[r] * alpha[r] +
+                g_wt[r] * wt[r];
+    Ray<T, DEG> ray;
+    plx::setup_ray<T, DEG>(G, P.hi, P.step, ro + 3 * r, rd + 3 * r, ray);
+    const T kscale = ray.dn / T(P.scale);
+    const T* aw = P.has_act ? actW + 3 * r : nullptr;
+    const T* ab = P.has_act ? actB + 3 * r : nullptr;
     T Tr = 1, prefix = 0;
-    int64_t rows[8];
-    T w[8], g[3];
-    for (int64_t s = 0; s < n; ++s) {
-      T t0 = tn + T(s) * dt;
-      T delta = std::min(std::max(tf - t0, T(0)), dt);
-      T tm = t0 + T(0.5) * delta;
-      for (int a = 0; a < 3; ++a) g[a] = (o[a] + tm * d[a] - T(G.lo[a])) / T(G.vs[a]);
-      if (!corners<T>(G, g, rows, w)) continue;
-      T raw = 0;
-      for (int c = 0; c < 8; ++c) raw += w[c] * dens[rows[c]];
-      if (raw <= 0) continue;
-      if (Tr < T(P.stop)) break;
-      T k_tau = delta * dn / T(P.scale);
-      T tau = raw * k_tau;
-      T e = std::exp(-tau);
-      T ws = Tr * (1 - e);
-      T pre[3] = {T(0.5), T(0.5), T(0.5)};
-      for (int c = 0; c < 8; ++c) {
-        if (w[c] == 0) continue;
-        const T* q = sh + rows[c] * P.Kstore * 3;
-        for (int k = 0; k < P.K; ++k)
-          for (int ch = 0; ch < 3; ++ch) pre[ch] += basis[k] * w[c] * q[k * 3 + ch];
+    Cell<T, DEG> cell;
+    CellGrad<T, DEG, ATOMIC> grad;
+    Shade<T> o;
+    plx::march<T, DEG>(G, ray, [&](const Sample<T>& smp) {
+      if (smp.lin != cell.lin) {
+        grad.flush(cell, ray.basis, P.stride, sink);
+        cell.load(G, dens, sh, P.stride, ray.basis, smp.lin);
       }
-      T qs = g_alpha[r] + g_wt[r] * tm, dpre[3];
+      if (!shade<T, DEG>(P, cell, smp, kscale, Tr, aw, ab, o)) return true;
+      T qs = g_alpha[r] + g_wt[r] * smp.tm, dpre[3];
       for (int ch = 0; ch < 3; ++ch) {
-        T v = std::max(pre[ch], T(0));
-        T dv = ws * gr[ch];  // dL / d colour
+        T dv = o.ws * gr[ch];  // dL / d colour
+        qs += gr[ch] * o.v[ch];
         if (P.has_act) {
-          T u = actW[3 * r + ch] * v + actB[3 * r + ch];
-          bool inside = u > 0 && u < 1;
-          T va = std::min(std::max(u, T(0)), T(1));
-          qs += gr[ch] * va;
-          if (inside) {
-            gW[3 * r + ch] += dv * v;
+          T u = aw[ch] * std::max(o.pre[ch], T(0)) + ab[ch];
+          if (u > 0 && u < 1) {
+            gW[3 * r + ch] += dv * std::max(o.pre[ch], T(0));
             gB[3 * r + ch] += dv;
-            dv *= actW[3 * r + ch];
+            dv *= aw[ch];
           } else {
             dv = 0;
           }
-        } else {
-          qs += gr[ch] * v;
         }
-        dpre[ch] = pre[ch] > 0 ? dv : T(0);
+        dpre[ch] = o.pre[ch] > 0 ? dv : T(0);
       }
-      prefix += ws * qs;
-      T dtau = Tr * e * qs - (Q - prefix);
-      T draw = dtau * k_tau;
-      for (int c = 0; c < 8; ++c) {
-        if (w[c] == 0) continue;
-        grad_add(gd + rows[c], w[c] * draw, atomic);
-        T* gq = gsh + rows[c] * P.Kstore * 3;
-        for (int k = 0; k < P.K; ++k)
-          for (int ch = 0; ch < 3; ++ch)
-            if (dpre[ch] != 0) grad_add(gq + k * 3 + ch, w[c] * basis[k] * dpre[ch], atomic);
-      }
+      prefix += o.ws * qs;
+      grad.add(o.w, (Tr * o.e * qs - (Q - prefix)) * (smp.delta * kscale), dpre);
+      Tr *= o.e;
+      return Tr >= T(P.stop);
+    });
+    grad.flush(cell, ray.basis, P.stride, sink);
+  }
+}
+
+// Largest rendering weight of each stored point over the rays (pruning): a composited sample counts for each
+// corner with a positive trilinear weight, as upsample.py's max_weights. Per-thread buffers, max-reduced.
+template <typename T, int DEG>
+void max_weights_impl(const Params& P, const Grid& G, const T* ro, const T* rd, const T* dens, int64_t nrays,
+                      T* best, int64_t M) {
+  const int nt = std::max(1, omp_get_max_threads());
+  std::vector<T> priv(size_t(nt - 1) * size_t(M), T(0));
+#pragma omp parallel for schedule(dynamic, 64)
+  for (int64_t r = 0; r < nrays; ++r) {
+    const int tid = omp_get_thread_num();
+    T* out = tid == 0 ? best : priv.data() + size_t(tid - 1) * size_t(M);
+    Ray<T, DEG> ray;
+    plx::setup_ray<T, DEG>(G, P.hi, P.step, ro + 3 * r, rd + 3 * r, ray);
+    const T kscale = ray.dn / T(P.scale);
+    T Tr = 1;
+    Cell<T, 0> cell;
+    T w[8];
+    plx::march<T, DEG>(G, ray, [&](const Sample<T>& smp) {
+      if (smp.lin != cell.lin) cell.load(G, dens, nullptr, 0, ray.basis, smp.lin);
+      T raw = cell.weights(smp.f, w);
+      if (raw <= 0) return true;
+      T e = std::exp(-raw * (smp.delta * kscale));
+      T ws = Tr * (1 - e);
+      for (int c = 0; c < 8; ++c)
+        if (w[c] > 0) out[cell.rows[c]] = std::max(out[cell.rows[c]], ws);
       Tr *= e;
+      return Tr >= T(P.stop);
+    });
+  }
+  for (int t = 1; t < nt; ++t)
+    for (int64_t m = 0; m < M; ++m) best[m] = std::max(best[m], priv[size_t(t - 1) * size_t(M) + size_t(m)]);
+}
+
+// The rows any sink marked, sorted: from the threads' lists when they are short, else by a scan of the marks.
+std::vector<int64_t> touched_rows(const std::vector<std::vector<int64_t>>& lists, const uint8_t* marks, int nbuf,
+                                  int64_t M) {
+  size_t n = 0;
+  for (const auto& l : lists) n += l.size();
+  std::vector<int64_t> rows;
+  if (n * 32 < size_t(M)) {
+    rows.reserve(n);
+    for (const auto& l : lists) rows.insert(rows.end(), l.begin(), l.end());
+    std::sort(rows.begin(), rows.end());
+    rows.erase(std::unique(rows.begin(), rows.end()), rows.end());
+    return rows;
+  }
+  rows.reserve(n);
+  for (int64_t m = 0; m < M; ++m) {
+    bool hit = false;
+    for (int b = 0; b < nbuf; ++b) hit = hit || marks[b * M + m];
+    if (hit) rows.push_back(m);
+  }
+  return rows;
+}
+
+// Sums the sinks at `rows` (in buffer order: reproducible) into compact tables and zeroes what was read.
+template <typename T>
+void collect(const std::vector<int64_t>& rows, std::vector<Sink<T>>& sinks, int64_t stride, T* out_d, T* out_sh) {
+  const int64_t n = int64_t(rows.size());
+#pragma omp parallel for schedule(static)
+  for (int64_t i = 0; i < n; ++i) {
+    const int64_t m = rows[i];
+    T* od = out_d + i;
+    T* osh = out_sh + i * stride;
+    *od = 0;
+    for (int64_t j = 0; j < stride; ++j) osh[j] = 0;
+    for (auto& s : sinks) {
+      *od += s.gd[m];
+      s.gd[m] = 0;
+      T* q = s.gsh + m * stride;
+      for (int64_t j = 0; j < stride; ++j) {
+        osh[j] += q[j];
+        q[j] = 0;
+      }
+      s.mark[m] = 0;
     }
   }
 }
 
-Params make_params(const torch::Tensor& bounds, double step, double scale, double stop, int degree, int64_t Kstore,
+// ---------------------------------------------------------------------------- dispatch and bindings
+Params make_params(const torch::Tensor& bounds, double step, double scale, double stop, const torch::Tensor& sh,
                    bool has_act) {
   Params P;
   auto b = bounds.to(torch::kFloat64).contiguous();
-  const double* bp = b.data_ptr<double>();
-  for (int a = 0; a < 3; ++a) { P.lo[a] = bp[a]; P.hi[a] = bp[3 + a]; }
-  P.step = step; P.scale = scale; P.stop = stop; P.degree = degree;
-  P.K = (degree + 1) * (degree + 1); P.Kstore = Kstore; P.has_act = has_act;
+  for (int a = 0; a < 3; ++a) P.hi[a] = b.data_ptr<double>()[3 + a];
+  P.step = step; P.scale = scale; P.stop = stop;
+  P.stride = sh.size(1) * 3;
+  P.has_act = has_act;
   return P;
 }
 
-Grid make_grid(const torch::Tensor& index, const torch::Tensor& cell_occ, const Params& P) {
+Grid make_grid(const torch::Tensor& index, const torch::Tensor& cell_live, const torch::Tensor& block_dist,
+               const torch::Tensor& bounds, int64_t shift) {
+  TORCH_CHECK(index.dim() == 3 && index.scalar_type() == torch::kInt32 && index.is_contiguous(), "index");
+  TORCH_CHECK(cell_live.numel() == index.numel(), "cell_live must have the index volume's shape");
   Grid G;
   G.index = index.data_ptr<int32_t>();
-  G.cell_occ = cell_occ.data_ptr<uint8_t>();
-  G.X = index.size(0); G.Y = index.size(1); G.Z = index.size(2);
-  const int64_t R[3] = {G.X, G.Y, G.Z};
-  for (int a = 0; a < 3; ++a) { G.lo[a] = P.lo[a]; G.vs[a] = (P.hi[a] - P.lo[a]) / double(std::max<int64_t>(R[a] - 1, 1)); }
+  G.cell_live = cell_live.data_ptr<uint8_t>();
+  G.block_dist = block_dist.data_ptr<uint8_t>();
+  G.shift = int(shift);
+  auto b = bounds.to(torch::kFloat64).contiguous();
+  const double* bp = b.data_ptr<double>();
+  for (int a = 0; a < 3; ++a) {
+    G.R[a] = index.size(a);
+    TORCH_CHECK(G.R[a] >= 2, "grid sides must be >= 2");
+    G.B[a] = plx::num_blocks(G.R[a], int(shift));
+    TORCH_CHECK(block_dist.size(a) == G.B[a], "block_dist has the wrong shape");
+    G.lo[a] = bp[a];
+    G.vs[a] = (bp[3 + a] - bp[a]) / double(G.R[a] - 1);
+  }
   return G;
+}
+
+template <typename F>
+void with_degree(int64_t degree, F&& f) {
+  switch (degree) {
+    case 0: f(std::integral_constant<int, 0>()); break;
+    case 1: f(std::integral_constant<int, 1>()); break;
+    case 2: f(std::integral_constant<int, 2>()); break;
+    case 3: f(std::integral_constant<int, 3>()); break;
+    default: TORCH_CHECK(false, "SH degree must be 0..3, got ", degree);
+  }
 }
 
 }  // namespace
 
-std::vector<torch::Tensor> plx_forward(torch::Tensor ro, torch::Tensor rd, torch::Tensor index, torch::Tensor cell_occ,
+// Live masks of the grid for density `dens` [M] (live.h): cell_live [X, Y, Z] and block_dist [BX, BY, BZ]
+// (uint8); `coords` [M, 3] long are the grid coordinates of the rows.
+std::vector<torch::Tensor> plx_live(torch::Tensor index, torch::Tensor coords, torch::Tensor dens, int64_t shift) {
+  TORCH_CHECK(index.dim() == 3 && index.scalar_type() == torch::kInt32 && index.is_contiguous(), "index");
+  const int64_t R[3] = {index.size(0), index.size(1), index.size(2)};
+  const int64_t B[3] = {plx::num_blocks(R[0], int(shift)), plx::num_blocks(R[1], int(shift)),
+                        plx::num_blocks(R[2], int(shift))};
+  auto opts = torch::TensorOptions().dtype(torch::kUInt8);
+  auto cell = torch::zeros({R[0], R[1], R[2]}, opts);
+  auto dist = torch::empty({B[0], B[1], B[2]}, opts);
+  auto c = coords.to(torch::kInt64).contiguous();
+  const int64_t M = dens.numel();
+  TORCH_CHECK(c.size(0) == M, "coords and density must have one row per stored point");
+  AT_DISPATCH_FLOATING_TYPES(dens.scalar_type(), "plx_live", [&] {
+    const scalar_t* d = dens.data_ptr<scalar_t>();
+    if (M * 8 < index.numel())
+      plx::cells_from_points(c.data_ptr<int64_t>(), d, M, R, cell.data_ptr<uint8_t>());
+    else
+      plx::cells_from_volume(index.data_ptr<int32_t>(), d, R, cell.data_ptr<uint8_t>());
+  });
+  plx::block_distance(cell.data_ptr<uint8_t>(), R, int(shift), B, dist.data_ptr<uint8_t>());
+  return {cell, dist};
+}
+
+std::vector<torch::Tensor> plx_forward(torch::Tensor ro, torch::Tensor rd, torch::Tensor index,
+                                       torch::Tensor cell_live, torch::Tensor block_dist, int64_t shift,
                                        torch::Tensor dens, torch::Tensor sh, torch::Tensor actW, torch::Tensor actB,
                                        torch::Tensor bounds, double step, double scale, double stop, int64_t degree,
                                        bool has_act) {
-  Params P = make_params(bounds, step, scale, stop, (int)degree, sh.size(1), has_act);
-  Grid G = make_grid(index, cell_occ, P);
+  Params P = make_params(bounds, step, scale, stop, sh, has_act);
+  Grid G = make_grid(index, cell_live, block_dist, bounds, shift);
   int64_t R = ro.size(0);
   auto rgb = torch::zeros({R, 3}, ro.options());
   auto alpha = torch::zeros({R}, ro.options());
   auto wt = torch::zeros({R}, ro.options());
   AT_DISPATCH_FLOATING_TYPES(ro.scalar_type(), "plx_forward", [&] {
-    forward_impl<scalar_t>(P, G, ro.data_ptr<scalar_t>(), rd.data_ptr<scalar_t>(), dens.data_ptr<scalar_t>(),
-                           sh.data_ptr<scalar_t>(), has_act ? actW.data_ptr<scalar_t>() : nullptr,
-                           has_act ? actB.data_ptr<scalar_t>() : nullptr, R, rgb.data_ptr<scalar_t>(),
-                           alpha.data_ptr<scalar_t>(), wt.data_ptr<scalar_t>());
+    with_degree(degree, [&](auto deg) {
+      forward_impl<scalar_t, decltype(deg)::value>(
+          P, G, ro.data_ptr<scalar_t>(), rd.data_ptr<scalar_t>(), dens.data_ptr<scalar_t>(), sh.data_ptr<scalar_t>(),
+          has_act ? actW.data_ptr<scalar_t>() : nullptr, has_act ? actB.data_ptr<scalar_t>() : nullptr, R,
+          rgb.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(), wt.data_ptr<scalar_t>());
+    });
   });
   return {rgb, alpha, wt};
 }
 
+// Gradients of density and SH as (rows [n] long, sorted; gd [n]; gsh [n, Kstore, 3]) over the n rows the rays
+// touched, and the per-ray ACT gradients gW, gB [R, 3]. scratch_d [B, M], scratch_sh [B, M * stride] and
+// marks [B, M] are zero on entry and on return; B = number of threads (private sinks) or 1 (`atomic`).
 std::vector<torch::Tensor> plx_backward(torch::Tensor ro, torch::Tensor rd, torch::Tensor index,
-                                        torch::Tensor cell_occ, torch::Tensor dens, torch::Tensor sh,
-                                        torch::Tensor actW, torch::Tensor actB, torch::Tensor bounds, double step,
-                                        double scale, double stop, int64_t degree, bool has_act, torch::Tensor rgb,
-                                        torch::Tensor alpha, torch::Tensor wt, torch::Tensor g_rgb,
-                                        torch::Tensor g_alpha, torch::Tensor g_wt, double private_bytes) {
-  Params P = make_params(bounds, step, scale, stop, (int)degree, sh.size(1), has_act);
-  Grid G = make_grid(index, cell_occ, P);
-  int64_t R = ro.size(0);
-  auto gd = torch::zeros_like(dens);
-  auto gsh = torch::zeros_like(sh);
+                                        torch::Tensor cell_live, torch::Tensor block_dist, int64_t shift,
+                                        torch::Tensor dens, torch::Tensor sh, torch::Tensor actW, torch::Tensor actB,
+                                        torch::Tensor bounds, double step, double scale, double stop, int64_t degree,
+                                        bool has_act, torch::Tensor rgb, torch::Tensor alpha, torch::Tensor wt,
+                                        torch::Tensor g_rgb, torch::Tensor g_alpha, torch::Tensor g_wt,
+                                        torch::Tensor scratch_d, torch::Tensor scratch_sh, torch::Tensor marks,
+                                        bool atomic) {
+  Params P = make_params(bounds, step, scale, stop, sh, has_act);
+  Grid G = make_grid(index, cell_live, block_dist, bounds, shift);
+  const int64_t R = ro.size(0), M = dens.numel();
+  const int nt = std::max(1, omp_get_max_threads());
+  const int nbuf = int(marks.size(0));
+  TORCH_CHECK(nbuf == (atomic ? 1 : nt), "backward: need one scratch buffer per thread (", nt, ") or one (atomic)");
+  TORCH_CHECK(marks.size(1) == M && scratch_d.size(1) == M && scratch_sh.size(1) == M * P.stride,
+              "backward: scratch buffers do not match the grid");
   auto gW = torch::zeros({R, 3}, ro.options());
   auto gB = torch::zeros({R, 3}, ro.options());
-  // Private per-thread buffers avoid atomics; used while they cost at most `private_bytes` in total.
-  int nt = std::max(1, omp_get_max_threads());
-  bool atomic = nt > 1 && double(nt - 1) * double(sh.numel() + dens.numel()) * double(sh.element_size()) >
-                              private_bytes;
-  int nbuf = atomic ? 0 : nt - 1;
-  auto extra_d = torch::zeros({nbuf, dens.numel()}, dens.options());
-  auto extra_sh = torch::zeros({nbuf, sh.numel()}, sh.options());
+  std::vector<std::vector<int64_t>> lists(nt);
+  torch::Tensor rows_t, gd, gsh;
   AT_DISPATCH_FLOATING_TYPES(ro.scalar_type(), "plx_backward", [&] {
-    std::vector<scalar_t*> pd(nt), psh(nt);
-    pd[0] = gd.data_ptr<scalar_t>();
-    psh[0] = gsh.data_ptr<scalar_t>();
-    for (int i = 0; i < nbuf; ++i) {
-      pd[i + 1] = extra_d.data_ptr<scalar_t>() + i * dens.numel();
-      psh[i + 1] = extra_sh.data_ptr<scalar_t>() + i * sh.numel();
-    }
-    backward_impl<scalar_t>(P, G, ro.data_ptr<scalar_t>(), rd.data_ptr<scalar_t>(), dens.data_ptr<scalar_t>(),
-                            sh.data_ptr<scalar_t>(), has_act ? actW.data_ptr<scalar_t>() : nullptr,
-                            has_act ? actB.data_ptr<scalar_t>() : nullptr, R, rgb.data_ptr<scalar_t>(),
-                            alpha.data_ptr<scalar_t>(), wt.data_ptr<scalar_t>(), g_rgb.data_ptr<scalar_t>(),
-                            g_alpha.data_ptr<scalar_t>(), g_wt.data_ptr<scalar_t>(), pd.data(), psh.data(), atomic,
-                            gW.data_ptr<scalar_t>(), gB.data_ptr<scalar_t>());
+    std::vector<Sink<scalar_t>> sinks(nbuf);
+    for (int b = 0; b < nbuf; ++b)
+      sinks[b] = {scratch_d.data_ptr<scalar_t>() + b * M, scratch_sh.data_ptr<scalar_t>() + b * M * P.stride,
+                  marks.data_ptr<uint8_t>() + b * M, &lists[b]};
+    if (atomic)  // one shared sink; each thread records its first touches in its own list
+      for (int t = 1; t < nt; ++t) sinks.push_back({nullptr, nullptr, nullptr, &lists[t]});
+    with_degree(degree, [&](auto deg) {
+      constexpr int D = decltype(deg)::value;
+      auto run = [&](auto atomic_tag) {
+        backward_impl<scalar_t, D, decltype(atomic_tag)::value>(
+            P, G, ro.data_ptr<scalar_t>(), rd.data_ptr<scalar_t>(), dens.data_ptr<scalar_t>(),
+            sh.data_ptr<scalar_t>(), has_act ? actW.data_ptr<scalar_t>() : nullptr,
+            has_act ? actB.data_ptr<scalar_t>() : nullptr, R, rgb.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(),
+            wt.data_ptr<scalar_t>(), g_rgb.data_ptr<scalar_t>(), g_alpha.data_ptr<scalar_t>(),
+            g_wt.data_ptr<scalar_t>(), sinks, gW.data_ptr<scalar_t>(), gB.data_ptr<scalar_t>());
+      };
+      if (atomic) run(std::true_type()); else run(std::false_type());
+    });
+    sinks.resize(nbuf);
+    std::vector<int64_t> rows = touched_rows(lists, marks.data_ptr<uint8_t>(), nbuf, M);
+    const int64_t n = int64_t(rows.size());
+    rows_t = torch::from_blob(rows.data(), {n}, torch::kInt64).clone();
+    gd = torch::empty({n}, dens.options());
+    gsh = torch::empty({n, sh.size(1), sh.size(2)}, sh.options());
+    collect<scalar_t>(rows, sinks, P.stride, gd.data_ptr<scalar_t>(), gsh.data_ptr<scalar_t>());
   });
-  if (nbuf > 0) {
-    gd.add_(extra_d.sum(0).view_as(gd));
-    gsh.add_(extra_sh.sum(0).view_as(gsh));
-  }
-  return {gd, gsh, gW, gB};
+  return {rows_t, gd, gsh, gW, gB};
+}
+
+torch::Tensor plx_max_weights(torch::Tensor ro, torch::Tensor rd, torch::Tensor index, torch::Tensor cell_live,
+                              torch::Tensor block_dist, int64_t shift, torch::Tensor dens, torch::Tensor bounds,
+                              double step, double scale, double stop) {
+  Params P = make_params(bounds, step, scale, stop, dens.view({-1, 1, 1}), false);
+  Grid G = make_grid(index, cell_live, block_dist, bounds, shift);
+  auto best = torch::zeros_like(dens);
+  AT_DISPATCH_FLOATING_TYPES(ro.scalar_type(), "plx_max_weights", [&] {
+    max_weights_impl<scalar_t, 0>(P, G, ro.data_ptr<scalar_t>(), rd.data_ptr<scalar_t>(), dens.data_ptr<scalar_t>(),
+                                  ro.size(0), best.data_ptr<scalar_t>(), dens.numel());
+  });
+  return best;
 }
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  m.def("live", &plx_live, "Plenoxels live cells and block distances of a density");
   m.def("forward", &plx_forward, "Plenoxels fused ray marching (forward)");
   m.def("backward", &plx_backward, "Plenoxels fused ray marching (backward)");
+  m.def("max_weights", &plx_max_weights, "Plenoxels largest rendering weight per stored point (pruning)");
 }

@@ -1,0 +1,129 @@
+// The cell a ray is in, cached while its samples stay in it (render.cpp): the 8 corners' rows, densities and
+// colour dots dot[c][ch] = sum_k basis_k SH[row_c][k][ch] (the basis is the ray's), so that a sample costs
+// 8 weights, a density and a colour of 8 terms, and the SH rows are read once per cell, not per sample:
+// trilinear(SH) . basis = sum_c w_c (SH_c . basis). The backward sums each corner's gradient over the
+// cell's samples and scatters it once, when the ray leaves the cell (CellGrad::flush).
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "march.h"
+
+namespace plx {
+
+template <typename T, int DEG>
+struct Cell {
+  int64_t lin = -1;
+  int64_t rows[8];
+  bool has[8];
+  T dens[8], dot[8][3];
+
+  void load(const Grid& G, const T* density, const T* sh, int64_t stride, const T* basis, int64_t at) {
+    lin = at;
+    const int64_t Y = G.R[1], Z = G.R[2];
+    for (int c = 0; c < 8; ++c) {
+      const int32_t r = G.index[at + ((c >> 2) * Y + ((c >> 1) & 1)) * Z + (c & 1)];
+      has[c] = r >= 0;
+      rows[c] = has[c] ? r : 0;
+      dens[c] = has[c] ? density[r] : T(0);
+      T d0 = 0, d1 = 0, d2 = 0;
+      if (has[c] && sh != nullptr) {  // sh == nullptr: densities only
+        const T* q = sh + rows[c] * stride;
+        for (int k = 0; k < num_coef<DEG>(); ++k) {
+          d0 += basis[k] * q[3 * k];
+          d1 += basis[k] * q[3 * k + 1];
+          d2 += basis[k] * q[3 * k + 2];
+        }
+      }
+      dot[c][0] = d0; dot[c][1] = d1; dot[c][2] = d2;
+    }
+  }
+
+  // Trilinear weights of the sample (corner order i, j, k as in grid.py; 0 at empty corners) and its density.
+  T weights(const T* f, T* w) const {
+    T raw = 0;
+    for (int c = 0; c < 8; ++c) {
+      T wc = ((c >> 2) ? f[0] : 1 - f[0]) * (((c >> 1) & 1) ? f[1] : 1 - f[1]);
+      wc *= (c & 1) ? f[2] : 1 - f[2];
+      w[c] = has[c] ? wc : T(0);
+      raw += w[c] * dens[c];
+    }
+    return raw;
+  }
+
+  // pre[ch] = 0.5 + sum_c w_c dot_c[ch]: the colour before ReLU.
+  void colour(const T* w, T* pre) const {
+    T p0 = 0, p1 = 0, p2 = 0;
+    for (int c = 0; c < 8; ++c) {
+      p0 += w[c] * dot[c][0];
+      p1 += w[c] * dot[c][1];
+      p2 += w[c] * dot[c][2];
+    }
+    pre[0] = p0 + T(0.5); pre[1] = p1 + T(0.5); pre[2] = p2 + T(0.5);
+  }
+};
+
+// Where the backward accumulates: dense scratch tables that are zero at rest (kept between calls by fused.py),
+// a mark per row, and the rows first marked by this thread. Only marked rows are read back and zeroed, so a
+// call costs what its rays touch, not the size of the grid.
+template <typename T>
+struct Sink {
+  T* gd;          // [M]
+  T* gsh;         // [M * stride]
+  uint8_t* mark;  // [M]
+  std::vector<int64_t>* touched;
+};
+
+// A cell's gradients summed over its samples: density and colour dot of each corner.
+template <typename T, int DEG, bool ATOMIC>
+struct CellGrad {
+  T gdens[8] = {}, gdot[8][3] = {};
+  bool used = false;
+
+  void add(const T* w, T draw, const T* dpre) {
+    for (int c = 0; c < 8; ++c) {
+      gdens[c] += w[c] * draw;
+      for (int ch = 0; ch < 3; ++ch) gdot[c][ch] += w[c] * dpre[ch];
+    }
+    used = true;
+  }
+
+  // Scatter into the sink (rows of stored corners; SH gradient = basis_k * gdot[ch]) and reset.
+  void flush(const Cell<T, DEG>& cell, const T* basis, int64_t stride, Sink<T>& sink) {
+    if (!used) return;
+    for (int c = 0; c < 8; ++c) {
+      if (!cell.has[c]) continue;
+      const int64_t r = cell.rows[c];
+      mark(sink, r);
+      add_to(sink.gd + r, gdens[c]);
+      T* q = sink.gsh + r * stride;
+      if (gdot[c][0] != 0 || gdot[c][1] != 0 || gdot[c][2] != 0)
+        for (int k = 0; k < num_coef<DEG>(); ++k)
+          for (int ch = 0; ch < 3; ++ch) add_to(q + 3 * k + ch, basis[k] * gdot[c][ch]);
+      gdens[c] = 0;
+      gdot[c][0] = gdot[c][1] = gdot[c][2] = 0;
+    }
+    used = false;
+  }
+
+  static void add_to(T* p, T v) {
+    if constexpr (ATOMIC) {
+#pragma omp atomic
+      *p += v;
+    } else {
+      *p += v;
+    }
+  }
+
+  static void mark(Sink<T>& k, int64_t row) {
+    if constexpr (ATOMIC) {
+      if (__atomic_exchange_n(k.mark + row, uint8_t(1), __ATOMIC_RELAXED) == 0) k.touched->push_back(row);
+    } else if (!k.mark[row]) {
+      k.mark[row] = 1;
+      k.touched->push_back(row);
+    }
+  }
+};
+
+}  // namespace plx

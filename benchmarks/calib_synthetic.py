@@ -81,7 +81,7 @@ def run_model(args, model: str) -> dict:
     px_per_unit = 0.9 * min(p.width, p.height) / 2.5  # arcsem.synthetic.cameras.arc_cameras
     t0 = time.perf_counter()
     code = calibrate_main([str(work / "input"), "--out", str(out), "--tilts", str(work / "tilts.csv"), "--holdout",
-                           "test_*", "--pixel-size", str(1.0 / px_per_unit), "--overwrite"])
+                           "test_*", "--pixel-size", str(1.0 / px_per_unit), "--overwrite", *args.calibrate])
     seconds = time.perf_counter() - t0
     if code:
         raise SystemExit(f"calibration of {model} failed ({code})")
@@ -101,7 +101,7 @@ def main() -> None:
     ap.add_argument("--angle-noise", type=float, default=1.0, help="degrees of noise on the given stage angles")
     ap.add_argument("--models", nargs="+", default=["orthographic", "pinhole"])
     ap.add_argument("--out", default="/tmp/arcsem_calib_bench")
-    args = ap.parse_args()
+    args, args.calibrate = ap.parse_known_args()  # other flags go to arcsem-calibrate (--angle-sigma 1 ...)
     rows = [run_model(args, m) for m in args.models]
     cols = ["model", "size", "views", "max_rot_deg", "mean_rot_deg", "rms_px", "median_px", "observations", "seconds"]
     print("| " + " | ".join(cols) + " |")

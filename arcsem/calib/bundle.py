@@ -13,9 +13,12 @@ Two rotation models (:class:`StageModel`):
 * **stage** (stage angles known): ``R_i = exp([q]x) Q . diag(1, -1, -1) . Rx(T_i + dT_i) . Rz(S_i + dS_i)``
   (:func:`~.geometry.stage_rotation`): one camera-frame rotation ``q`` shared by all views (where the tilt
   axis lies in the image, beam misalignment) and per view small corrections of its tilt ``dT_i`` and stage
-  rotation ``dS_i``, each with a prior ``d / sigma`` (a correction of ``sigma`` costs as much as a one-pixel
-  error). Parallel projection leaves the angular steps along one arc weakly determined by the images (a
-  depth-scale / angle trade, the bas-relief ambiguity of short tracks); the stage readout pins them.
+  rotation ``dS_i``, each with a prior residual ``sqrt(n_i) d / sigma`` (``n_i`` observations in view ``i``:
+  a correction of ``sigma`` costs as much as a one-pixel error on every observation of the view). Parallel
+  projection leaves the angular steps along one arc weakly determined by the images (a depth-scale / angle
+  trade, the bas-relief ambiguity of short tracks), and the appearance of an SEM surface changes with the
+  viewing direction, which biases feature positions by tenths of a pixel: the stage readout pins the steps,
+  the images fit where the tilt axis lies, the beam's misalignment and the translations.
 * **free**: a rotation increment ``w_i`` per view (``R_i = exp([w_i]x) R_i^0``), view ``fixed`` held (the
   rotation gauge). For factorised series without stage angles.
 
@@ -68,7 +71,7 @@ class StageModel:
     tilt: np.ndarray
     rotation: np.ndarray
     Q: np.ndarray
-    sigma_deg: float = 0.25
+    sigma_deg: float = 1.0
 
     def stage_part(self, dT: np.ndarray, dS: np.ndarray) -> np.ndarray:
         """``[V, 3, 3]`` ``diag(1,-1,-1) Rx(T + dT) Rz(S + dS)`` (corrections in radians)."""
@@ -111,6 +114,9 @@ class _Problem:
         index[free] = 3 * (stage is not None) + np.arange(int(free.sum()))
         self.index, self.n_params = index, int(index.max()) + 1
         self._cache: tuple[bytes, tuple] | None = None
+        if stage is not None:  # prior weight per view: sqrt(observations) / sigma (module docstring)
+            n_view = np.bincount(obs.vi, minlength=V).astype(float)
+            self.prior_weight = np.repeat(np.sqrt(np.maximum(n_view, 1.0)), 2) / np.radians(stage.sigma_deg)
 
     def _local(self, p: np.ndarray) -> np.ndarray:
         """``[V, k]`` local values (0 where held)."""
@@ -138,7 +144,7 @@ class _Problem:
     def prior(self, p: np.ndarray) -> np.ndarray:
         if self.stage is None:
             return np.zeros(0)
-        return self._local(p)[:, 3:5].ravel() / np.radians(self.stage.sigma_deg)
+        return self._local(p)[:, 3:5].ravel() * self.prior_weight
 
     def fun(self, p: np.ndarray) -> np.ndarray:
         views, X = self._state(p)
@@ -189,8 +195,8 @@ class _Problem:
         if self.stage is None:
             return data.tocsr()
         prior_cols = self.index[:, 3:5].ravel()
-        prior = coo_matrix((np.full(len(prior_cols), 1 / np.radians(self.stage.sigma_deg)),
-                            (np.arange(len(prior_cols)), prior_cols)), shape=(len(prior_cols), self.n_params))
+        prior = coo_matrix((self.prior_weight, (np.arange(len(prior_cols)), prior_cols)),
+                           shape=(len(prior_cols), self.n_params))
         return vstack([data, prior]).tocsr()
 
 

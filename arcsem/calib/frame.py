@@ -1,8 +1,8 @@
 """The world frame of a calibrated series: specimen at the origin, substrate behind it, tilt axis along x.
 
-* **Substrate**: the plane through the most sparse points (RANSAC, inliers within 1 % of the points' extent)
-  when it holds >= 8 % of them (and 30), faces the cameras (normal within 60 degrees of their mean backward
-  direction), bounds the rest (>= 80 % of the other points on one side: a plane through the middle of a
+* **Substrate**: the plane through the most sparse points (RANSAC, inliers within 1 % of the points' extent,
+  then within three robust sigmas of the inliers' own distances) when it holds >= 8 % of them (and 30), faces the cameras (normal within 60 degrees of their mean backward
+  direction; for stage-initialised series within 45 degrees of the stage normal), bounds the rest (>= 80 % of the other points on one side: a plane through the middle of a
   specimen has points on both sides) and is at least as wide as they are (a flat cap of the specimen is
   narrower than the specimen). Points off the plane are the specimen.
 * **Depth reversal**: parallel projection cannot tell a relief from its mirror image (``X -> -X``,
@@ -30,18 +30,21 @@ __all__ = ["Frame", "apply_frame", "find_substrate", "mirror", "tilt_axes", "wor
 @dataclass
 class Frame:
     """``rotation [3, 3]`` (old world -> new world), ``centre [3]`` (old coordinates of the new origin),
-    ``substrate`` ``[N]`` bool or None, ``mirrored``: the depth reversal was applied, ``notes``."""
+    ``substrate`` ``[N]`` bool or None, ``mirrored``: the depth reversal was applied, ``notes``; ``height [N]``:
+    each point's signed distance from the substrate plane (positive on the cameras' side; None without one)."""
 
     rotation: np.ndarray
     centre: np.ndarray
     substrate: np.ndarray | None
     mirrored: bool
     notes: list[str]
+    height: np.ndarray | None = None
 
 
-def find_substrate(X: np.ndarray, towards: np.ndarray, iters: int = 400, seed: int = 0
+def find_substrate(X: np.ndarray, towards: np.ndarray, max_angle: float = 60.0, iters: int = 400, seed: int = 0
                    ) -> tuple[np.ndarray, float, np.ndarray] | None:
-    """``(normal [3] towards the cameras, offset, inliers [N])`` of the substrate plane, or None."""
+    """``(normal [3] towards the cameras, offset, inliers [N])`` of the substrate plane, or None; its normal
+    must lie within ``max_angle`` degrees of ``towards``."""
     if len(X) < 30:
         return None
     lo, hi = np.percentile(X, 2, axis=0), np.percentile(X, 98, axis=0)
@@ -57,10 +60,14 @@ def find_substrate(X: np.ndarray, towards: np.ndarray, iters: int = 400, seed: i
     mask = inl[:, best]
     if mask.sum() < max(30, 0.08 * len(X)):
         return None
-    c = X[mask].mean(0)
-    normal = np.linalg.svd(X[mask] - c, full_matrices=False)[2][-1]     # refit
+    for _ in range(2):  # refit; then tighten the tolerance to the inliers' own scatter (3 robust sigmas)
+        c = X[mask].mean(0)
+        normal = np.linalg.svd(X[mask] - c, full_matrices=False)[2][-1]
+        dist = np.abs((X - c) @ normal)
+        thr = min(thr, 3 * 1.4826 * float(np.median(dist[mask])))
+        mask = dist < thr
     normal = normal if normal @ towards >= 0 else -normal
-    if normal @ towards < np.cos(np.radians(60)):
+    if normal @ towards < np.cos(np.radians(max_angle)):
         return None
     side = (X - c) @ normal
     mask = np.abs(side) < thr
@@ -122,7 +129,7 @@ def tilt_axes(views: OrthoViews, order: list[int] | None = None, min_deg: float 
 
 def _depth_direction(views: OrthoViews, X: np.ndarray, back: np.ndarray, stage_frame: bool, flip: bool):
     """The mirror to keep (module docstring): ``(views, X, substrate plane or None, mirrored, notes)``."""
-    plane = find_substrate(X, back)
+    plane = find_substrate(X, np.array([0.0, 0.0, 1.0]), 45.0) if stage_frame else find_substrate(X, back)
     behind = None
     if plane is not None and (~plane[2]).any():
         behind = bool(np.median(X[~plane[2]] @ plane[0] - plane[1]) >= 0)  # specimen on the cameras' side
@@ -164,7 +171,8 @@ def world_frame(views: OrthoViews, X: np.ndarray, stage_frame: bool, flip: bool 
     spec = X[~sub] if sub is not None and (~sub).sum() >= 10 else X
     local = spec @ rot.T
     centre = rot.T @ (0.5 * (np.percentile(local, 2, axis=0) + np.percentile(local, 98, axis=0)))
-    frame = Frame(rot, centre, sub, mirrored, notes)
+    height = None if plane is None else X @ plane[0] - plane[1]
+    frame = Frame(rot, centre, sub, mirrored, notes, height)
     views, X = apply_frame(views, X, frame)
     return views, X, frame
 

@@ -2,8 +2,8 @@
 
 Each view is segmented on a copy at most :data:`WORK_SIZE` pixels wide by OpenCV's marker watershed over
 the (lightly smoothed) image: discs around the projections of the specimen points are foreground seeds,
-discs around the substrate points (:mod:`.frame`) background seeds; without a substrate, the pixels
-farther than :data:`FAR` of the image size from every specimen point are background. The regions meet on
+discs around the substrate points (:mod:`.frame`) and the pixels farther than :data:`FAR` of the image size
+from every specimen point are background seeds. The regions meet on
 the strongest edges between the seeds (SEM silhouettes are bright edges). The result is cleaned by
 morphology (closing, opening, holes filled) and keeps only the connected parts that hold specimen seeds.
 Files given with ``--masks`` replace these.
@@ -15,7 +15,7 @@ import numpy as np
 __all__ = ["specimen_masks"]
 
 WORK_SIZE = 256
-FAR = 0.08
+FAR = 0.01
 
 
 def _discs(shape, pts: np.ndarray, radius: int) -> np.ndarray:
@@ -67,11 +67,10 @@ def specimen_masks(images: list[np.ndarray], specimen_uv: list[np.ndarray], subs
         small = cv2.resize(img, (max(1, round(W * f)), max(1, round(H * f))), interpolation=cv2.INTER_AREA)
         r = max(2, round(0.012 * max(small.shape)))
         fg = _discs(small.shape, spec * f, r)
+        far = cv2.distanceTransform((~fg).astype(np.uint8), cv2.DIST_L2, 3)
+        bg = far > FAR * max(small.shape)          # far from every specimen point: background
         if sub is not None and len(sub):
-            bg = _discs(small.shape, sub * f, r) & ~fg
-        else:  # no substrate points: background is what lies far from every specimen point
-            far = cv2.distanceTransform((~fg).astype(np.uint8), cv2.DIST_L2, 3)
-            bg = far > FAR * max(small.shape)
+            bg |= _discs(small.shape, sub * f, r) & ~fg
         raw = _watershed(small, fg, bg) if fg.any() and bg.any() else fg
         mask = _clean(raw, fg, r)
         out.append(cv2.resize(mask.astype(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST).astype(bool))

@@ -45,7 +45,7 @@ class CalibrationOptions:
     max_ba_tracks: int = 6000       # tracks in the bundle adjustment; the others are triangulated after it
     f_scale: float = 1.0            # Huber loss scale, pixels
     reject_px: float = 1.0          # observations off by more than max(this, 3 robust sigma) are dropped
-    angle_sigma: float = 0.25       # degrees: prior of the stage-angle corrections (.bundle stage model)
+    angle_sigma: float = 1.0        # degrees: prior of the stage-angle corrections (.bundle stage model)
     max_angle: float = 15.0         # degrees: an observation farther from its track's reference view is dropped
     masks: bool = True
     refine: bool = True             # sub-pixel refinement of the observations at full resolution (.refine)
@@ -234,10 +234,15 @@ def _point_colors(feats: list[Features], obs: Observations) -> np.ndarray:
 
 
 def _masks(series: Series, cal: Calibration) -> list[np.ndarray]:
-    sub = cal.frame.substrate
-    spec_pts = cal.X if sub is None else cal.X[~sub]
+    """Masks seeded by the points clearly above the substrate (three plane tolerances) and those on it."""
+    sub, h = cal.frame.substrate, cal.frame.height
+    if sub is None:
+        spec_pts, sub_pts = cal.X, None
+    else:
+        tol = np.abs(h[sub]).max() if sub.any() else 0.0
+        spec_pts, sub_pts = cal.X[h > 3 * tol], cal.X[sub]
     all_v = np.arange(len(series))
     uv = lambda P: [cal.views.project(P, Observations(np.full(len(P), v), np.arange(len(P)), None, None, len(P)))
                     for v in all_v]
     return specimen_masks([to_u8_stretched(series.pixels(i)) for i in all_v], uv(spec_pts),
-                          None if sub is None else uv(cal.X[sub]))
+                          None if sub_pts is None else uv(sub_pts))

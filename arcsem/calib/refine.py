@@ -99,7 +99,6 @@ def refine_observations(images: list[np.ndarray], obs: Observations, forward: np
     changes with the viewing direction: matches across wide angles were the least consistent). Returns the
     refined observations (tracks left with one view dropped) and a summary.
     """
-    prepared = [_smooth(im.astype(np.float32) / float(max(im.max(), 1)), sigma) for im in images]
     ref = _references(obs)
     keep = np.ones(len(obs), bool)
     if forward is not None:
@@ -108,23 +107,24 @@ def refine_observations(images: list[np.ndarray], obs: Observations, forward: np
     todo = np.nonzero((ref != np.arange(len(obs))) & keep)[0]
     ax = np.arange(-half, half + 1, dtype=np.float32)
     grid = np.stack(np.meshgrid(ax, ax, indexing="xy"), -1).reshape(-1, 2)        # [P, 2] (x, y) offsets
-    uv = obs.uv.copy()
-    shift_all = []
-    n_ok = 0
-    for v in range(len(images)):
-        ks_all = todo[obs.vi[todo] == v]
-        tgt = lambda x, y, v=v: _bilinear(prepared[v], x, y)
-        for s in range(0, len(ks_all), chunk):
-            ks = ks_all[s:s + chunk]
-            refs = ref[ks]
-            T = np.empty((len(ks), len(grid)), np.float32)
-            for rv in np.unique(obs.vi[refs]):
-                sel = obs.vi[refs] == rv
-                c = obs.uv[refs[sel]]
-                (vals, *_), _ = _bilinear(prepared[rv], c[:, :1] + grid[:, 0], c[:, 1:] + grid[:, 1])
-                T[sel] = vals
-            T = (T - T.mean(1, keepdims=True)) / np.maximum(T.std(1, keepdims=True), 1e-6)
-            b, ncc, A = _fit_chunk(T, tgt, ks, obs.uv, grid, half, iters)
+    prepare = lambda v: _smooth(images[v].astype(np.float32) / float(max(images[v].max(), 1)), sigma)
+    # pass 1: templates, one reference view in memory at a time
+    T = np.empty((len(todo), len(grid)), np.float32)
+    for rv in np.unique(obs.vi[ref[todo]]):
+        sel = np.nonzero(obs.vi[ref[todo]] == rv)[0]
+        c = obs.uv[ref[todo[sel]]]
+        T[sel] = _bilinear(prepare(rv), c[:, :1] + grid[:, 0], c[:, 1:] + grid[:, 1])[0][0]
+    T = (T - T.mean(1, keepdims=True)) / np.maximum(T.std(1, keepdims=True), 1e-6)
+    # pass 2: the fits, one target view in memory at a time
+    uv, shift_all, n_ok = obs.uv.copy(), [], 0
+    for v in np.unique(obs.vi[todo]):
+        rows = np.nonzero(obs.vi[todo] == v)[0]
+        target = prepare(v)
+        tgt = lambda x, y, target=target: _bilinear(target, x, y)
+        for s in range(0, len(rows), chunk):
+            r = rows[s:s + chunk]
+            ks = todo[r]
+            b, ncc, A = _fit_chunk(T[r], tgt, ks, obs.uv, grid, half, iters)
             sv = np.linalg.svd(A, compute_uv=False)
             shift = np.linalg.norm(b - obs.uv[ks], axis=1)
             good = (shift < max_shift) & (ncc > min_ncc) & (sv[:, 1] > 0.5) & (sv[:, 0] < 2.0) & np.isfinite(b).all(1)

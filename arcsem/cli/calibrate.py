@@ -40,6 +40,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--init", choices=("auto", "stage", "factorization"), default=O.init,
                     help="initial cameras: stage angles (auto: the metadata or --tilts) or affine factorisation")
     ap.add_argument("--per-view-scale", action="store_true", help="one magnification per view (drift)")
+    ap.add_argument("--angle-sigma", type=float, default=O.angle_sigma,
+                    help="degrees: how far the stage angles are trusted (prior of their per-view corrections)")
     ap.add_argument("--flip-depth", action="store_true", help="take the mirrored relief (a microscope that tilts "
                     "the other way; a factorised series with the substrate on the wrong side)")
     ap.add_argument("--features", type=int, default=O.max_features, help="SIFT keypoints per image")
@@ -122,7 +124,7 @@ def _write(out: Path, series, cal, args, opts) -> None:
     sub = cal.frame.substrate
     spec = cal.X if sub is None or (~sub).sum() < 10 else cal.X[~sub]
     lo, hi = np.percentile(spec, 1, axis=0), np.percentile(spec, 99, axis=0)
-    pad = 0.05 * (hi - lo)
+    pad = 0.1 * (hi - lo)
     extra = {"world_unit": cal.unit,
              "frames": [{"stage_tilt_deg": t, "stage_rotation_deg": r} for t, r in zip(series.tilts, series.rotations)],
              "calibration": {"tool": "arcsem-calibrate", "rms_px": cal.stats["rms_px"], "report": "report/report.md",
@@ -150,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
             print(inspect_table(series))
             return 0
         _check_angles(series, args)
-        opts = CalibrationOptions(max_features=args.features, feature_scale=args.feature_scale, init=args.init,
+        opts = CalibrationOptions(max_features=args.features, angle_sigma=args.angle_sigma, feature_scale=args.feature_scale, init=args.init,
                                   per_view_scale=args.per_view_scale, holdout=args.holdout, flip_depth=args.flip_depth,
                                   masks=not args.no_masks and not args.masks)
         user_masks = _user_masks(Path(args.masks).expanduser().resolve(), series) if args.masks else None

@@ -172,13 +172,9 @@ def _statistics(series: Series, views: OrthoViews, X: np.ndarray, obs: Observati
             "tracks": int(obs.n_points), "mean_track_length": float(lengths.mean()), "per_view": per_view}
 
 
-def calibrate(series: Series, opts: CalibrationOptions | None = None, log=print) -> Calibration:
-    """Calibrate ``series`` (module docstring); ``log`` receives progress lines."""
-    opts = opts or CalibrationOptions()
-    if len(series) < 2:
-        raise DataError(f"{series.images[0].path}: a single image; calibration needs two or more views of the "
-                        "specimen (three or more without stage tilts)")
-    timings, t0 = {}, time.perf_counter()
+def _correspondences(series: Series, opts: CalibrationOptions, log, timings: dict):
+    """Features, verified pair matches and tracks of ``series`` (timed into ``timings``)."""
+    t0 = time.perf_counter()
     fscale = _feature_scale(opts, series.size)
     feats = [detect_features(series.pixels(i), opts.max_features, fscale, opts.root_sift) for i in range(len(series))]
     timings["features_s"] = time.perf_counter() - t0
@@ -190,21 +186,37 @@ def calibrate(series: Series, opts: CalibrationOptions | None = None, log=print)
     log(f"matching: {len(matches)} verified pairs of {len(series) * (len(series) - 1) // 2} "
         f"({timings['matching_s']:.1f} s)")
     _check_connected(series, matches)
-    obs = build_tracks(matches, [f.xy for f in feats])
+    return feats, matches, build_tracks(matches, [f.xy for f in feats]), fscale
+
+
+def _refined(series: Series, obs: Observations, views: OrthoViews, opts: CalibrationOptions, log, timings: dict):
+    t0 = time.perf_counter()
+    obs, info = refine_observations([series.pixels(i) for i in range(len(series))], obs, views.R[:, 2, :],
+                                    opts.max_angle)
+    timings["refine_s"] = time.perf_counter() - t0
+    log(f"refinement: {info['refined']} of {info['candidates']} observations moved to their track's reference "
+        f"patch (median {info['median_shift_px']:.2f} px), {info['dropped']} dropped ({timings['refine_s']:.1f} s)")
+    return obs
+
+
+def calibrate(series: Series, opts: CalibrationOptions | None = None, log=print) -> Calibration:
+    """Calibrate ``series`` (module docstring); ``log`` receives progress lines."""
+    opts = opts or CalibrationOptions()
+    if len(series) < 2:
+        raise DataError(f"{series.images[0].path}: a single image; calibration needs two or more views of the "
+                        "specimen (three or more without stage tilts)")
+    splits = ["test" if opts.holdout and fnmatch.fnmatch(im.path.name, opts.holdout) else "train"
+              for im in series.images]
+    if "train" not in splits:
+        raise DataError(f"--holdout {opts.holdout!r} matches every image; nothing is left to train on")
+    timings, t0 = {}, time.perf_counter()
+    feats, matches, obs, fscale = _correspondences(series, opts, log, timings)
     p_ref = series.pixel_size_m
-    unit = "micrometre" if p_ref else "pixel"
-    s = 1.0 / (p_ref * 1e6) if p_ref else 1.0
+    s = 1.0 / (p_ref * 1e6) if p_ref else 1.0  # pixels per micrometre, or per pixel
     scale = np.array([s * (p_ref / p if p and p_ref else 1.0) for p in series.pixel_sizes])
-    t2 = time.perf_counter()
     views, stage, init_info = _initial(series, obs, scale, opts)
-    if opts.refine:
-        t1 = time.perf_counter()
-        obs, refine_info = refine_observations([series.pixels(i) for i in range(len(series))], obs,
-                                               views.R[:, 2, :], opts.max_angle)
-        timings["refine_s"] = time.perf_counter() - t1
-        log(f"refinement: {refine_info['refined']} of {refine_info['candidates']} observations moved to their "
-            f"track's reference patch (median {refine_info['median_shift_px']:.2f} px), {refine_info['dropped']} "
-            f"dropped ({timings['refine_s']:.1f} s)")
+    obs = _refined(series, obs, views, opts, log, timings) if opts.refine else obs
+    t2 = time.perf_counter()
     views, X, obs_final, ba_info = _adjust(views, stage, obs, opts)
     views, X, frame = world_frame(views, X, stage is not None, opts.flip_depth)
     timings["adjustment_s"] = time.perf_counter() - t2
@@ -212,12 +224,8 @@ def calibrate(series: Series, opts: CalibrationOptions | None = None, log=print)
     stats.update(init=init_info, bundle=ba_info, pairs=len(matches), feature_scale=fscale)
     log(f"bundle adjustment: RMS {stats['rms_px']:.3f} px over {stats['observations']} observations of "
         f"{stats['tracks']} tracks ({timings['adjustment_s']:.1f} s)")
-    colors = _point_colors(feats, obs_final)
-    splits = ["test" if opts.holdout and fnmatch.fnmatch(im.path.name, opts.holdout) else "train"
-              for im in series.images]
-    if "train" not in splits:
-        raise DataError(f"--holdout {opts.holdout!r} matches every image; nothing is left to train on")
-    cal = Calibration(views, X, colors, obs_final, frame, unit, splits, stats, timings=timings)
+    cal = Calibration(views, X, _point_colors(feats, obs_final), obs_final, frame,
+                      "micrometre" if p_ref else "pixel", splits, stats, timings=timings)
     if opts.masks:
         t3 = time.perf_counter()
         cal.masks = _masks(series, cal)

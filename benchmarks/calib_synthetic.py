@@ -8,7 +8,7 @@ Gaussian noise of ``--angle-noise`` degrees as a microscope's readout would have
 then calibrates all 40 views together (test views held out with ``--holdout 'test_*'``), with the true pixel
 size (so that the world unit equals the scene's). Printed per model: the rotation error of every view
 after the best world rotation (the calibrated frame differs from the true one by a similarity), the RMS
-reprojection error and the times.
+reprojection error, the automatic masks' intersection over union with the true ones, and the times.
 
     .venv/bin/python benchmarks/calib_synthetic.py [--width 576 --height 384] [--angle-noise 1.0]
         [--texture 0.6] [--models orthographic pinhole] [--out DIR]
@@ -67,6 +67,17 @@ def rotation_errors(truth: dict[str, np.ndarray], calib: dict[str, np.ndarray]) 
     return dict(zip(names, ang.tolist()))
 
 
+def mask_iou(scene: Path, dataset: Path) -> list[float]:
+    """Intersection over union of the automatic masks with the scene's true specimen masks, per view."""
+    import cv2
+
+    out = []
+    for f in sorted((dataset / "masks").glob("*.png")):
+        a, b = cv2.imread(str(f), 0) > 127, cv2.imread(str(scene / "masks" / f.name), 0) > 127
+        out.append(float((a & b).sum() / max((a | b).sum(), 1)))
+    return out
+
+
 def run_model(args, model: str) -> dict:
     from arcsem.cli.calibrate import main as calibrate_main
     from arcsem.synthetic import SceneParams, ensure_scene
@@ -87,7 +98,8 @@ def run_model(args, model: str) -> dict:
         raise SystemExit(f"calibration of {model} failed ({code})")
     err = rotation_errors(true_rotations(scene / "transforms.json"), true_rotations(out / "transforms.json"))
     report = json.loads((out / "report" / "calibration.json").read_text())
-    return {"model": model, "size": f"{args.width}x{args.height}", "views": len(err), "max_rot_deg": max(err.values()),
+    iou = mask_iou(scene, out)
+    return {"mask_iou_mean": float(np.mean(iou)), "mask_iou_min": float(np.min(iou)), "model": model, "size": f"{args.width}x{args.height}", "views": len(err), "max_rot_deg": max(err.values()),
             "mean_rot_deg": float(np.mean(list(err.values()))), "rms_px": report["rms_px"],
             "median_px": report["median_px"], "observations": report["observations"], "seconds": seconds,
             "pinhole_focal_px": focal if model == "pinhole" else math.nan, "dataset": str(out)}
@@ -103,7 +115,8 @@ def main() -> None:
     ap.add_argument("--out", default="/tmp/arcsem_calib_bench")
     args, args.calibrate = ap.parse_known_args()  # other flags go to arcsem-calibrate (--angle-sigma 1 ...)
     rows = [run_model(args, m) for m in args.models]
-    cols = ["model", "size", "views", "max_rot_deg", "mean_rot_deg", "rms_px", "median_px", "observations", "seconds"]
+    cols = ["model", "size", "views", "max_rot_deg", "mean_rot_deg", "rms_px", "median_px", "observations",
+            "mask_iou_mean", "mask_iou_min", "seconds"]
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for r in rows:

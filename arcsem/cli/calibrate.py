@@ -147,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
         from ..sem.series import inspect_table, read_series
 
         folder, out = _check_paths(args)
-        series = read_series(folder, args.tilts, args.pixel_size, args.crop_bottom)
+        series = read_series(folder, args.tilts, args.pixel_size, args.crop_bottom, strict=not args.inspect)
         if args.inspect:
             print(inspect_table(series))
             return 0

@@ -45,7 +45,7 @@ class Crop:
     def describe(self) -> str:
         sides = [f"{k} {v}" for k, v in (("top", self.top), ("bottom", self.bottom), ("left", self.left),
                                           ("right", self.right)) if v]
-        return ", ".join(sides) + (f" ({'; '.join(self.reasons)})" if self.reasons else "") if sides else "none"
+        return (", ".join(sides) or "none") + (f" ({'; '.join(self.reasons)})" if self.reasons else "")
 
 
 def to_u8(pixels: np.ndarray) -> np.ndarray:

@@ -129,17 +129,21 @@ def _pixel_size(im: SemImage) -> float | None:
 
 
 def read_series(folder: str | Path, tilts: str | None = None, pixel_size_um: float | None = None,
-                crop_bottom: int | None = None) -> Series:
-    """Read, check and crop the images of ``folder`` (see the module docstring)."""
+                crop_bottom: int | None = None, strict: bool = True) -> Series:
+    """Read, check and crop the images of ``folder`` (see the module docstring); ``strict=False`` (for the
+    inspection table) accepts images of several sizes and crops none of them."""
     folder = Path(folder).expanduser().resolve()
     files = list_images(folder)
     images = [read_sem_image(f) for f in files]
     first = images[0]
-    for im in images[1:]:
-        if im.size != first.size:
-            raise DataError(f"{im.path}: image is {im.size[0]}x{im.size[1]} but {first.path.name} is "
-                            f"{first.size[0]}x{first.size[1]}; a series must share one image size")
-    crop = detect_crop([im.pixels for im in images], [im.meta.image_rows for im in images], crop_bottom)
+    odd = next((im for im in images[1:] if im.size != first.size), None)
+    if odd is not None and strict:
+        raise DataError(f"{odd.path}: image is {odd.size[0]}x{odd.size[1]} but {first.path.name} is "
+                        f"{first.size[0]}x{first.size[1]}; a series must share one image size")
+    if odd is None:
+        crop = detect_crop([im.pixels for im in images], [im.meta.image_rows for im in images], crop_bottom)
+    else:
+        crop = Crop(reasons=("images of several sizes: not a series",))
     w, h = crop.size(*first.size)
     if w < 32 or h < 32:
         raise DataError(f"{folder}: after cropping ({crop.describe()}) the images are {w}x{h}, too small")
@@ -174,7 +178,8 @@ def inspect_table(series: Series) -> str:
     widths = [max(len(r[i]) for r in [head, *rows]) for i in range(len(head))]
     line = lambda r: "  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip()
     w, h = series.size
-    foot = [f"crop (every image): {series.crop.describe()} -> {w}x{h}",
+    mixed = len({im.size for im in series.images}) > 1
+    foot = [f"crop (every image): {series.crop.describe()}" + ("" if mixed else f" -> {w}x{h}"),
             f"stage angles: {series.angle_source}; pixel size: "
             + ("unknown (world unit = one pixel)" if series.pixel_size_m is None
                else f"{series.pixel_size_m * 1e9:.4g} nm (world unit = 1 micrometre)")]

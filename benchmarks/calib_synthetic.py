@@ -67,6 +67,15 @@ def rotation_errors(truth: dict[str, np.ndarray], calib: dict[str, np.ndarray]) 
     return dict(zip(names, ang.tolist()))
 
 
+def stage_angle_errors(truth: dict[str, np.ndarray], csv: Path) -> dict[str, float]:
+    """Rotation errors of the cameras the given (noisy) stage angles alone describe (arcsem's stage model, the
+    true tilt-axis direction): what the calibration starts from."""
+    from arcsem.calib.geometry import stage_rotation
+
+    rows = [line.split(",") for line in csv.read_text().splitlines()[1:] if line]
+    return rotation_errors(truth, {Path(f).stem: stage_rotation(float(t), float(r)) for f, t, r in rows})
+
+
 def mask_iou(scene: Path, dataset: Path) -> list[float]:
     """Intersection over union of the automatic masks with the scene's true specimen masks, per view."""
     import cv2
@@ -96,10 +105,13 @@ def run_model(args, model: str) -> dict:
     seconds = time.perf_counter() - t0
     if code:
         raise SystemExit(f"calibration of {model} failed ({code})")
-    err = rotation_errors(true_rotations(scene / "transforms.json"), true_rotations(out / "transforms.json"))
+    truth = true_rotations(scene / "transforms.json")
+    err = rotation_errors(truth, true_rotations(out / "transforms.json"))
+    given = list(stage_angle_errors(truth, work / "tilts.csv").values())
     report = json.loads((out / "report" / "calibration.json").read_text())
     iou = mask_iou(scene, out)
-    return {"mask_iou_mean": float(np.mean(iou)), "mask_iou_min": float(np.min(iou)), "model": model, "size": f"{args.width}x{args.height}", "views": len(err), "max_rot_deg": max(err.values()),
+    return {"mask_iou_mean": float(np.mean(iou)), "mask_iou_min": float(np.min(iou)), "angle_noise": args.angle_noise,
+            "given_max_rot_deg": max(given), "given_mean_rot_deg": float(np.mean(given)), "model": model, "size": f"{args.width}x{args.height}", "views": len(err), "max_rot_deg": max(err.values()),
             "mean_rot_deg": float(np.mean(list(err.values()))), "rms_px": report["rms_px"],
             "median_px": report["median_px"], "observations": report["observations"], "seconds": seconds,
             "pinhole_focal_px": focal if model == "pinhole" else math.nan, "dataset": str(out)}
@@ -115,8 +127,8 @@ def main() -> None:
     ap.add_argument("--out", default="/tmp/arcsem_calib_bench")
     args, args.calibrate = ap.parse_known_args()  # other flags go to arcsem-calibrate (--angle-sigma 1 ...)
     rows = [run_model(args, m) for m in args.models]
-    cols = ["model", "size", "views", "max_rot_deg", "mean_rot_deg", "rms_px", "median_px", "observations",
-            "mask_iou_mean", "mask_iou_min", "seconds"]
+    cols = ["model", "size", "views", "angle_noise", "given_max_rot_deg", "given_mean_rot_deg", "max_rot_deg",
+            "mean_rot_deg", "rms_px", "median_px", "observations", "mask_iou_mean", "mask_iou_min", "seconds"]
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for r in rows:

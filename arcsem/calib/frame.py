@@ -1,10 +1,11 @@
 """The world frame of a calibrated series: specimen at the origin, substrate behind it, tilt axis along x.
 
-* **Substrate**: the plane through the most sparse points (RANSAC, inliers within 1 % of the points' extent,
-  then within three robust sigmas of the inliers' own distances) when it holds >= 8 % of them (and 30), faces the cameras (normal within 60 degrees of their mean backward
-  direction; for stage-initialised series within 45 degrees of the stage normal), bounds the rest (>= 80 % of the other points on one side: a plane through the middle of a
-  specimen has points on both sides) and is at least as wide as they are (a flat cap of the specimen is
-  narrower than the specimen). Points off the plane are the specimen.
+* **Substrate**: the plane through the most sparse points (RANSAC, inliers within 1 % of the points'
+  extent, then within three robust sigmas of the inliers' own distances) when it holds >= 8 % of them (and
+  30), faces the cameras (normal within 80 degrees of their mean backward direction; for stage-initialised
+  series within 45 degrees of the stage normal), bounds the rest (>= 80 % of the other points on one side:
+  a plane through the middle of a specimen has points on both sides) and is at least as wide as they are
+  (a flat cap of the specimen is narrower than the specimen). Points off the plane are the specimen.
 * **Depth reversal**: parallel projection cannot tell a relief from its mirror image (``X -> -X``,
   ``R -> diag(-1, -1, 1) R`` reproduce every pixel). Series calibrated from stage angles take the depth
   direction of arcsem's tilt convention (:mod:`.init`; a substrate in front of the specimen is reported as a
@@ -129,7 +130,7 @@ def tilt_axes(views: OrthoViews, order: list[int] | None = None, min_deg: float 
 
 def _depth_direction(views: OrthoViews, X: np.ndarray, back: np.ndarray, stage_frame: bool, flip: bool):
     """The mirror to keep (module docstring): ``(views, X, substrate plane or None, mirrored, notes)``."""
-    plane = find_substrate(X, np.array([0.0, 0.0, 1.0]), 45.0) if stage_frame else find_substrate(X, back)
+    plane = find_substrate(X, np.array([0.0, 0.0, 1.0]), 45.0) if stage_frame else find_substrate(X, back, 80.0)
     behind = None
     if plane is not None and (~plane[2]).any():
         behind = bool(np.median(X[~plane[2]] @ plane[0] - plane[1]) >= 0)  # specimen on the cameras' side
@@ -145,7 +146,7 @@ def _depth_direction(views: OrthoViews, X: np.ndarray, back: np.ndarray, stage_f
              "the other one)"]
     if mirrored:
         views, X = mirror(views, X)
-        plane = find_substrate(X, back)
+        plane = find_substrate(X, back, 80.0)
     return views, X, plane, mirrored, notes
 
 

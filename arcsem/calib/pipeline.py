@@ -192,7 +192,7 @@ def _correspondences(series: Series, opts: CalibrationOptions, log, timings: dic
 def _refined(series: Series, obs: Observations, views: OrthoViews, opts: CalibrationOptions, log, timings: dict):
     t0 = time.perf_counter()
     obs, info = refine_observations([series.pixels(i) for i in range(len(series))], obs, views.R[:, 2, :],
-                                    opts.max_angle)
+                                    opts.max_angle, _feature_scale(opts, series.size))
     timings["refine_s"] = time.perf_counter() - t0
     log(f"refinement: {info['refined']} of {info['candidates']} observations moved to their track's reference "
         f"patch (median {info['median_shift_px']:.2f} px), {info['dropped']} dropped ({timings['refine_s']:.1f} s)")

@@ -2,7 +2,7 @@
 
 SIFT places a keypoint to a few tenths of a pixel of the copy it ran on, independently in every view. Here
 each track keeps one reference observation (the one in its middle view, file order) and every other
-observation is moved to where the reference's patch (``(2 half + 1)^2`` pixels) fits best in its own view
+observation is moved to where the reference's patch (15 x 15 pixels of the feature copy) fits best in its own view
 under an affine warp ``x = b + A p`` with a brightness model ``g T + o`` (SEM exposure varies between
 images). Both images are band-passed first (difference of Gaussians, sigma 1 and 2 pixels): the shading of
 an SEM image changes smoothly with the viewing direction (secondary-electron yield, detector), and on the
@@ -90,15 +90,20 @@ def _fit_chunk(T, tgt, ks, uv, grid, half, iters):
 
 
 def refine_observations(images: list[np.ndarray], obs: Observations, forward: np.ndarray | None = None,
-                        max_angle: float = 15.0, half: int = 7, iters: int = 10, sigma: float = 1.0,
-                        max_shift: float = 3.0, min_ncc: float = 0.8, chunk: int = 8000) -> tuple[Observations, dict]:
+                        max_angle: float = 15.0, scale: float = 1.0, iters: int = 10, min_ncc: float = 0.8,
+                        chunk: int = 4000) -> tuple[Observations, dict]:
     """Refined ``obs`` on ``images`` (float or integer ``[H, W]``, full resolution); module docstring.
+
+    ``scale``: that of the copy the features came from (< 1: downscaled); the patch (15 pixels there), the
+    band-pass and the largest accepted move (3 pixels there) are measured in its pixels, so a downscaled
+    series is refined at full resolution on the detail its features saw.
 
     ``forward [V, 3]``: the views' (initial) viewing directions; observations seen more than ``max_angle``
     degrees away from their reference, and those whose fit failed, are dropped (a patch's appearance
     changes with the viewing direction: matches across wide angles were the least consistent). Returns the
     refined observations (tracks left with one view dropped) and a summary.
     """
+    half, sigma, max_shift = round(7 / scale), 1.0 / scale, 3.0 / scale
     ref = _references(obs)
     keep = np.ones(len(obs), bool)
     if forward is not None:

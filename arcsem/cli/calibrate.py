@@ -1,0 +1,172 @@
+"""``arcsem-calibrate``: orthographic cameras for a folder of SEM images, written as an arcsem dataset.
+
+Examples::
+
+    arcsem-calibrate --inspect raw/                  # what the files say: tilt, rotation, pixel size, crop
+    arcsem-calibrate raw/ --out pollen/              # calibrate; pollen/transforms.json + images, masks, ...
+    arcsem-calibrate raw/ --out pollen/ --tilts -9,-6,-3,0,3,6,9     # files without stage metadata
+    arcsem-calibrate raw/ --out pollen/ --tilts tilts.csv --holdout 'test_*'
+
+Method, formats and outputs: docs/calibration.md. Bad input ends with one ``error:`` line and exit code 2;
+the input folder is never written.
+"""
+from __future__ import annotations
+
+import argparse
+import shlex
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+__all__ = ["build_parser", "main"]
+
+OUTPUTS = ("transforms.json", "points3d.ply", "images", "masks", "sparse", "report")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from ..calib.pipeline import CalibrationOptions as O
+
+    ap = argparse.ArgumentParser(prog="arcsem-calibrate", description=__doc__.splitlines()[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("folder", help="folder of SEM images (.tif .png .jpg ...) of one specimen")
+    ap.add_argument("--inspect", action="store_true", help="print what the files say (a table) and stop")
+    ap.add_argument("--out", help="dataset folder to write (must not lie inside the input folder)")
+    ap.add_argument("--overwrite", action="store_true", help="replace a dataset already in --out")
+    ap.add_argument("--tilts", help="stage tilts in degrees: a comma list in file order, or a CSV 'file,tilt[,rotation]'")
+    ap.add_argument("--pixel-size", type=float, help="pixel size in micrometres (overrides the metadata)")
+    ap.add_argument("--crop-bottom", type=int, help="rows of the data bar to cut (overrides its detection)")
+    ap.add_argument("--holdout", help="glob of image file names to hold out of training (split=test), e.g. 'test_*'")
+    ap.add_argument("--init", choices=("auto", "stage", "factorization"), default=O.init,
+                    help="initial cameras: stage angles (auto: the metadata or --tilts) or affine factorisation")
+    ap.add_argument("--per-view-scale", action="store_true", help="one magnification per view (drift)")
+    ap.add_argument("--angle-sigma", type=float, default=O.angle_sigma,
+                    help="degrees: how far the stage angles are trusted (prior of their per-view corrections)")
+    ap.add_argument("--flip-depth", action="store_true", help="take the mirrored relief (a microscope that tilts "
+                    "the other way; a factorised series with the substrate on the wrong side)")
+    ap.add_argument("--features", type=int, default=O.max_features, help="SIFT keypoints per image")
+    ap.add_argument("--feature-scale", type=float, help="compute features on a copy scaled by this (default: "
+                    "longest side 1600 px)")
+    ap.add_argument("--masks", help="folder of specimen masks (same file stems as the images) to use instead of "
+                    "the automatic ones")
+    ap.add_argument("--no-masks", action="store_true", help="write no masks")
+    ap.add_argument("--debug", action="store_true", help="show tracebacks")
+    return ap
+
+
+def _check_paths(args) -> tuple[Path, Path | None]:
+    from ..errors import ConfigError, DataError
+    from ..guard import inside
+
+    folder = Path(args.folder).expanduser().resolve()
+    if not folder.is_dir():
+        raise DataError(f"{folder}: no such folder")
+    if args.inspect:
+        return folder, None
+    if not args.out:
+        raise ConfigError("--out DATASET is required (or --inspect)")
+    out = Path(args.out).expanduser().resolve()
+    if inside(out, folder) or inside(folder, out):
+        raise ConfigError(f"--out {out}: the dataset must not be written into the input folder {folder} (nor the "
+                          "input into it); choose another folder")
+    if (out / "transforms.json").exists() and not args.overwrite:
+        raise ConfigError(f"{out} already holds a dataset (transforms.json); use --overwrite to replace it")
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out} is a file, not a folder")
+    return folder, out
+
+
+def _check_angles(series, args) -> None:
+    from ..errors import DataError
+
+    if len(series) < 2:
+        raise DataError(f"{series.images[0].path}: a single image; calibration needs two or more views of the specimen")
+    if args.init == "factorization":
+        return
+    lacking = [im for im, t in zip(series.images, series.tilts) if t is None]
+    if lacking:
+        why = lacking[0].meta.source or "no vendor metadata found"
+        raise DataError(f"{lacking[0].path}: no stage tilt ({why}); give --tilts (a list or a CSV) "
+                        "or --init factorization")
+
+
+def _user_masks(folder: Path, series):
+    import numpy as np
+
+    from ..data.io import IMAGE_EXTS, read_mask
+    from ..errors import DataError
+
+    masks = []
+    for im in series.images:
+        cand = [folder / f"{im.path.stem}{e}" for e in IMAGE_EXTS]
+        path = next((c for c in cand if c.is_file()), None)
+        if path is None:
+            raise DataError(f"{folder}: no mask for {im.path.name} (expected {im.path.stem}.png or another image type)")
+        m = read_mask(path)
+        if (m.shape[1], m.shape[0]) != im.size:
+            raise DataError(f"{path}: mask is {m.shape[1]}x{m.shape[0]} but {im.path.name} is {im.size[0]}x{im.size[1]}")
+        masks.append(np.ascontiguousarray(series.crop.apply(m)))
+    return masks
+
+
+def _write(out: Path, series, cal, args, opts) -> None:
+    import numpy as np
+
+    from ..calib.report import write_report
+    from ..calib.write import write_dataset
+    from ..guard import allowed_roots, protect
+
+    out.mkdir(parents=True, exist_ok=True)
+    if args.overwrite:
+        for name in OUTPUTS:
+            p = out / name
+            shutil.rmtree(p) if p.is_dir() else p.unlink(missing_ok=True)
+    sub = cal.frame.substrate
+    spec = cal.X if sub is None or (~sub).sum() < 10 else cal.X[~sub]
+    lo, hi = np.percentile(spec, 1, axis=0), np.percentile(spec, 99, axis=0)
+    pad = 0.1 * (hi - lo)
+    extra = {"world_unit": cal.unit,
+             "frames": [{"stage_tilt_deg": t, "stage_rotation_deg": r} for t, r in zip(series.tilts, series.rotations)],
+             "calibration": {"tool": "arcsem-calibrate", "rms_px": cal.stats["rms_px"], "report": "report/report.md",
+                             "crop": vars(series.crop) | {"reasons": list(series.crop.reasons)}}}
+    p_um = series.pixel_size_m * 1e6 if series.pixel_size_m else None
+    command = "arcsem-calibrate " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    with protect(allowed_roots(out) + [Path(tempfile.gettempdir())], input_dirs=[series.folder], own=[out]):
+        write_dataset(out, series.names, [series.pixels(i) for i in range(len(series))], cal.masks, cal.views.R,
+                      cal.views.t, cal.views.scale, cal.X, cal.colors, cal.obs, size=series.size, splits=cal.splits,
+                      pixel_size_um=p_um, aabb=np.stack([lo - pad, hi + pad]), extra=extra)
+        write_report(out, series, cal, {k: v for k, v in vars(opts).items()}, command)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    from .errors import call_reporting_errors
+
+    def run() -> int:
+        from ..calib.pipeline import CalibrationOptions, calibrate
+        from ..sem.series import inspect_table, read_series
+
+        folder, out = _check_paths(args)
+        series = read_series(folder, args.tilts, args.pixel_size, args.crop_bottom, strict=not args.inspect)
+        if args.inspect:
+            print(inspect_table(series))
+            return 0
+        _check_angles(series, args)
+        opts = CalibrationOptions(max_features=args.features, angle_sigma=args.angle_sigma, feature_scale=args.feature_scale, init=args.init,
+                                  per_view_scale=args.per_view_scale, holdout=args.holdout, flip_depth=args.flip_depth,
+                                  masks=not args.no_masks and not args.masks)
+        user_masks = _user_masks(Path(args.masks).expanduser().resolve(), series) if args.masks else None
+        cal = calibrate(series, opts)
+        if user_masks is not None:
+            cal.masks = user_masks
+        _write(out, series, cal, args, opts)
+        s = cal.stats
+        print(f"{out / 'transforms.json'}: {len(series)} views, RMS {s['rms_px']:.3f} px, {s['tracks']} points "
+              f"(one world unit = one {cal.unit}; report: {out / 'report' / 'report.md'})")
+        return 0
+
+    return call_reporting_errors(run, args.debug)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

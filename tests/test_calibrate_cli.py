@@ -1,0 +1,120 @@
+"""``arcsem-calibrate``: bad input ends with one ``error:`` line naming the file and exit code 2; a tiny
+textured synthetic scene calibrates end to end into a dataset arcsem and pycolmap read."""
+from __future__ import annotations
+
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from arcsem.cli.calibrate import main
+from tests.test_sem_series import sem_like, write_series
+
+
+def run(capsys, *args) -> tuple[int, str]:
+    code = main([str(a) for a in args])
+    err = capsys.readouterr().err.strip().splitlines()
+    return code, (err[-1] if err else "")
+
+
+def test_single_image(tmp_path, capsys):
+    folder = write_series(tmp_path / "in", n=1)
+    code, err = run(capsys, folder, "--out", tmp_path / "out", "--tilts", "0")
+    assert code == 2 and err.startswith("error: ") and "img_1.png: a single image" in err
+
+
+def test_mixed_sizes(tmp_path, capsys):
+    folder = write_series(tmp_path / "in", n=3)
+    cv2.imwrite(str(folder / "img_9.png"), sem_like(90, 160))
+    code, err = run(capsys, folder, "--out", tmp_path / "out", "--tilts", "0,1,2,3")
+    assert code == 2 and "img_9.png: image is 160x90 but img_1.png is 160x120" in err
+
+
+def test_wrong_tilt_count(tmp_path, capsys):
+    folder = write_series(tmp_path / "in", n=3)
+    code, err = run(capsys, folder, "--out", tmp_path / "out", "--tilts", "0,5")
+    assert code == 2 and "--tilts has 2 value(s)" in err and "3 images" in err
+
+
+def test_no_metadata_without_tilts(tmp_path, capsys):
+    folder = write_series(tmp_path / "in", n=3)
+    code, err = run(capsys, folder, "--out", tmp_path / "out")
+    assert code == 2 and "img_1.png: no stage tilt" in err and "--tilts" in err
+
+
+def test_images_that_do_not_overlap(tmp_path, capsys):
+    folder = write_series(tmp_path / "in", n=3)  # three unrelated noise textures
+    code, err = run(capsys, folder, "--out", tmp_path / "out", "--tilts", "0,3,6")
+    assert code == 2 and "img_" in err and "the images do not overlap" in err
+    assert not (tmp_path / "out" / "transforms.json").exists()
+
+
+def test_output_folder_checks(tmp_path, capsys):
+    folder = write_series(tmp_path / "in", n=3)
+    code, err = run(capsys, folder, "--out", folder / "dataset", "--tilts", "0,3,6")
+    assert code == 2 and "must not be written into the input folder" in err
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "transforms.json").write_text("{}")
+    code, err = run(capsys, folder, "--out", tmp_path / "out", "--tilts", "0,3,6")
+    assert code == 2 and "already holds a dataset" in err and "--overwrite" in err
+
+
+def test_inspect_prints_the_table(tmp_path, capsys):
+    folder = write_series(tmp_path / "in", n=2, bar=10)
+    assert main([str(folder), "--inspect"]) == 0
+    out = capsys.readouterr().out
+    assert "img_2.png" in out and "no tilt, rotation, pixel size" in out and "data bar: 10 rows" in out
+
+
+@pytest.fixture(scope="module")
+def tiny_scene(tmp_path_factory):
+    from arcsem.synthetic import generate_scene
+
+    root = tmp_path_factory.mktemp("scene")
+    generate_scene(root, width=240, height=160, camera="orthographic", texture=0.6, n_horizontal=13,
+                   n_vertical=8, test_every=6, supersample=1, progress=False)
+    return root
+
+
+@pytest.mark.slow
+def test_tiny_scene_end_to_end(tiny_scene, tmp_path, capsys):
+    import pycolmap
+
+    from arcsem.data import read_transforms
+
+    meta = json.loads((tiny_scene / "transforms.json").read_text())
+    folder = tmp_path / "raw"
+    folder.mkdir()
+    rows = ["file,tilt,rotation"]
+    for f in meta["frames"]:
+        shutil.copy(tiny_scene / f["file_path"], folder)
+        rows.append(f"{f['file_path'].split('/')[-1]},{f['elevation'] - 90},{-f['azimuth']}")
+    (tmp_path / "tilts.csv").write_text("\n".join(rows))
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    px = 2.5 / (0.9 * 160)  # the scene's world units per pixel
+    code = main([str(folder), "--out", str(tmp_path / "ds"), "--tilts", str(tmp_path / "tilts.csv"),
+                 "--holdout", "test_*", "--pixel-size", str(px)])
+    assert code == 0, capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before          # the input is never written
+    report = json.loads((tmp_path / "ds" / "report" / "calibration.json").read_text())
+    assert report["rms_px"] < 0.5
+    scene = read_transforms(tmp_path / "ds")
+    truth = read_transforms(tiny_scene)
+    assert scene.train.cameras.is_ortho and len(scene.test) == len(truth.test) > 0
+    assert scene.micrometres_per_unit == pytest.approx(1.0) and scene.train.masks is not None
+    # rotations agree with the truth up to one world rotation
+    def rot(s):
+        return {n: s.train.cameras.world_to_cam[i, :3, :3].double().numpy() for i, n in enumerate(s.train.names)}
+    a, b = rot(truth), rot(scene)
+    Rt, Rc = np.stack([a[n] for n in sorted(a)]), np.stack([b[n] for n in sorted(a)])
+    U, _, Vt = np.linalg.svd(np.einsum("nji,njk->ik", Rc, Rt))
+    E = np.einsum("nij,jk,nlk->nil", Rc, U @ Vt, Rt)
+    err = np.degrees(np.arccos(np.clip((np.trace(E, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+    assert err.max() < 0.5
+    rec = pycolmap.Reconstruction(str(tmp_path / "ds" / "sparse" / "0"))
+    assert rec.num_images() == len(before) and rec.num_points3D() == len(scene.points)
+    for name in ("residuals.png", "report.md"):
+        assert (tmp_path / "ds" / "report" / name).is_file()
+    assert len(list((tmp_path / "ds" / "report").glob("overlay_*.png"))) == 2

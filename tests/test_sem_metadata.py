@@ -1,0 +1,107 @@
+"""SEM vendor metadata: the parsers on documented text layouts, and real TIFF files written with tifffile."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from arcsem.sem.image import read_sem_image
+from arcsem.sem.metadata import parse_fei, parse_hitachi, parse_jeol, parse_tescan, parse_zeiss
+
+# Zeiss SmartSEM tag 34118: KEY line, then "Label = value unit" (Latin-1: degree sign, micro sign)
+ZEISS = ("0\r\n0\r\n5.824988e-009\r\nDP_SCAN_ROT\r\nScan Rot = On\r\nAP_WD\r\nWD =  3.9 mm\r\nAP_MAG\r\n"
+         "Mag =  50.00 K X\r\nAP_SCANROTATION\r\nScan Rotation = 12.5 \u00b0\r\nAP_IMAGE_PIXEL_SIZE\r\n"
+         "Image Pixel Size = 5.825 nm\r\nAP_WIDTH\r\nWidth = 5.965 \u00b5m\r\nDP_IMAGE_STORE\r\n"
+         "Store resolution = 1024 * 768\r\nAP_STAGE_AT_T\r\nStage at T =  -9.0 \u00b0\r\nAP_STAGE_AT_R\r\n"
+         "Stage at R = 245.8 \u00b0\r\n")
+FEI = ("[User]\r\nDate=06/13/2016\r\n\r\n[Beam]\r\nBeam=EBeam\r\nScanRotation=0\r\n\r\n[EBeam]\r\nHFW=0.00172667\r\n"
+       "WD=0.00403466\r\nTiltCorrectionIsOn=no\r\n\r\n[Scan]\r\nPixelWidth=3.3724e-006\r\n\r\n[Stage]\r\n"
+       "StageR=-2.3611\r\nStageT=0.15707963\r\n\r\n[Image]\r\nResolutionY=442\r\nMagCanvasRealWidth=0.20720\r\n")
+TESCAN = ("[MAIN]\r\nDevice=MIRA3\r\nMagnification=5000.0\r\nPixelSizeX=4.1e-008\r\nPixelSizeY=4.1e-008\r\n"
+          "[SEM]\r\nScanRotation=0\r\nStageRotation=30.0\r\nStageTilt=12.5\r\nWD=0.0100\r\n")
+HITACHI = ("[SemImageFile]\r\nInstructName=S-4800\r\nDataSize=1280x960\r\nPixelSize=9.921875\r\n"
+           "Magnification=10000\r\nWorkingDistance=8100 um\r\n")
+JEOL = "$CM_FORMAT JEOL/SEM\n$CM_MAG 5000\n$CM_FULL_SIZE 1280 960\n$$SM_MICRON_BAR 160\n$$SM_MICRON_MARKER 5um\n"
+
+
+def test_zeiss_fields():
+    m = parse_zeiss(ZEISS)
+    assert (m.vendor, m.tilt_deg, m.rotation_deg) == ("zeiss", -9.0, 245.8)
+    assert m.pixel_size_m == pytest.approx(5.825e-9)
+    assert m.working_distance_m == pytest.approx(3.9e-3)
+    assert m.magnification == pytest.approx(50_000)
+    assert m.scan_rotation_deg == 12.5 and m.store_size == (1024, 768)
+    assert m.field_width_m == pytest.approx(5.965e-6)
+    assert m.missing == []
+
+
+def test_zeiss_scan_rotation_off_and_missing_fields():
+    m = parse_zeiss(ZEISS.replace("Scan Rot = On", "Scan Rot = Off").replace("Stage at T", "Stage goto T"))
+    assert m.scan_rotation_deg is None
+    assert m.missing == ["tilt_deg"]
+
+
+def test_fei_radians_and_metres():
+    m = parse_fei(FEI)
+    assert m.tilt_deg == pytest.approx(9.0, abs=1e-6)            # 0.15707963 rad
+    assert m.rotation_deg == pytest.approx(math.degrees(-2.3611))
+    assert m.pixel_size_m == pytest.approx(3.3724e-6)
+    assert m.image_rows == 442 and m.scan_rotation_deg is None
+    assert m.magnification == pytest.approx(0.2072 / 0.00172667)  # 120 x, as the data bar shows
+
+
+def test_fei_bad_numbers_are_missing():
+    m = parse_fei(FEI.replace("PixelWidth=3.3724e-006", "PixelWidth=notafloat"))
+    assert m.pixel_size_m is None and "pixel_size_m" in m.missing
+
+
+def test_tescan_hitachi_jeol():
+    t = parse_tescan(TESCAN)
+    assert (t.tilt_deg, t.rotation_deg, t.pixel_size_m, t.working_distance_m) == (12.5, 30.0, 4.1e-8, 0.01)
+    h = parse_hitachi(HITACHI)
+    assert h.pixel_size_m == pytest.approx(9.921875e-9) and h.working_distance_m == pytest.approx(8.1e-3)
+    assert h.tilt_deg is None and h.store_size == (1280, 960)
+    j = parse_jeol(JEOL)
+    assert j.pixel_size_m == pytest.approx(5e-6 / 160) and j.magnification == 5000 and j.tilt_deg is None
+
+
+def _tif(path, data, tag=None, text="", extratags=()):
+    import tifffile
+
+    extra = [(tag, 2, 0, text.encode("latin-1"), True)] if tag else []
+    tifffile.imwrite(path, data, extratags=[*extra, *extratags], metadata=None)
+    return path
+
+
+@pytest.mark.parametrize("tag,text,tilt", [(34118, ZEISS, -9.0), (34682, FEI, 9.0), (50431, TESCAN, 12.5)])
+def test_tiff_tags_round_trip(tmp_path, tag, text, tilt):
+    img = (np.arange(48 * 64).reshape(48, 64) % 251).astype(np.uint8)
+    im = read_sem_image(_tif(tmp_path / "a.tif", img, tag, text))
+    assert im.meta.tilt_deg == pytest.approx(tilt, abs=1e-6)
+    np.testing.assert_array_equal(im.pixels, img)
+
+
+def test_sixteen_bit_and_orientation(tmp_path):
+    img = np.random.default_rng(0).integers(0, 65535, size=(30, 40), dtype=np.uint16)
+    im = read_sem_image(_tif(tmp_path / "o.tif", img, extratags=[(274, 3, 1, 3, True)]))  # rotated 180
+    assert im.bits == 16 and im.orientation == 3
+    np.testing.assert_array_equal(im.pixels, img[::-1, ::-1])
+
+
+def test_sidecars(tmp_path):
+    import cv2
+
+    img = np.full((20, 30), 128, np.uint8)
+    cv2.imwrite(str(tmp_path / "h.png"), img)
+    (tmp_path / "h.txt").write_bytes(("\ufeff" + HITACHI).encode("utf-16-le"))  # Hitachi writes UTF-16
+    cv2.imwrite(str(tmp_path / "t.png"), img)
+    (tmp_path / "t.hdr").write_text(TESCAN)
+    cv2.imwrite(str(tmp_path / "j.jpg"), img)
+    (tmp_path / "j.txt").write_text(JEOL)
+    assert read_sem_image(tmp_path / "h.png").meta.vendor == "hitachi"
+    assert read_sem_image(tmp_path / "t.png").meta.tilt_deg == 12.5
+    assert read_sem_image(tmp_path / "j.jpg").meta.vendor == "jeol"
+    cv2.imwrite(str(tmp_path / "none.png"), img)
+    m = read_sem_image(tmp_path / "none.png").meta
+    assert m.vendor == "none" and m.missing == ["tilt_deg", "rotation_deg", "pixel_size_m"]

@@ -56,7 +56,7 @@ def test_stages_end_to_end_on_cuda(tmp_path, backbone, stages):
     assert metrics["status"] == "complete" and metrics["completed_stages"] == stages
     assert np.isfinite(metrics["stage1"]["train"]["psnr"])
     if "color" in stages:
-        assert np.isfinite(metrics["stage2"]["train_nonref"]["psnr"])
+        assert metrics["stage2"]["steps"] == 5 and np.isfinite(metrics["stage2"]["final_loss"])
     state = load_checkpoint(tmp_path / "run" / "checkpoints" / "last.pt", map_location="cpu")
     tensors = [v for v in state["model"].values() if isinstance(v, torch.Tensor)]
     assert tensors and all(t.device.type == "cpu" for t in tensors)

@@ -61,7 +61,11 @@ class DensifyStats:
         return torch.where(self.count > 0, self.grad_sum / self.count.clamp_min(1), torch.zeros_like(self.grad_sum))
 
     def accumulate(self, norms: Tensor, visible: Tensor, radii: Tensor) -> None:
-        """Add ``norms [C, N]`` where ``visible [C, N]``; track the largest ``radii [C, N]`` seen."""
+        """Add ``norms [C, N]`` where ``visible [C, N]``; track the largest ``radii [C, N]`` seen. The accumulators
+        follow the model to its device (they are made before the model is moved there)."""
+        if self.grad_sum.device != norms.device:
+            self.grad_sum, self.count, self.max_radii = (t.to(norms.device)
+                                                         for t in (self.grad_sum, self.count, self.max_radii))
         vis = visible.to(norms.dtype)
         self.grad_sum += (norms * vis).sum(0).to(self.grad_sum)
         self.count += vis.sum(0).to(self.count)

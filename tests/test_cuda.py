@@ -61,3 +61,19 @@ def test_stages_end_to_end_on_cuda(tmp_path, backbone, stages):
     tensors = [v for v in state["model"].values() if isinstance(v, torch.Tensor)]
     assert tensors and all(t.device.type == "cpu" for t in tensors)
 
+
+
+def test_a_cuda_run_resumes(tmp_path):
+    """The same command again resumes a CUDA run from its checkpoint (RNG and sampler states are CPU tensors
+    whatever device the checkpoint was mapped to: the first resumed CUDA runs stopped with 'RNG state must be a
+    torch.ByteTensor')."""
+    from arcsem import app
+
+    scene = write_transforms_scene(tmp_path / "scene", n=4, w=32, h=24)
+    cfg = compose_with("dataset=transforms", f"dataset.path={scene.parent}", "stage=gray", "backbone=gs2d",
+                       "device=cuda", "act=paper", "train.width=null", "train.steps=20", "train.eval.lpips=false",
+                       "train.progress=false", f"cache_dir={tmp_path / 'cache'}", "mesh.enabled=false")
+    first = app.run(cfg, run_dir=tmp_path / "run")
+    again = app.run(cfg, run_dir=tmp_path / "run")
+    assert first["status"] == again["status"] == "complete"
+    assert again["stage1"]["resumed_from"] == 20

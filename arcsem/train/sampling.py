@@ -43,7 +43,7 @@ class ViewSampler:
         return {"gen": self.gen.get_state(), "order": list(self.order)}
 
     def load_state_dict(self, state: dict) -> None:
-        self.gen.set_state(state["gen"])
+        self.gen.set_state(state["gen"].cpu())  # a CPU generator, whatever map_location did
         self.order = list(state["order"])
 
 
@@ -79,7 +79,7 @@ class RaySampler:
         return {"gen": self.gen.get_state()}
 
     def load_state_dict(self, state: dict) -> None:
-        self.gen.set_state(state["gen"])
+        self.gen.set_state(state["gen"].cpu())  # a CPU generator, whatever map_location did
 
 
 def make_sampler(split: Split, batch_mode: str, batch_views: int = 1, rays_per_batch: int = 5000, seed: int = 0,

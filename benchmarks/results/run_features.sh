@@ -18,7 +18,9 @@ PARTS=${PARTS:-ablation comparison}
 REFS=${REFS:-one five}
 OUT=${OUT:-multirun/features}
 export ARCSEM_CACHE=${ARCSEM_CACHE:-$PWD/multirun/features/cache}
-COMMON="threads=1 colorize.progress=false train.progress=false colorize.eval.video=false"
+THREADS=${THREADS:-1}
+EXTRA=${EXTRA:-}                   # further overrides, e.g. "device=cuda" (benchmarks/results/run_features_gpu.sh)
+COMMON="threads=$THREADS colorize.progress=false train.progress=false colorize.eval.video=false $EXTRA"
 
 for part in $PARTS; do
   for ds in $DATASETS; do

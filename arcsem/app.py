@@ -79,19 +79,24 @@ def run_directory(cfg: DictConfig) -> Path:
     return Path(rd) if rd else Path("outputs") / time.strftime("%Y-%m-%d/%H-%M-%S")
 
 
-def set_threads(threads: Any) -> None:
-    """``threads``: torch (and fused-kernel) threads of this job; None keeps torch's default (all cores).
+def set_threads(threads: Any) -> int:
+    """``threads``: torch (and fused-kernel) threads of this job; None: the cores this process may use (its CPU
+    affinity and cgroup quota, :func:`arcsem.cores.usable_cores`; torch's own default counts the machine's).
+    Returns the count set.
 
     Jobs that share a machine (``hydra/launcher=joblib``, several runs at once) should divide the
     cores between them: oversubscribed threads spin-wait and slow every job down several times.
     """
     if threads is None:
-        return
-    if not isinstance(threads, int) or isinstance(threads, bool) or threads < 1:
+        from .cores import usable_cores
+
+        threads = usable_cores()
+    elif not isinstance(threads, int) or isinstance(threads, bool) or threads < 1:
         raise ConfigError(f"threads: expected a positive integer or null, got {threads!r}")
     import torch
 
     torch.set_num_threads(threads)
+    return threads
 
 
 def _stage_function(stage: str) -> Callable[..., dict]:

@@ -1,0 +1,46 @@
+"""How many cores this process may use: what ``threads=null`` means.
+
+``os.cpu_count()`` (and torch's default thread count) counts the machine's cores, not this process's: a
+cluster job pinned to 4 cores of a 64-core node (CPU affinity, ``taskset``, Slurm's ``--cpus-per-task``) or
+limited by a container's CPU quota (cgroup v2 ``cpu.max``, v1 ``cpu.cfs_quota_us``) that starts 64 threads
+spin-waits them against each other and runs several times slower than with 4.
+"""
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+__all__ = ["cgroup_cpu_limit", "usable_cores"]
+
+
+def cgroup_cpu_limit(root: str | os.PathLike = "/sys/fs/cgroup") -> float | None:
+    """The CPU quota of this process's cgroup in cores (``quota / period``), or None when unlimited or unknown.
+
+    Reads cgroup v2 ``<root>/cpu.max`` (``"max 100000"`` or ``"200000 100000"``), else cgroup v1
+    ``<root>/cpu/cpu.cfs_quota_us`` and ``cpu.cfs_period_us`` (quota -1: unlimited).
+    """
+    root = Path(root)
+    try:
+        quota, period = (root / "cpu.max").read_text().split()[:2]
+        return None if quota == "max" else float(quota) / float(period)
+    except (OSError, ValueError):
+        pass
+    try:
+        quota = float((root / "cpu" / "cpu.cfs_quota_us").read_text())
+        period = float((root / "cpu" / "cpu.cfs_period_us").read_text())
+    except (OSError, ValueError):
+        return None
+    return None if quota <= 0 or period <= 0 else quota / period
+
+
+def usable_cores(root: str | os.PathLike = "/sys/fs/cgroup") -> int:
+    """Cores this process may run on: its CPU affinity, capped by the cgroup quota (rounded up; at least 1)."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # not on Linux
+        n = os.cpu_count() or 1
+    limit = cgroup_cpu_limit(root)
+    if limit is not None:
+        n = min(n, max(1, math.ceil(limit)))
+    return max(1, n)

@@ -8,7 +8,11 @@ Gaussian noise of ``--angle-noise`` degrees as a microscope's readout would have
 then calibrates all 40 views together (test views held out with ``--holdout 'test_*'``), with the true pixel
 size (so that the world unit equals the scene's). Printed per model: the rotation error of every view
 after the best world rotation (the calibrated frame differs from the true one by a similarity), the RMS
-reprojection error, the automatic masks' intersection over union with the true ones, and the times.
+reprojection error, the automatic masks' intersection over union with the true ones, and the times. Parallel
+projection cannot tell a relief from its mirror image (each camera ``R -> diag(-1, -1, 1) R``, points
+``X -> -X``); ``mirror_max_rot_deg`` is the error after that reversal, and ``depth_reversed`` says that it fits
+better: the cameras are right up to the depth direction, which :mod:`arcsem.calib.frame` chose wrongly
+(a failure: the relief is inverted).
 
     .venv/bin/python benchmarks/calib_synthetic.py [--width 576 --height 384] [--angle-noise 1.0]
         [--texture 0.6] [--models orthographic pinhole] [--out DIR]
@@ -55,11 +59,14 @@ def true_rotations(path: Path) -> dict[str, np.ndarray]:
     return out
 
 
-def rotation_errors(truth: dict[str, np.ndarray], calib: dict[str, np.ndarray]) -> dict[str, float]:
+def rotation_errors(truth: dict[str, np.ndarray], calib: dict[str, np.ndarray], mirror: bool = False
+                    ) -> dict[str, float]:
     """Angle (degrees) between calibrated and true rotations after the best common world rotation ``Q``
-    (``R_cal Q ~ R_true``, orthogonal Procrustes; no reflection allowed)."""
+    (``R_cal Q ~ R_true``, orthogonal Procrustes; no reflection allowed). ``mirror``: compare the depth
+    reversal of the calibrated views (``diag(-1, -1, 1) R_cal``) instead."""
     names = sorted(set(truth) & set(calib))
-    Rt, Rc = np.stack([truth[n] for n in names]), np.stack([calib[n] for n in names])
+    D = np.diag([-1.0, -1.0, 1.0]) if mirror else np.eye(3)
+    Rt, Rc = np.stack([truth[n] for n in names]), np.stack([D @ calib[n] for n in names])
     U, _, Vt = np.linalg.svd(np.einsum("nji,njk->ik", Rc, Rt))
     Q = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
     E = np.einsum("nij,jk,nlk->nil", Rc, Q, Rt)
@@ -106,13 +113,16 @@ def run_model(args, model: str) -> dict:
     if code:
         raise SystemExit(f"calibration of {model} failed ({code})")
     truth = true_rotations(scene / "transforms.json")
-    err = rotation_errors(truth, true_rotations(out / "transforms.json"))
+    calib = true_rotations(out / "transforms.json")
+    err, err_m = rotation_errors(truth, calib), rotation_errors(truth, calib, mirror=True)
     given = list(stage_angle_errors(truth, work / "tilts.csv").values())
     report = json.loads((out / "report" / "calibration.json").read_text())
     iou = mask_iou(scene, out)
     return {"mask_iou_mean": float(np.mean(iou)), "mask_iou_min": float(np.min(iou)), "angle_noise": args.angle_noise,
             "given_max_rot_deg": max(given), "given_mean_rot_deg": float(np.mean(given)), "model": model, "size": f"{args.width}x{args.height}", "views": len(err), "max_rot_deg": max(err.values()),
-            "mean_rot_deg": float(np.mean(list(err.values()))), "rms_px": report["rms_px"],
+            "mean_rot_deg": float(np.mean(list(err.values()))),
+            "mirror_max_rot_deg": max(err_m.values()), "depth_reversed": max(err_m.values()) < max(err.values()),
+            "rms_px": report["rms_px"],
             "median_px": report["median_px"], "observations": report["observations"], "seconds": seconds,
             "pinhole_focal_px": focal if model == "pinhole" else math.nan, "dataset": str(out)}
 
@@ -128,7 +138,7 @@ def main() -> None:
     args, args.calibrate = ap.parse_known_args()  # other flags go to arcsem-calibrate (--angle-sigma 1 ...)
     rows = [run_model(args, m) for m in args.models]
     cols = ["model", "size", "views", "angle_noise", "given_max_rot_deg", "given_mean_rot_deg", "max_rot_deg",
-            "mean_rot_deg", "rms_px", "median_px", "observations", "mask_iou_mean", "mask_iou_min", "seconds"]
+            "mean_rot_deg", "mirror_max_rot_deg", "depth_reversed", "rms_px", "median_px", "observations", "mask_iou_mean", "mask_iou_min", "seconds"]
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for r in rows:

@@ -149,3 +149,48 @@ def test_refinement_recovers_a_subpixel_shift_under_exposure_change():
     err = np.linalg.norm(refined - (xy[out.pj[out.vi == 0]] + shift), axis=1)
     assert n > 20 and info["refined"] > 0.8 * n
     assert np.median(err) < 0.08 < np.median(np.linalg.norm(start - xy - shift, axis=1))
+
+
+def aligned_angles(R_true: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Per-view angles (deg) between ``R`` and ``R_true`` after the best common world rotation (no mirror)."""
+    U, _, Vt = np.linalg.svd(np.einsum("nji,njk->ik", R, R_true))
+    Q = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    return angles(np.einsum("nij,jk->nik", R, Q), R_true)
+
+
+def test_factorization_recovers_the_views_up_to_the_depth_reversal():
+    from arcsem.calib.factorization import init_factorization
+
+    (_, _, R, _, s, _t), obs = scene()
+    views, _, block = init_factorization(obs, len(R), s[0])
+    mirrored = np.diag([-1.0, -1.0, 1.0]) @ views.R
+    best = min(aligned_angles(R, views.R).max(), aligned_angles(R, mirrored).max())
+    assert len(block) >= 3 and best < 1e-4
+    np.testing.assert_allclose(residuals(views, views.triangulate(obs), obs), 0, atol=1e-6)
+
+
+def grain_on_substrate(seed=0):
+    """The synthetic scene's arcs (its substrate normal ~66 deg from the mean viewing direction) over a ball of
+    radius 0.9 standing on the plane z = -1 (a 4 x 4 patch of it)."""
+    from arcsem.synthetic.cameras import arc_views
+
+    rng = np.random.default_rng(seed)
+    R = np.stack([stage_rotation(v.elevation - 90, -v.azimuth) for v in arc_views(8, 5) if v.split == "train"])
+    ball = rng.normal(size=(150, 3))
+    ball = 0.9 * ball / np.linalg.norm(ball, axis=1, keepdims=True)
+    ground = np.c_[rng.uniform(-2, 2, (150, 2)), np.full(150, -1.0)]
+    return OrthoViews(R, np.zeros((len(R), 2)), np.full(len(R), 40.0)), np.r_[ball, ground]
+
+
+@pytest.mark.parametrize("reversed_", [False, True])
+def test_factorised_frame_puts_the_specimen_in_front_of_its_substrate(reversed_):
+    from arcsem.calib.frame import mirror, world_frame
+
+    truth, X = grain_on_substrate()
+    views, Xm = mirror(truth, X) if reversed_ else (truth, X)
+    out, _, frame = world_frame(views, Xm, stage_frame=False)
+    back = -truth.R[:, 2, :].mean(0)
+    assert np.degrees(np.arccos(back[2] / np.linalg.norm(back))) > 60   # the case the 45/60-deg limits missed
+    assert frame.substrate is not None and frame.substrate[150:].all() and frame.mirrored == reversed_
+    assert aligned_angles(truth.R, out.R).max() < 1e-4
+    assert np.median(frame.height[:150]) > 0                           # the ball on the cameras' side

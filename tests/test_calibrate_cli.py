@@ -44,21 +44,44 @@ def test_no_metadata_without_tilts(tmp_path, capsys):
     assert code == 2 and "img_1.png: no stage tilt" in err and "--tilts" in err
 
 
+def test_unreadable_metadata_without_tilts(tmp_path, capsys):
+    import tifffile
+
+    folder = tmp_path / "in"
+    folder.mkdir()
+    text = "AP_STAGE_AT_T\r\nStage at T = ### \r\nAP_STAGE_AT_R\r\nStage at R = n/a\r\n"  # Zeiss block, garbled
+    for i in range(3):
+        tifffile.imwrite(folder / f"z_{i}.tif", sem_like(seed=i), metadata=None,
+                         extratags=[(34118, 2, 0, text.encode("latin-1"), True)])
+    code, err = run(capsys, folder, "--out", tmp_path / "out")
+    assert code == 2 and "z_0.tif: no stage tilt (TIFF tag 34118 gives none readable)" in err and "--tilts" in err
+
+
+def listing(folder) -> dict:
+    return {p.relative_to(folder): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
 def test_images_that_do_not_overlap(tmp_path, capsys):
     folder = write_series(tmp_path / "in", n=3)  # three unrelated noise textures
+    before = listing(folder)
     code, err = run(capsys, folder, "--out", tmp_path / "out", "--tilts", "0,3,6")
     assert code == 2 and "img_" in err and "the images do not overlap" in err
-    assert not (tmp_path / "out" / "transforms.json").exists()
+    assert not (tmp_path / "out" / "transforms.json").exists() and listing(folder) == before
 
 
 def test_output_folder_checks(tmp_path, capsys):
     folder = write_series(tmp_path / "in", n=3)
+    before = listing(folder)
     code, err = run(capsys, folder, "--out", folder / "dataset", "--tilts", "0,3,6")
     assert code == 2 and "must not be written into the input folder" in err
+    code, err = run(capsys, folder, "--out", tmp_path, "--tilts", "0,3,6")   # the input inside the output
+    assert code == 2 and "must not be written into the input folder" in err
+    assert listing(folder) == before and not (folder / "dataset").exists()
     (tmp_path / "out").mkdir()
     (tmp_path / "out" / "transforms.json").write_text("{}")
     code, err = run(capsys, folder, "--out", tmp_path / "out", "--tilts", "0,3,6")
     assert code == 2 and "already holds a dataset" in err and "--overwrite" in err
+    assert (tmp_path / "out" / "transforms.json").read_text() == "{}"         # the refused dataset is kept
 
 
 def test_inspect_prints_the_table(tmp_path, capsys):

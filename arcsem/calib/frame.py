@@ -61,11 +61,12 @@ def find_substrate(X: np.ndarray, towards: np.ndarray, max_angle: float = 60.0, 
     mask = inl[:, best]
     if mask.sum() < max(30, 0.08 * len(X)):
         return None
+    floor = 1e-3 * thr  # an exact plane has no scatter: the tolerance must not vanish
     for _ in range(2):  # refit; then tighten the tolerance to the inliers' own scatter (3 robust sigmas)
         c = X[mask].mean(0)
         normal = np.linalg.svd(X[mask] - c, full_matrices=False)[2][-1]
         dist = np.abs((X - c) @ normal)
-        thr = min(thr, 3 * 1.4826 * float(np.median(dist[mask])))
+        thr = min(thr, max(3 * 1.4826 * float(np.median(dist[mask])), floor))
         mask = dist < thr
     normal = normal if normal @ towards >= 0 else -normal
     if normal @ towards < np.cos(np.radians(max_angle)):

@@ -85,7 +85,8 @@ def _check_angles(series, args) -> None:
         return
     lacking = [im for im, t in zip(series.images, series.tilts) if t is None]
     if lacking:
-        why = lacking[0].meta.source or "no vendor metadata found"
+        src = lacking[0].meta.source
+        why = f"{src} gives none readable" if src and src != "no vendor metadata found" else "no vendor metadata found"
         raise DataError(f"{lacking[0].path}: no stage tilt ({why}); give --tilts (a list or a CSV) "
                         "or --init factorization")
 

@@ -76,6 +76,27 @@ def test_refused_before_training(tmp_path, case):
     assert not (run / "checkpoints").exists()  # refused before stage 1 trained anything
 
 
+PLENOXELS_TINY = [a for a in TINY if not a.startswith("backbone.")]  # random_init_points is a Gaussian key
+PLENOXELS_CASES = {  # name -> (overrides, stage, needles): the plugin's Config ranges, and its grid shape
+    "lr_sh=0": (["backbone.lr_sh=0"], "check", ["backbone 'plenoxels'", "lr_sh: must be > 0.0, got 0"]),
+    "upsample_every=0": (["backbone.upsample_every=0"], "check", ["upsample_every: must be >= 1, got 0"]),
+    "tv_sparse_frac=2": (["backbone.tv_sparse_frac=2"], "check", ["tv_sparse_frac: must be <= 1.0, got 2"]),
+    "reso side 1": (["backbone.reso=[[64,64,1]]"], "gray", ["reso must be a list of [X, Y, Z] with sides >= 2"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(PLENOXELS_CASES))
+def test_plenoxels_config_refused_before_training(tmp_path, case):
+    extra, stage, needles = PLENOXELS_CASES[case]
+    ds = dataset(tmp_path / "scene")
+    run = tmp_path / "run"
+    line = one_error_line(run_cli(tmp_path, f"stage={stage}", "backbone=plenoxels", *ds, *PLENOXELS_TINY,
+                                  f"hydra.run.dir={run}", *extra))
+    for needle in needles:
+        assert needle in line, line
+    assert not (run / "checkpoints").exists()
+
+
 def _one_pixel(root):
     write_transforms_scene(root, n=3, w=1, h=1)
 

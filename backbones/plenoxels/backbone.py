@@ -77,10 +77,6 @@ class Plenoxels(Backbone):
     def _check_config(cfg: Any) -> None:
         if not cfg.reso or any(len(r) != 3 or min(r) < 2 for r in cfg.reso):
             raise ConfigError(f"backbone 'plenoxels': reso must be a list of [X, Y, Z] with sides >= 2, got {cfg.reso}")
-        if not 0 <= cfg.sh_degree <= 3:
-            raise ConfigError(f"backbone 'plenoxels': sh_degree must be 0..3, got {cfg.sh_degree}")
-        if cfg.prune not in ("weight", "density", "none"):
-            raise ConfigError(f"backbone 'plenoxels': prune must be weight|density|none, got '{cfg.prune}'")
 
     # ------------------------------------------------------------------ grid access
     @property

@@ -4,6 +4,7 @@
 #
 #   benchmarks/results/run_studies.sh                          # all three studies, quick preset, seed 0
 #   SEEDS=0,1,2 LAUNCHER=joblib benchmarks/results/run_studies.sh reference_count
+#   SUFFIX=_real EXTRA="dataset=transforms dataset.path=..." benchmarks/results/run_studies.sh grayscale_comparison
 set -uo pipefail
 cd "$(dirname "$0")/../.."
 BIN=${BIN:-.venv/bin}
@@ -11,12 +12,13 @@ PRESET=${PRESET:-quick}
 LAUNCHER=${LAUNCHER:-basic}        # basic (sequential) | joblib | submitit_local | submitit_slurm
 SEEDS=${SEEDS:-0}
 EXTRA=${EXTRA:-}                   # further overrides, e.g. "dataset=transforms dataset.path=/data/pollen"
+SUFFIX=${SUFFIX:-}                 # e.g. _real: writes benchmarks/results/<study>_real/ (another dataset's study)
 export ARCSEM_CACHE=${ARCSEM_CACHE:-$PWD/multirun/results/cache}   # fresh stage-1 cache for these runs
 STUDIES=${*:-grayscale_comparison colorization_ablation reference_count}
 
 for study in $STUDIES; do
-  sweep=multirun/results/$study-$PRESET
-  out=benchmarks/results/$study
+  sweep=multirun/results/$study$SUFFIX-$PRESET
+  out=benchmarks/results/$study$SUFFIX
   rm -rf "$sweep" "$out"
   cmd="$BIN/arcsem experiment=$study preset=$PRESET seed=$SEEDS hydra/launcher=$LAUNCHER hydra.sweep.dir=$sweep $EXTRA"
   echo "== $cmd"
@@ -25,7 +27,7 @@ for study in $STUDIES; do
   wall=$(( $(date +%s) - start ))
   $BIN/arcsem-report "$sweep" --out "$out" || exit 1
   cat > "$out/RUN.md" <<EOT
-# $study ($PRESET preset)
+# $study$SUFFIX ($PRESET preset)
 
 - command: \`$cmd\` (exit status $status), then \`$BIN/arcsem-report $sweep --out $out\`
 - date: $(date -u '+%Y-%m-%d %H:%M UTC'); wall time of the sweep: ${wall} s

@@ -11,7 +11,9 @@ import math
 import os
 from pathlib import Path
 
-__all__ = ["cgroup_cpu_limit", "usable_cores"]
+__all__ = ["SPINCOUNT", "cgroup_cpu_limit", "shorter_openmp_spin", "usable_cores"]
+
+SPINCOUNT = "1000"
 
 
 def cgroup_cpu_limit(root: str | os.PathLike = "/sys/fs/cgroup") -> float | None:
@@ -44,3 +46,18 @@ def usable_cores(root: str | os.PathLike = "/sys/fs/cgroup") -> int:
     if limit is not None:
         n = min(n, max(1, math.ceil(limit)))
     return max(1, n)
+
+
+def shorter_openmp_spin(environ=os.environ) -> bool:
+    """Set ``GOMP_SPINCOUNT`` to :data:`SPINCOUNT` unless the user chose a wait policy or spin count; True if set.
+
+    PyTorch's CPU operations run on GNU OpenMP, whose threads spin about 300,000 iterations at every barrier
+    before they sleep. On a machine shared with other processes they burn the cores those processes need:
+    beside one busy process a 2DGS + ACT step took 4.3x its idle time; with a spin of 1,000 1.6x, idle within
+    the noise (10,000: 1.75x; ``OMP_WAIT_POLICY=PASSIVE``: 1.6x but 11 % slower idle; benchmarks/step_ab.py,
+    figures in the README, "Rasterisers"). Must run before torch is imported (libgomp reads it once).
+    """
+    if "GOMP_SPINCOUNT" in environ or "OMP_WAIT_POLICY" in environ:
+        return False
+    environ["GOMP_SPINCOUNT"] = SPINCOUNT
+    return True

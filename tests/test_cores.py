@@ -43,3 +43,25 @@ def test_threads_null_sets_the_usable_cores(monkeypatch):
         assert set_threads(None) == 1 and torch.get_num_threads() == 1
     finally:
         torch.set_num_threads(before)
+
+
+def test_shorter_openmp_spin_respects_the_users_choice():
+    from arcsem.cores import SPINCOUNT, shorter_openmp_spin
+
+    env = {}
+    assert shorter_openmp_spin(env) and env == {"GOMP_SPINCOUNT": SPINCOUNT}
+    for mine in ({"GOMP_SPINCOUNT": "300000"}, {"OMP_WAIT_POLICY": "PASSIVE"}):
+        env = dict(mine)
+        assert not shorter_openmp_spin(env) and env == mine
+
+
+def test_the_cli_sets_the_spin_before_torch_loads():
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in ("GOMP_SPINCOUNT", "OMP_WAIT_POLICY")}
+    code = "import sys, os, arcsem.cli.main; print(os.environ['GOMP_SPINCOUNT'], 'torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    spin, torch_loaded = out.split()
+    assert spin == "1000"
+    assert torch_loaded == "False"  # the CLI module set it before anything imported torch (libgomp reads it once)

@@ -18,6 +18,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ..cores import shorter_openmp_spin
+
+shorter_openmp_spin()  # before anything imports torch: OpenMP threads that spin less on a shared machine
+
 import hydra
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig

@@ -160,4 +160,17 @@ inline at::Tensor pair_storage(int64_t P, const at::Tensor& like) {
 template <typename R>
 inline R* pair_records(const at::Tensor& bytes) { return reinterpret_cast<R*>(bytes.data_ptr<uint8_t>()); }
 
+// Starts a tile of nx x ny pixels in a compositing state st (Tile2 / Tile3: stride, row_live, live, tr): every
+// pixel live with transmittance 1. Returns the number of live pixels.
+template <template <typename> class St, typename T>
+inline int start_tile(St<T>& st, int nx, int ny) {
+  const int S = st.stride;
+  for (int y = 0; y < ny; ++y) {
+    st.row_live[y] = nx;
+    std::fill(st.live.begin() + y * S, st.live.begin() + y * S + nx, T(1));
+  }
+  std::fill(st.tr.begin(), st.tr.end(), T(1));
+  return nx * ny;
+}
+
 }  // namespace arcsem

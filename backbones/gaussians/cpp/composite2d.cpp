@@ -7,13 +7,7 @@ namespace c2d {
 template <typename T>
 void forward_tile(const Pair2<T>* pr, int64_t n, int nx, int ny, const T* mc, T near, T lp, Tile2<T>& st) {
   const int S = st.stride;
-  int live_total = 0;
-  for (int y = 0; y < ny; ++y) {
-    st.row_live[y] = nx;
-    live_total += nx;
-    std::fill(st.live.begin() + y * S, st.live.begin() + y * S + nx, T(1));
-  }
-  std::fill(st.tr.begin(), st.tr.end(), T(1));
+  int live_total = start_tile(st, nx, ny);
   for (int64_t j = 0; j < n && live_total > 0; ++j) {
     const Pair2<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
     if (q.x1 < q.x0 || q.y1 < q.y0) continue;

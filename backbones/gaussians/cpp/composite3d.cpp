@@ -96,13 +96,7 @@ inline void eval3(const Pair3<T>& q, int lx, T dy, T& dx, T& g, T& alpha, bool& 
 template <typename T>
 void forward_tile(const Pair3<T>* pr, int64_t n, int nx, int ny, Tile3<T>& st) {
   const int S = st.stride;
-  int live_total = 0;
-  for (int y = 0; y < ny; ++y) {
-    st.row_live[y] = nx;
-    live_total += nx;
-    std::fill(st.live.begin() + y * S, st.live.begin() + y * S + nx, T(1));
-  }
-  std::fill(st.tr.begin(), st.tr.end(), T(1));
+  int live_total = start_tile(st, nx, ny);
   for (int64_t j = 0; j < n && live_total > 0; ++j) {
     const Pair3<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
     if (q.x1 < q.x0 || q.y1 < q.y0) continue;

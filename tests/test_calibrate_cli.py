@@ -91,53 +91,96 @@ def test_inspect_prints_the_table(tmp_path, capsys):
     assert "img_2.png" in out and "no tilt, rotation, pixel size" in out and "data bar: 10 rows" in out
 
 
-@pytest.fixture(scope="module")
-def tiny_scene(tmp_path_factory):
+def test_focal_length_checks(tmp_path, capsys):
+    folder = write_series(tmp_path / "in", n=3)
+    code, err = run(capsys, folder, "--out", tmp_path / "out", "--tilts", "0,3,6", "--focal-px", "5000")
+    assert code == 2 and err == "error: --focal-px 5000: a focal length is for --camera perspective only"
+    code, err = run(capsys, folder, "--out", tmp_path / "out", "--tilts", "0,3,6", "--camera", "perspective",
+                    "--focal-px", "-3")
+    assert code == 2 and "--focal-px -3: must be a positive number of pixels" in err
+    assert not (tmp_path / "out").exists()
+
+
+def tiny(root, camera):
     from arcsem.synthetic import generate_scene
 
-    root = tmp_path_factory.mktemp("scene")
-    generate_scene(root, width=240, height=160, camera="orthographic", texture=0.6, n_horizontal=13,
-                   n_vertical=8, test_every=6, supersample=1, progress=False)
+    generate_scene(root, width=240, height=160, camera=camera, texture=0.6, n_horizontal=13, n_vertical=8,
+                   test_every=6, supersample=1, progress=False)
     return root
 
 
-@pytest.mark.slow
-def test_tiny_scene_end_to_end(tiny_scene, tmp_path, capsys):
-    import pycolmap
+@pytest.fixture(scope="module")
+def tiny_scene(tmp_path_factory):
+    return tiny(tmp_path_factory.mktemp("scene"), "orthographic")
 
+
+def calibrate_tiny(scene, tmp_path, capsys, *flags):
+    """Calibrate the tiny scene's images with its true stage angles; returns (calibrated, true) scenes."""
     from arcsem.data import read_transforms
 
-    meta = json.loads((tiny_scene / "transforms.json").read_text())
+    meta = json.loads((scene / "transforms.json").read_text())
     folder = tmp_path / "raw"
     folder.mkdir()
     rows = ["file,tilt,rotation"]
     for f in meta["frames"]:
-        shutil.copy(tiny_scene / f["file_path"], folder)
+        shutil.copy(scene / f["file_path"], folder)
         rows.append(f"{f['file_path'].split('/')[-1]},{f['elevation'] - 90},{-f['azimuth']}")
     (tmp_path / "tilts.csv").write_text("\n".join(rows))
     before = {p.name: p.read_bytes() for p in folder.iterdir()}
     px = 2.5 / (0.9 * 160)  # the scene's world units per pixel
     code = main([str(folder), "--out", str(tmp_path / "ds"), "--tilts", str(tmp_path / "tilts.csv"),
-                 "--holdout", "test_*", "--pixel-size", str(px)])
+                 "--holdout", "test_*", "--pixel-size", str(px), *flags])
     assert code == 0, capsys.readouterr().err
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == before          # the input is never written
-    report = json.loads((tmp_path / "ds" / "report" / "calibration.json").read_text())
-    assert report["rms_px"] < 0.5
-    scene = read_transforms(tmp_path / "ds")
-    truth = read_transforms(tiny_scene)
-    assert scene.train.cameras.is_ortho and len(scene.test) == len(truth.test) > 0
-    assert scene.micrometres_per_unit == pytest.approx(1.0) and scene.train.masks is not None
-    # rotations agree with the truth up to one world rotation
+    return read_transforms(tmp_path / "ds"), read_transforms(scene)
+
+
+def rotation_errors(truth, scene) -> np.ndarray:
+    """Degrees between calibrated and true rotations after one world rotation."""
     def rot(s):
         return {n: s.train.cameras.world_to_cam[i, :3, :3].double().numpy() for i, n in enumerate(s.train.names)}
     a, b = rot(truth), rot(scene)
     Rt, Rc = np.stack([a[n] for n in sorted(a)]), np.stack([b[n] for n in sorted(a)])
     U, _, Vt = np.linalg.svd(np.einsum("nji,njk->ik", Rc, Rt))
     E = np.einsum("nij,jk,nlk->nil", Rc, U @ Vt, Rt)
-    err = np.degrees(np.arccos(np.clip((np.trace(E, axis1=1, axis2=2) - 1) / 2, -1, 1)))
-    assert err.max() < 0.5
+    return np.degrees(np.arccos(np.clip((np.trace(E, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+
+
+@pytest.mark.slow
+def test_tiny_scene_end_to_end(tiny_scene, tmp_path, capsys):
+    import pycolmap
+
+    scene, truth = calibrate_tiny(tiny_scene, tmp_path, capsys)
+    report = json.loads((tmp_path / "ds" / "report" / "calibration.json").read_text())
+    assert report["rms_px"] < 0.5
+    assert scene.train.cameras.is_ortho and len(scene.test) == len(truth.test) > 0
+    assert scene.micrometres_per_unit == pytest.approx(1.0) and scene.train.masks is not None
+    assert rotation_errors(truth, scene).max() < 0.5
     rec = pycolmap.Reconstruction(str(tmp_path / "ds" / "sparse" / "0"))
-    assert rec.num_images() == len(before) and rec.num_points3D() == len(scene.points)
+    assert rec.num_images() == len(scene.train) + len(scene.test) and rec.num_points3D() == len(scene.points)
     for name in ("residuals.png", "report.md"):
         assert (tmp_path / "ds" / "report" / name).is_file()
     assert len(list((tmp_path / "ds" / "report").glob("overlay_*.png"))) == 2
+
+
+@pytest.mark.slow
+def test_tiny_far_pinhole_scene_calibrates_as_a_pinhole(tmp_path_factory, tmp_path, capsys):
+    import pycolmap
+
+    focal = 50_000.0 * 240 / 3072                              # the scene's far pinhole (the paper's, scaled)
+    root = tiny(tmp_path_factory.mktemp("pinhole"), "pinhole")
+    scene, truth = calibrate_tiny(root, tmp_path, capsys, "--camera", "perspective", "--focal-px", str(focal))
+    meta = json.loads((tmp_path / "ds" / "transforms.json").read_text())
+    assert meta["camera_model"] == "PINHOLE" and not scene.train.cameras.is_ortho
+    assert scene.train.cameras.K[0, 0, 0].item() == pytest.approx(focal)
+    assert rotation_errors(truth, scene).max() < 0.5
+    report = json.loads((tmp_path / "ds" / "report" / "calibration.json").read_text())
+    assert report["rms_px"] < 0.5 and report["bundle"]["perspective"]["focal_px"] == pytest.approx(focal)
+    assert "Camera: perspective (pinhole), focal length" in (tmp_path / "ds" / "report" / "report.md").read_text()
+    rec = pycolmap.Reconstruction(str(tmp_path / "ds" / "sparse" / "0"))
+    cam = next(iter(rec.cameras.values()))
+    assert cam.params[0] == pytest.approx(focal)
+    # the COLMAP model and transforms.json hold the same cameras: its points project alike through both
+    img = next(im for im in rec.images.values() if im.name == "h_00.png")
+    w2c = scene.train.cameras.world_to_cam[scene.train.names.index("h_00")].double().numpy()
+    np.testing.assert_allclose(img.cam_from_world().matrix(), w2c[:3], atol=1e-6)

@@ -37,7 +37,7 @@ import numpy as np
 from .geometry import _pairs, left_jacobian, project, rodrigues, rot_x, rot_z, skew, triangulate
 from .tracks import Observations
 
-__all__ = ["OrthoViews", "StageModel", "bundle_adjust", "residuals"]
+__all__ = ["OrthoViews", "StageModel", "bundle_adjust", "eliminated_jacobian", "residuals"]
 
 _C0 = np.diag([1.0, -1.0, -1.0])
 
@@ -175,29 +175,38 @@ class _Problem:
         from scipy.sparse import coo_matrix, vstack
 
         views, X = self._state(p)
-        o, n = self.obs, len(self.obs)
-        J = self._local_jacobian(p, views, X)
+        o = self.obs
         G = views.scale[o.vi, None, None] * views.R[o.vi, :2, :]       # [n, 2, 3] d uv / d X
-        A = np.zeros((o.n_points, 3, 3))
-        np.add.at(A, o.pj, np.einsum("nki,nkj->nij", G, G))
-        A_inv = np.linalg.inv(A + 1e-9 * np.eye(3))
-        order = np.argsort(o.pj, kind="stable")
-        counts = np.bincount(o.pj, minlength=o.n_points)
-        k1, k2 = _pairs(order, counts, np.concatenate([[0], np.cumsum(counts)[:-1]]))
-        GA = np.einsum("nij,njk->nik", G, A_inv[o.pj])
-        blocks = -np.einsum("mij,mkj,mkl->mil", GA[k1], G[k2], J[k2])     # rows k1, columns of view(k2)
-        own = k1 == k2
-        blocks[own] += J[k1[own]]
-        rows = np.broadcast_to(((2 * k1)[:, None] + np.arange(2))[:, :, None], blocks.shape)
-        cols = np.broadcast_to(self.index[o.vi[k2]][:, None, :], blocks.shape)
-        keep = cols >= 0
-        data = coo_matrix((blocks[keep], (rows[keep], cols[keep])), shape=(2 * n, self.n_params))
+        data = eliminated_jacobian(self._local_jacobian(p, views, X), G, o, self.index, self.n_params)
         if self.stage is None:
-            return data.tocsr()
+            return data
         prior_cols = self.index[:, 3:5].ravel()
         prior = coo_matrix((self.prior_weight, (np.arange(len(prior_cols)), prior_cols)),
                            shape=(len(prior_cols), self.n_params))
         return vstack([data, prior]).tocsr()
+
+
+def eliminated_jacobian(J: np.ndarray, G: np.ndarray, obs: Observations, index: np.ndarray, n_params: int):
+    """Sparse ``[2n, n_params]`` Jacobian of the residuals with the points eliminated (Kaufman's form, module
+    docstring) from the views' local Jacobian ``J [n, 2, k]`` and the points' ``G [n, 2, 3]``; ``index [V, k]``
+    maps a view's local columns to parameters (-1: held)."""
+    from scipy.sparse import coo_matrix
+
+    o, n = obs, len(obs)
+    A = np.zeros((o.n_points, 3, 3))
+    np.add.at(A, o.pj, np.einsum("nki,nkj->nij", G, G))
+    A_inv = np.linalg.inv(A + 1e-9 * np.eye(3))
+    order = np.argsort(o.pj, kind="stable")
+    counts = np.bincount(o.pj, minlength=o.n_points)
+    k1, k2 = _pairs(order, counts, np.concatenate([[0], np.cumsum(counts)[:-1]]))
+    GA = np.einsum("nij,njk->nik", G, A_inv[o.pj])
+    blocks = -np.einsum("mij,mkj,mkl->mil", GA[k1], G[k2], J[k2])     # rows k1, columns of view(k2)
+    own = k1 == k2
+    blocks[own] += J[k1[own]]
+    rows = np.broadcast_to(((2 * k1)[:, None] + np.arange(2))[:, :, None], blocks.shape)
+    cols = np.broadcast_to(index[o.vi[k2]][:, None, :], blocks.shape)
+    keep = cols >= 0
+    return coo_matrix((blocks[keep], (rows[keep], cols[keep])), shape=(2 * n, n_params)).tocsr()
 
 
 def bundle_adjust(views: OrthoViews, obs: Observations, *, stage: StageModel | None = None, fixed: int = 0,

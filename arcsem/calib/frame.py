@@ -25,7 +25,7 @@ import numpy as np
 
 from .bundle import OrthoViews
 
-__all__ = ["Frame", "apply_frame", "find_substrate", "mirror", "tilt_axes", "world_frame"]
+__all__ = ["Frame", "apply_frame", "find_substrate", "mirror", "refit_substrate", "tilt_axes", "world_frame"]
 
 
 @dataclass
@@ -184,3 +184,16 @@ def apply_frame(views: OrthoViews, X: np.ndarray, frame: Frame) -> tuple[OrthoVi
     t = views.t + views.scale[:, None] * np.einsum("vij,j->vi", views.R[:, :2, :], frame.centre)
     return replace(views, R=views.R @ frame.rotation.T, t=t), (X - frame.centre) @ frame.rotation.T
 
+
+
+def refit_substrate(views, X: np.ndarray, frame: Frame, stage_frame: bool) -> Frame:
+    """``frame`` with the substrate found again among new points ``X [N, 3]`` (already in its world frame; e.g.
+    after the perspective refinement, whose points differ): same rules as :func:`world_frame`."""
+    back = -views.R[:, 2, :].mean(0)
+    back /= np.linalg.norm(back)
+    plane = find_substrate(X, np.array([0.0, 0.0, 1.0]), 45.0) if stage_frame else find_substrate(X, back, 80.0)
+    notes = [n for n in frame.notes if not n.startswith("substrate plane through")]
+    if plane is None:
+        return replace(frame, substrate=None, height=None, notes=notes)
+    notes.append(f"substrate plane through {int(plane[2].sum())} of {len(X)} points")
+    return replace(frame, substrate=plane[2], height=X @ plane[0] - plane[1], notes=notes)

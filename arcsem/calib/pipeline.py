@@ -18,11 +18,12 @@ from ..sem.series import Series
 from .bundle import OrthoViews, StageModel, bundle_adjust, residuals
 from .factorization import init_factorization
 from .features import Features, detect_features, to_u8_stretched
-from .frame import Frame, world_frame
+from .frame import Frame, refit_substrate, world_frame
 from .geometry import rot_z, triangulate
 from .init import init_from_stage, strongest_tracks
 from .masks import specimen_masks
 from .matching import PairMatches, match_descriptors, ransac_affine_fundamental
+from .perspective import PinholeViews, from_ortho, perspective_adjust
 from .refine import refine_observations
 from .tracks import Observations, build_tracks
 
@@ -50,13 +51,15 @@ class CalibrationOptions:
     masks: bool = True
     refine: bool = True             # sub-pixel refinement of the observations at full resolution (.refine)
     flip_depth: bool = False        # the mirrored relief (microscopes that tilt the other way; .init, .frame)
+    camera: str = "orthographic"    # orthographic | perspective (a far pinhole refined from it: .perspective)
+    focal_px: float | None = None   # perspective: hold this focal length (pixels); None: estimate it
 
 
 @dataclass
 class Calibration:
     """Result: views and points in the world frame (:mod:`.frame`), observations, statistics."""
 
-    views: OrthoViews
+    views: OrthoViews | PinholeViews
     X: np.ndarray
     colors: np.ndarray
     obs: Observations
@@ -129,7 +132,7 @@ def _initial(series: Series, obs: Observations, scale: np.ndarray, opts: Calibra
     return views, None, {"method": "affine factorisation", "block": [series.names[b] for b in block]}
 
 
-def _reject(views: OrthoViews, X: np.ndarray, obs: Observations, floor_px: float, n_sigma: float = 3.0
+def _reject(views: OrthoViews | PinholeViews, X: np.ndarray, obs: Observations, floor_px: float, n_sigma: float = 3.0
             ) -> Observations:
     """``obs`` without the observations off by more than ``max(floor_px, n_sigma robust sigmas)``."""
     err = residuals(views, X, obs)
@@ -158,7 +161,34 @@ def _adjust(views, stage: StageModel | None, obs_all: Observations, opts: Calibr
     return views, _triangulated(views, obs_final), obs_final, info
 
 
-def _statistics(series: Series, views: OrthoViews, X: np.ndarray, obs: Observations, n_before: int) -> dict:
+def _adjust_perspective(views: OrthoViews, obs_all: Observations, opts: CalibrationOptions,
+                        size: tuple[int, int], staged: bool):
+    """:func:`_adjust` for pinhole views started from the orthographic ``views`` (:mod:`.perspective`); every
+    observation is judged again (the orthographic fit rejected those its missing perspective put off)."""
+    from .write import PAPER_FOCAL_PER_PX
+
+    focal = opts.focal_px or PAPER_FOCAL_PER_PX * size[0]
+    pv = from_ortho(views, focal, np.array(size, float) / 2)
+
+    def points(v: PinholeViews, o: Observations) -> np.ndarray:  # Gauss-Newton from the orthographic points
+        return v.triangulate(o, _triangulated(views, o))
+
+    obs = strongest_tracks(obs_all, opts.max_ba_tracks)
+    obs = _reject(pv, points(pv, obs), obs, 3 * opts.reject_px, 5.0)
+    info = {}
+    for _ in range(2):
+        pv, X, info = perspective_adjust(pv, points(pv, obs), obs, estimate_focal=opts.focal_px is None,
+                                         sigma_deg=opts.angle_sigma if staged else None, f_scale=opts.f_scale,
+                                         max_nfev=100)
+        obs = _reject(pv, X, obs, opts.reject_px)
+    obs_final = obs_all
+    for _ in range(2):
+        obs_final = _reject(pv, points(pv, obs_final), obs_final, opts.reject_px)
+    info.update(focal_start_px=float(focal), focal_estimated=opts.focal_px is None)
+    return pv, points(pv, obs_final), obs_final, info
+
+
+def _statistics(series: Series, views: OrthoViews | PinholeViews, X: np.ndarray, obs: Observations, n_before: int) -> dict:
     err = residuals(views, X, obs)
     per_view = []
     for v, name in enumerate(series.names):
@@ -219,6 +249,13 @@ def calibrate(series: Series, opts: CalibrationOptions | None = None, log=print)
     t2 = time.perf_counter()
     views, X, obs_final, ba_info = _adjust(views, stage, obs, opts)
     views, X, frame = world_frame(views, X, stage is not None, opts.flip_depth)
+    if opts.camera == "perspective":
+        ortho_rms = float(np.sqrt(np.mean(residuals(views, X, obs_final) ** 2)))
+        views, X, obs_final, persp = _adjust_perspective(views, obs, opts, series.size, stage is not None)
+        ba_info["perspective"] = {**persp, "orthographic_rms_px": ortho_rms}
+        frame = refit_substrate(views, X, frame, stage is not None)
+        log(f"perspective: focal {views.focal:.0f} px (start {persp['focal_start_px']:.0f}), orthographic RMS "
+            f"{ortho_rms:.3f} px")
     timings["adjustment_s"] = time.perf_counter() - t2
     stats = _statistics(series, views, X, obs_final, len(obs))
     stats.update(init=init_info, bundle=ba_info, pairs=len(matches), feature_scale=fscale)

@@ -73,6 +73,15 @@ def overlay(img8: np.ndarray, found: np.ndarray, projected: np.ndarray, axes_2d:
     return img
 
 
+def _camera_line(cal) -> str:
+    persp = cal.stats.get("bundle", {}).get("perspective")
+    if persp is None:
+        return "Camera: orthographic (parallel projection)."
+    how = f"estimated, from a start of {persp['focal_start_px']:.0f} px" if persp["focal_estimated"] else "given"
+    return (f"Camera: perspective (pinhole), focal length {persp['focal_px']:.0f} px ({how}); the orthographic "
+            f"adjustment it started from: RMS {persp['orthographic_rms_px']:.3f} px.")
+
+
 def _table(per_view: list[dict], splits: list[str], tilts) -> str:
     lines = ["| view | split | stage tilt | observations | RMS px | median px |", "|---|---|---|---|---|---|"]
     for row, split, tilt in zip(per_view, splits, tilts):
@@ -113,6 +122,7 @@ def write_report(folder: Path, series: Series, cal, options: dict, command: str)
             f"(mean length {stats['mean_track_length']:.1f}); {stats['rejected_observations']} observations rejected "
             f"as outliers; {stats['pairs']} verified image pairs."), "",
             f"Initialisation: {stats['init']['method']}. World unit: one {cal.unit}. Crop: {series.crop.describe()}.",
+            "", _camera_line(cal),
             "", "Tilt axes (between consecutive views):", *axis_lines, "", *[f"- {n}" for n in cal.frame.notes], "",
             _table(stats["per_view"], cal.splits, series.tilts), "",
             "Images: `residuals.png`, " + ", ".join(f"`overlay_{series.names[v].replace('/', '_')}.png`" for v in picks)]

@@ -7,8 +7,10 @@ tracks, for tools that need one; images relative to ``images/``) and ``report/``
 
 Orthographic view ``i`` (``u = s_i P R_i X + t_i``) becomes ``K = [[s_i, 0, w/2], [0, s_i, h/2], [0, 0, 1]]``
 and ``world_to_cam = [R_i | ((t_i - c) / s_i, D)]``: its camera plane lies ``D`` (twice the points' radius)
-in front of the origin, so every point has positive depth. The far pinhole has the paper's focal length
-(50,000 px at 3072 px width, scaled) at distance ``f / s_i``: the same pixels at the origin's depth.
+in front of the origin, so every point has positive depth. Its COLMAP model is a far pinhole with the
+paper's focal length (50,000 px at 3072 px width, scaled) at distance ``f / s_i``: the same pixels at the
+origin's depth. Pinhole views (``--camera perspective``, :mod:`.perspective`) are written as they are:
+``camera_model: PINHOLE`` with their focal length, and the same cameras in the COLMAP model.
 """
 from __future__ import annotations
 
@@ -18,7 +20,7 @@ from ..cameras import opengl_to_opencv
 from ..data.ply import write_points
 from ..files import write_json_atomic
 
-__all__ = ["PAPER_FOCAL_PER_PX", "ortho_world_to_cam", "write_colmap_model", "write_dataset"]
+__all__ = ["PAPER_FOCAL_PER_PX", "colmap_cameras", "ortho_world_to_cam", "write_colmap_model", "write_dataset"]
 
 PAPER_FOCAL_PER_PX = 50_000.0 / 3072  # the paper's RealityCapture focal length per pixel of image width
 
@@ -46,12 +48,21 @@ def _c2w_opengl(w2c: np.ndarray) -> np.ndarray:
     return opengl_to_opencv(torch.from_numpy(c2w)).numpy()  # the flip is its own inverse
 
 
-def write_colmap_model(folder, names: list[str], R, t, scale, size, X, colors, obs) -> None:
-    """``cameras/images/points3D.bin`` of far pinhole cameras with the tracks (module docstring)."""
+def colmap_cameras(views, size: tuple[int, int]) -> tuple[float, np.ndarray]:
+    """The COLMAP model's pinhole cameras of ``views`` (module docstring): ``(focal px, translations [V, 3])``."""
+    if hasattr(views, "focal"):
+        return float(views.focal), views.T
+    focal = PAPER_FOCAL_PER_PX * size[0]
+    c = np.array(size, float) / 2
+    return focal, np.concatenate([(views.t - c) / views.scale[:, None], (focal / views.scale)[:, None]], 1)
+
+
+def write_colmap_model(folder, names: list[str], views, size, X, colors, obs) -> None:
+    """``cameras/images/points3D.bin`` of pinhole cameras (:func:`colmap_cameras`) with the tracks."""
     import pycolmap
 
     w, h = size
-    focal = PAPER_FOCAL_PER_PX * w
+    focal, T = colmap_cameras(views, size)
     folder.mkdir(parents=True, exist_ok=True)
     rec = pycolmap.Reconstruction()
     rec.add_camera_with_trivial_rig(pycolmap.Camera(model="PINHOLE", width=w, height=h,
@@ -61,9 +72,8 @@ def write_colmap_model(folder, names: list[str], R, t, scale, size, X, colors, o
         sel = np.nonzero(obs.vi == v)[0]
         index_in_view[sel] = np.arange(len(sel))
         pts2d = [pycolmap.Point2D(obs.uv[k]) for k in sel]
-        trans = np.r_[(t[v] - np.array([w / 2, h / 2])) / scale[v], focal / scale[v]]
         image = pycolmap.Image(name=f"{names[v]}.png", camera_id=1, image_id=v + 1, points2D=pts2d)
-        rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pycolmap.Rotation3d(R[v]), trans))
+        rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pycolmap.Rotation3d(views.R[v]), T[v]))
     grey = np.clip(np.round(colors * 255), 0, 255).astype(np.uint8)
     order = np.argsort(obs.pj, kind="stable")
     bounds = np.searchsorted(obs.pj[order], np.arange(len(X) + 1))
@@ -74,14 +84,28 @@ def write_colmap_model(folder, names: list[str], R, t, scale, size, X, colors, o
     rec.write_binary(str(folder))
 
 
-def write_dataset(out, names, images, masks, R, t, scale, X, colors, obs, *, size, splits, pixel_size_um,
+def _world_to_cam(views, X: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, str]:
+    """``world_to_cam [V, 4, 4]``, ``K [V, 3, 3]`` and the ``camera_model`` of orthographic or pinhole views."""
+    if hasattr(views, "focal"):
+        V = len(views)
+        w2c = np.tile(np.eye(4), (V, 1, 1))
+        w2c[:, :3, :3], w2c[:, :3, 3] = views.R, views.T
+        K = np.tile(np.eye(3), (V, 1, 1))
+        K[:, 0, 0] = K[:, 1, 1] = views.focal
+        K[:, 0, 2], K[:, 1, 2] = views.centre
+        return w2c, K, "PINHOLE"
+    radius = float(np.linalg.norm(X, axis=1).max()) if len(X) else 1.0
+    return (*ortho_world_to_cam(views.R, views.t, views.scale, size, 2.0 * radius + 1e-6), "ORTHOGRAPHIC")
+
+
+def write_dataset(out, names, images, masks, views, X, colors, obs, *, size, splits, pixel_size_um,
                   aabb, extra: dict) -> None:
-    """Write the dataset folder ``out`` (module docstring); ``images`` uint8/uint16 ``[h, w]`` (cropped)."""
+    """Write the dataset folder ``out`` (module docstring) of orthographic or pinhole ``views``; ``images``
+    uint8/uint16 ``[h, w]`` (cropped)."""
     import cv2
 
     (out / "images").mkdir(parents=True, exist_ok=True)
-    radius = float(np.linalg.norm(X, axis=1).max()) if len(X) else 1.0
-    w2c, K = ortho_world_to_cam(R, t, scale, size, 2.0 * radius + 1e-6)
+    w2c, K, model = _world_to_cam(views, X, size)
     c2w = _c2w_opengl(w2c)
     frames = []
     for i, name in enumerate(names):
@@ -95,8 +119,8 @@ def write_dataset(out, names, images, masks, R, t, scale, X, colors, obs, *, siz
             frame["mask_path"] = f"masks/{name}.png"
         frames.append({**frame, **extra.get("frames", [{}] * len(names))[i]})
     write_points(out / "points3d.ply", X, np.repeat(colors[:, None], 3, 1))
-    write_colmap_model(out / "sparse" / "0", names, R, t, scale, size, X, colors, obs)
-    meta = {"camera_model": "ORTHOGRAPHIC", "w": size[0], "h": size[1], "cx": size[0] / 2, "cy": size[1] / 2,
+    write_colmap_model(out / "sparse" / "0", names, views, size, X, colors, obs)
+    meta = {"camera_model": model, "w": size[0], "h": size[1], "cx": float(K[0, 0, 2]), "cy": float(K[0, 1, 2]),
             "aabb": np.asarray(aabb).tolist(), "ply_file_path": "points3d.ply"}
     if pixel_size_um:
         meta["pixel_size_um"] = float(pixel_size_um)

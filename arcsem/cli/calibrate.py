@@ -40,6 +40,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--init", choices=("auto", "stage", "factorization"), default=O.init,
                     help="initial cameras: stage angles (auto: the metadata or --tilts) or affine factorisation")
     ap.add_argument("--per-view-scale", action="store_true", help="one magnification per view (drift)")
+    ap.add_argument("--camera", choices=("orthographic", "perspective"), default=O.camera,
+                    help="orthographic (parallel beam: high magnification) or perspective (a far pinhole refined "
+                    "from it: low magnification, where the scan's pivot is not far against the field of view)")
+    ap.add_argument("--focal-px", type=float, help="perspective: hold this focal length in pixels (default: "
+                    "estimate it, starting from the paper's 50,000 px at 3072 px width)")
     ap.add_argument("--angle-sigma", type=float, default=O.angle_sigma,
                     help="degrees: how far the stage angles are trusted (prior of their per-view corrections)")
     ap.add_argument("--flip-depth", action="store_true", help="take the mirrored relief (a microscope that tilts "
@@ -91,6 +96,19 @@ def _check_angles(series, args) -> None:
                         "or --init factorization")
 
 
+def _check_camera(args) -> None:
+    import math
+
+    from ..errors import ConfigError
+
+    if args.focal_px is None:
+        return
+    if args.camera != "perspective":
+        raise ConfigError(f"--focal-px {args.focal_px:g}: a focal length is for --camera perspective only")
+    if not math.isfinite(args.focal_px) or args.focal_px <= 0:
+        raise ConfigError(f"--focal-px {args.focal_px:g}: must be a positive number of pixels")
+
+
 def _user_masks(folder: Path, series):
     import numpy as np
 
@@ -133,8 +151,8 @@ def _write(out: Path, series, cal, args, opts) -> None:
     p_um = series.pixel_size_m * 1e6 if series.pixel_size_m else None
     command = "arcsem-calibrate " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     with protect(allowed_roots(out) + [Path(tempfile.gettempdir())], input_dirs=[series.folder], own=[out]):
-        write_dataset(out, series.names, [series.pixels(i) for i in range(len(series))], cal.masks, cal.views.R,
-                      cal.views.t, cal.views.scale, cal.X, cal.colors, cal.obs, size=series.size, splits=cal.splits,
+        write_dataset(out, series.names, [series.pixels(i) for i in range(len(series))], cal.masks, cal.views,
+                      cal.X, cal.colors, cal.obs, size=series.size, splits=cal.splits,
                       pixel_size_um=p_um, aabb=np.stack([lo - pad, hi + pad]), extra=extra)
         write_report(out, series, cal, {k: v for k, v in vars(opts).items()}, command)
 
@@ -153,8 +171,10 @@ def main(argv: list[str] | None = None) -> int:
             print(inspect_table(series))
             return 0
         _check_angles(series, args)
+        _check_camera(args)
         opts = CalibrationOptions(max_features=args.features, angle_sigma=args.angle_sigma, feature_scale=args.feature_scale, init=args.init,
-                                  per_view_scale=args.per_view_scale, holdout=args.holdout, flip_depth=args.flip_depth,
+                                  per_view_scale=args.per_view_scale, holdout=args.holdout,
+                                  camera=args.camera, focal_px=args.focal_px, flip_depth=args.flip_depth,
                                   masks=not args.no_masks and not args.masks)
         user_masks = _user_masks(Path(args.masks).expanduser().resolve(), series) if args.masks else None
         cal = calibrate(series, opts)

@@ -148,6 +148,9 @@ def test_refinement_recovers_a_subpixel_shift_under_exposure_change():
     refined = out.uv[out.vi == 0]
     err = np.linalg.norm(refined - (xy[out.pj[out.vi == 0]] + shift), axis=1)
     assert n > 20 and info["refined"] > 0.8 * n
+    # the summary adds up: every candidate is refined or dropped for its fit; nothing here is beyond the angle
+    assert info["refined"] + info["fit_failed"] == info["candidates"] == n and info["beyond_angle"] == 0
+    assert info["dropped"] == info["fit_failed"] + info["beyond_angle"] == n - int((out.vi == 0).sum())
     assert np.median(err) < 0.08 < np.median(np.linalg.norm(start - xy - shift, axis=1))
 
 

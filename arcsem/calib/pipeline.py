@@ -224,8 +224,9 @@ def _refined(series: Series, obs: Observations, views: OrthoViews, opts: Calibra
     obs, info = refine_observations([series.pixels(i) for i in range(len(series))], obs, views.R[:, 2, :],
                                     opts.max_angle, _feature_scale(opts, series.size))
     timings["refine_s"] = time.perf_counter() - t0
-    log(f"refinement: {info['refined']} of {info['candidates']} observations moved to their track's reference "
-        f"patch (median {info['median_shift_px']:.2f} px), {info['dropped']} dropped ({timings['refine_s']:.1f} s)")
+    log(f"refinement: {info['refined']} of {info['candidates']} observations moved to their track's reference patch "
+        f"(median {info['median_shift_px']:.2f} px); dropped: {info['fit_failed']} whose fit failed, "
+        f"{info['beyond_angle']} seen more than {opts.max_angle:g} deg from their reference ({timings['refine_s']:.1f} s)")
     return obs
 
 

@@ -138,6 +138,7 @@ def refine_observations(images: list[np.ndarray], obs: Observations, forward: np
             n_ok += int(good.sum())
             shift_all.append(shift[good])
     shifts = np.concatenate(shift_all) if shift_all else np.zeros(0)
-    info = {"refined": n_ok, "candidates": len(todo), "dropped": int((~keep).sum()),
+    info = {"refined": n_ok, "candidates": len(todo), "dropped": int((~keep).sum()), "fit_failed": len(todo) - n_ok,
+            "beyond_angle": int((~keep).sum()) - (len(todo) - n_ok),
             "median_shift_px": float(np.median(shifts)) if len(shifts) else 0.0}
     return Observations(obs.vi, obs.pj, uv, obs.fi, obs.n_points).select(keep), info

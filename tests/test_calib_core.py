@@ -197,3 +197,24 @@ def test_factorised_frame_puts_the_specimen_in_front_of_its_substrate(reversed_)
     assert frame.substrate is not None and frame.substrate[150:].all() and frame.mirrored == reversed_
     assert aligned_angles(truth.R, out.R).max() < 1e-4
     assert np.median(frame.height[:150]) > 0                           # the ball on the cameras' side
+
+
+def test_the_specimen_box_leaves_out_points_just_off_the_substrate():
+    """Substrate points scattered a little off the plane (noise, a slightly curved substrate) are neither the
+    substrate's inliers nor the specimen: the frame's origin and the specimen points must ignore them."""
+    from arcsem.calib.frame import specimen_points, world_frame
+
+    rng = np.random.default_rng(1)
+    views, X = grain_on_substrate()
+    ground = np.c_[rng.uniform(-6, 6, (600, 2)), -1.0 + rng.normal(0, 0.002, 600)]   # a wide, slightly rough plane
+    ground[:20, 2] = -1.0 + rng.uniform(0.009, 0.014, 20)  # and some just off it: above by 1.5-2.2 tolerances,
+    ground[20:40, 2] -= rng.uniform(0.009, 0.05, 20)       # and below
+    ground[:40, 0] = rng.uniform(-6, -4, 40)                                          # on one side, far out
+    X = np.r_[X[:150], ground]
+    out, Xw, frame = world_frame(views, X, stage_frame=True)
+    spec = specimen_points(frame.substrate, frame.height, len(X))
+    assert spec[:150].mean() > 0.95 and not spec[150:].any()
+    box = np.percentile(Xw[spec], 99, axis=0) - np.percentile(Xw[spec], 1, axis=0)
+    assert box[:2].max() < 2.0                                       # the ball's 1.8, not the plane's 12
+    assert np.abs(Xw[:150].mean(0)[:2]).max() < 0.1                  # the origin at the ball's centre
+    assert specimen_points(None, None, 5).all()

@@ -14,7 +14,7 @@
 * **Axes**: ``z`` along the stage normal for stage-initialised series, else along the substrate normal
   towards the cameras (without a substrate: the cameras' mean backward direction); ``x`` along the principal tilt
   axis (:func:`tilt_axes`) made orthogonal to ``z``; origin at the centre of the specimen points' box
-  (their 2nd to 98th percentiles).
+  (their 2nd to 98th percentiles; :func:`specimen_points`).
 """
 from __future__ import annotations
 
@@ -25,7 +25,8 @@ import numpy as np
 
 from .bundle import OrthoViews
 
-__all__ = ["Frame", "apply_frame", "find_substrate", "mirror", "refit_substrate", "tilt_axes", "world_frame"]
+__all__ = ["Frame", "apply_frame", "find_substrate", "mirror", "refit_substrate", "specimen_points", "tilt_axes",
+           "world_frame"]
 
 
 @dataclass
@@ -40,6 +41,18 @@ class Frame:
     mirrored: bool
     notes: list[str]
     height: np.ndarray | None = None
+
+
+def specimen_points(substrate: np.ndarray | None, height: np.ndarray | None, n_points: int) -> np.ndarray:
+    """``[N]`` bool: the points clearly above the substrate (more than three times the plane's tolerance, the
+    largest distance of its inliers); every point without a substrate, or when fewer than 10 are that high.
+    Points just off the plane (its scatter, points on a tilted edge of the substrate) are not the specimen:
+    counted in, they stretched the specimen's box several times (and with it the Gaussians' length scale)."""
+    if substrate is None or height is None:
+        return np.ones(n_points, bool)
+    tol = float(np.abs(height[substrate]).max()) if substrate.any() else 0.0
+    spec = height > 3.0 * tol
+    return spec if spec.sum() >= 10 else np.ones(n_points, bool)
 
 
 def find_substrate(X: np.ndarray, towards: np.ndarray, max_angle: float = 60.0, iters: int = 400, seed: int = 0
@@ -170,10 +183,9 @@ def world_frame(views: OrthoViews, X: np.ndarray, stage_frame: bool, flip: bool 
         x = views.R[0, 0] - (views.R[0, 0] @ z) * z
     x /= np.linalg.norm(x)
     rot = np.stack([x, np.cross(z, x), z])
-    spec = X[~sub] if sub is not None and (~sub).sum() >= 10 else X
-    local = spec @ rot.T
-    centre = rot.T @ (0.5 * (np.percentile(local, 2, axis=0) + np.percentile(local, 98, axis=0)))
     height = None if plane is None else X @ plane[0] - plane[1]
+    local = X[specimen_points(sub, height, len(X))] @ rot.T
+    centre = rot.T @ (0.5 * (np.percentile(local, 2, axis=0) + np.percentile(local, 98, axis=0)))
     frame = Frame(rot, centre, sub, mirrored, notes, height)
     views, X = apply_frame(views, X, frame)
     return views, X, frame

@@ -18,7 +18,7 @@ from ..sem.series import Series
 from .bundle import OrthoViews, StageModel, bundle_adjust, residuals
 from .factorization import init_factorization
 from .features import Features, detect_features, to_u8_stretched
-from .frame import Frame, refit_substrate, world_frame
+from .frame import Frame, refit_substrate, specimen_points, world_frame
 from .geometry import rot_z, triangulate
 from .init import init_from_stage, strongest_tracks
 from .masks import specimen_masks
@@ -280,13 +280,10 @@ def _point_colors(feats: list[Features], obs: Observations) -> np.ndarray:
 
 
 def _masks(series: Series, cal: Calibration) -> list[np.ndarray]:
-    """Masks seeded by the points clearly above the substrate (three plane tolerances) and those on it."""
-    sub, h = cal.frame.substrate, cal.frame.height
-    if sub is None:
-        spec_pts, sub_pts = cal.X, None
-    else:
-        tol = np.abs(h[sub]).max() if sub.any() else 0.0
-        spec_pts, sub_pts = cal.X[h > 3 * tol], cal.X[sub]
+    """Masks seeded by the points clearly above the substrate (:func:`~.frame.specimen_points`) and those on it."""
+    sub = cal.frame.substrate
+    spec_pts = cal.X[specimen_points(sub, cal.frame.height, len(cal.X))]
+    sub_pts = None if sub is None else cal.X[sub]
     all_v = np.arange(len(series))
     uv = lambda P: [cal.views.project(P, Observations(np.full(len(P), v), np.arange(len(P)), None, None, len(P)))
                     for v in all_v]

@@ -131,6 +131,7 @@ def _user_masks(folder: Path, series):
 def _write(out: Path, series, cal, args, opts) -> None:
     import numpy as np
 
+    from ..calib.frame import specimen_points
     from ..calib.report import write_report
     from ..calib.write import write_dataset
     from ..guard import allowed_roots, protect
@@ -140,8 +141,7 @@ def _write(out: Path, series, cal, args, opts) -> None:
         for name in OUTPUTS:
             p = out / name
             shutil.rmtree(p) if p.is_dir() else p.unlink(missing_ok=True)
-    sub = cal.frame.substrate
-    spec = cal.X if sub is None or (~sub).sum() < 10 else cal.X[~sub]
+    spec = cal.X[specimen_points(cal.frame.substrate, cal.frame.height, len(cal.X))]
     lo, hi = np.percentile(spec, 1, axis=0), np.percentile(spec, 99, axis=0)
     pad = 0.1 * (hi - lo)
     extra = {"world_unit": cal.unit,

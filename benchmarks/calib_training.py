@@ -4,11 +4,11 @@ Protocol: ``benchmarks/calib_synthetic.py`` calibrates all 40 views of the textu
 out with ``--holdout 'test_*'``: they get cameras from the same adjustment, their pixels never train). The
 calibrated dataset lives in its own world frame (a similarity of the true one), so each run is evaluated on
 its own held-out cameras; the targets are the same clean test images. Both runs train at half the rendered
-size (``dataset.downscale=2``), one thread, seed 0, without the mesh; the calibrated run uses its own sparse
+size (``dataset.downscale=2``), one thread, the same seed (``--seeds``: several, paired), without the mesh; the calibrated run uses its own sparse
 points, masks and box. Printed: held-out and training PSNR/SSIM of both runs and their difference.
 
     .venv/bin/python benchmarks/calib_training.py [--width 576 --height 384 --texture 0.6]
-        [--models orthographic] [--bench /tmp/arcsem_calib_bench] [--out /tmp/arcsem_calib_training]
+        [--models orthographic] [--bench /tmp/arcsem_calib_bench] [--out /tmp/arcsem_calib_training] [--seeds 0 1 2]
 
 Run ``calib_synthetic.py`` with the same ``--width/--height/--texture/--out`` first (its ``--out`` is
 ``--bench`` here).
@@ -25,14 +25,14 @@ from pathlib import Path
 __all__ = ["held_out", "train"]
 
 
-def train(dataset: Path, run_dir: Path, extra: list[str]) -> dict:
+def train(dataset: Path, run_dir: Path, extra: list[str], seed: int = 0) -> dict:
     """Run ``arcsem`` stage 1 on ``dataset`` into ``run_dir`` (reused when its metrics are complete)."""
     metrics = run_dir / "metrics.json"
     if metrics.is_file() and json.loads(metrics.read_text()).get("status") == "complete":
         return json.loads(metrics.read_text())
     exe = Path(sys.executable).with_name("arcsem")
     cmd = [str(exe), "dataset=transforms", f"dataset.path={dataset}", "dataset.downscale=2", "backbone=gs2d",
-           "act=paper", "stage=gray", "threads=1", "seed=0", "mesh.enabled=false", f"hydra.run.dir={run_dir}", *extra]
+           "act=paper", "stage=gray", "threads=1", f"seed={seed}", "mesh.enabled=false", f"hydra.run.dir={run_dir}", *extra]
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env={**os.environ, "TQDM_DISABLE": "1"})
     return json.loads(metrics.read_text())
 
@@ -53,6 +53,7 @@ def main() -> None:
     ap.add_argument("--models", nargs="+", default=["orthographic"])
     ap.add_argument("--bench", default="/tmp/arcsem_calib_bench", help="--out of calib_synthetic.py")
     ap.add_argument("--out", default="/tmp/arcsem_calib_training")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0], help="training seeds (paired: one run per camera set)")
     args, extra = ap.parse_known_args()
     rows = []
     for model in args.models:
@@ -60,17 +61,25 @@ def main() -> None:
         calibrated = Path(args.bench) / f"{model}_{args.width}" / "dataset"
         if not (calibrated / "transforms.json").is_file():
             raise SystemExit(f"{calibrated}: run benchmarks/calib_synthetic.py --out {args.bench} first")
-        for cams, data in (("true", scene), ("calibrated", calibrated)):
-            m = held_out(train(data, Path(args.out) / f"{model}_{cams}", extra))
-            rows.append({"model": model, "cameras": cams, **{f"{s}_{k}": v for s, d in m.items() for k, v in d.items()}})
-    print("| model | cameras | held-out PSNR | held-out SSIM | train PSNR | train SSIM |")
-    print("|---|---|---|---|---|---|")
+        for seed in args.seeds:
+            for cams, data in (("true", scene), ("calibrated", calibrated)):
+                run = Path(args.out) / (f"{model}_{cams}" + (f"_s{seed}" if seed else ""))
+                m = held_out(train(data, run, extra, seed))
+                rows.append({"model": model, "cameras": cams, "seed": seed,
+                             **{f"{s}_{k}": v for s, d in m.items() for k, v in d.items()}})
+    print("| model | seed | cameras | held-out PSNR | held-out SSIM | train PSNR | train SSIM |")
+    print("|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['model']} | {r['cameras']} | {r['test_psnr']:.2f} | {r['test_ssim']:.4f} | {r['train_psnr']:.2f} | "
-              f"{r['train_ssim']:.4f} |")
+        print(f"| {r['model']} | {r['seed']} | {r['cameras']} | {r['test_psnr']:.2f} | {r['test_ssim']:.4f} | "
+              f"{r['train_psnr']:.2f} | {r['train_ssim']:.4f} |")
     for model in args.models:
-        t, c = (next(r for r in rows if r["model"] == model and r["cameras"] == k) for k in ("true", "calibrated"))
-        print(f"{model}: held-out PSNR calibrated - true = {c['test_psnr'] - t['test_psnr']:+.2f} dB")
+        diffs = []
+        for seed in args.seeds:
+            t, c = (next(r for r in rows if r["model"] == model and r["cameras"] == k and r["seed"] == seed)
+                    for k in ("true", "calibrated"))
+            diffs.append(c["test_psnr"] - t["test_psnr"])
+        print(f"{model}: held-out PSNR calibrated - true = {sum(diffs) / len(diffs):+.2f} dB (mean of seeds "
+              f"{args.seeds}: {', '.join(f'{d:+.2f}' for d in diffs)})")
     Path(args.out).mkdir(parents=True, exist_ok=True)
     (Path(args.out) / "calib_training.json").write_text(json.dumps(rows, indent=1))
 

@@ -211,7 +211,7 @@ def test_the_specimen_box_leaves_out_points_just_off_the_substrate():
     ground[20:40, 2] -= rng.uniform(0.009, 0.05, 20)       # and below
     ground[:40, 0] = rng.uniform(-6, -4, 40)                                          # on one side, far out
     X = np.r_[X[:150], ground]
-    out, Xw, frame = world_frame(views, X, stage_frame=True)
+    _, Xw, frame = world_frame(views, X, stage_frame=True)
     spec = specimen_points(frame.substrate, frame.height, len(X))
     assert spec[:150].mean() > 0.95 and not spec[150:].any()
     box = np.percentile(Xw[spec], 99, axis=0) - np.percentile(Xw[spec], 1, axis=0)

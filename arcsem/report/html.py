@@ -106,7 +106,8 @@ def files_table(runs: dict[str, Path], out: Path) -> str:
             used.add(col)
             target = found.parent if found.name == "cameras.json" else found
             href = Path(os.path.relpath(target, out)).as_posix() + ("/" if target.is_dir() else "")
-            cells.append(f'<td><a href="{e(href)}">{e(target.name)}</a></td>')
+            shown = target.relative_to(run).as_posix()  # colorize/views.csv, not a second "views.csv"
+            cells.append(f'<td><a href="{e(href)}">{e(shown)}</a></td>')
         rows.append((label, cells))
     keep = [i for i, c in enumerate(cols) if c in used]
     if not keep:

@@ -334,3 +334,24 @@ def test_grid_reads_renders_of_a_shared_stage1_model(tmp_path):
     videos = copy_videos("grayscale_comparison", {"2DGS": run}, tmp_path / "out")
     assert [c for c, _ in videos] == ["2DGS: turntable"] and videos[0][1].is_file()
 
+
+
+def test_report_videos_get_a_poster_of_their_middle_frame(tmp_path):
+    """A browser shows a black box for a <video> it has not loaded: each copied video gets its middle frame
+    as poster."""
+    import cv2
+    import numpy as np
+
+    from arcsem.report.html import _section, copy_videos
+    from arcsem.report.tables import Table
+    from arcsem.train.video import write_video
+
+    run = tmp_path / "r"
+    run.mkdir()
+    frames = [np.full((64, 96, 3), 20 * i, np.uint8) for i in range(9)]   # frame i has grey level 20 i
+    write_video(run / "turntable.mp4", frames, fps=5)
+    videos = copy_videos("grayscale_comparison", {"2DGS": run}, tmp_path / "out")
+    poster = videos[0][1].with_suffix(".jpg")
+    assert poster.is_file() and abs(float(cv2.imread(str(poster)).mean()) - 80) < 6      # frame 4 of 9
+    page = _section(Table("grayscale_comparison", [], [], [], None, []), [], videos, tmp_path / "out")
+    assert 'poster="videos/grayscale_comparison/2DGS_turntable.jpg"' in page

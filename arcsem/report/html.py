@@ -87,8 +87,26 @@ def copy_videos(study: str, runs: dict[str, Path], out: Path) -> list[tuple[str,
             dst = out / "videos" / study / f"{safe}_{mp4.stem}.mp4"
             dst.parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(mp4, dst)
+            _poster(dst)
             found.append((f"{label}: {mp4.stem}", dst))
     return found
+
+
+def _poster(mp4: Path) -> Path | None:
+    """``<video>.jpg``: the video's middle frame, shown before it plays (a browser shows black without one);
+    None when the file cannot be decoded."""
+    import cv2
+
+    cap = cv2.VideoCapture(str(mp4))
+    n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    if n > 1:
+        cap.set(cv2.CAP_PROP_POS_FRAMES, n // 2)
+    ok, frame = cap.read()
+    cap.release()
+    if not ok or frame is None:
+        return None
+    out = mp4.with_suffix(".jpg")
+    return out if cv2.imwrite(str(out), frame) else None
 
 
 def files_table(runs: dict[str, Path], out: Path) -> str:
@@ -131,8 +149,9 @@ def _section(t: Table, grids: list[tuple[str, Path]], videos: list[tuple[str, Pa
         parts.append(f'<h3>training curves (stage 1)</h3><p><img src="{rel(curves)}" alt="training curves"></p>')
     if videos:
         parts.append("<h3>videos</h3><div>" + "".join(
-            f'<figure><video controls muted loop src="{rel(v)}"></video><figcaption>{e(c)}</figcaption></figure>'
-            for c, v in videos) + "</div>")
+            f'<figure><video controls muted loop preload="metadata" src="{rel(v)}"'
+            + (f' poster="{rel(v.with_suffix(".jpg"))}"' if v.with_suffix(".jpg").is_file() else "")
+            + f'></video><figcaption>{e(c)}</figcaption></figure>' for c, v in videos) + "</div>")
     if files:
         parts.append("<h3>files</h3><p class=\"notes\">Models (PLY), meshes (PLY for Blender/MeshLab, GLB for "
                      "web viewers), viewer folders (open in a 3DGS viewer, or <code>arcsem-view RUN</code>), "

@@ -93,9 +93,9 @@ def _check_render(cfg: Any) -> None:
 
 def _check_features(cc: Any) -> None:
     """``colorize.features`` / ``tcm_space``: the extractor can run here and the loss space suits it."""
-    from .colorize.features import resolve_features
+    from .colorize.features import announce_features
 
-    name = resolve_features(cc.features)
+    name = announce_features(cc.features)  # the one line per job that says what `auto` chose
     if name == "daisy":
         import cv2
 

@@ -93,17 +93,32 @@ def test_learned_features_train_deterministically_and_are_cached(tmp_path):
     assert f4.shape == (2, 16, 8, 12) and f8.shape == (2, 16, 4, 6)
 
 
-def test_auto_takes_vgg_with_imagenet_weights_else_the_measured_default(tmp_path, monkeypatch, caplog):
+def test_auto_takes_vgg_with_imagenet_weights_else_the_measured_default(tmp_path, monkeypatch):
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
-    monkeypatch.setattr(fbase, "_ANNOUNCED", set())
-    with caplog.at_level(logging.WARNING, logger="arcsem.colorize.features.base"):
-        assert resolve_features("auto") == fbase.DEFAULT_WITHOUT_IMAGENET
-        assert resolve_features("auto") == fbase.DEFAULT_WITHOUT_IMAGENET
-    assert sum("colorize.features=auto" in r.message for r in caplog.records) == 1  # said once
+    assert resolve_features("auto") == fbase.DEFAULT_WITHOUT_IMAGENET
     ckpt = tmp_path / "torch" / "hub" / "checkpoints"
     ckpt.mkdir(parents=True)
     (ckpt / "vgg16-397923af.pth").write_bytes(b"present")
     assert resolve_features("auto") == "vgg16" and resolve_features("daisy") == "daisy"
+
+
+def test_auto_choice_said_once_per_job(tmp_path, monkeypatch, caplog):
+    """Two jobs in one process (a sequential sweep): each job's log says once what `auto` chose, from the
+    config check; building the extractor in stage 2 does not say it again."""
+    from test_config import compose_with
+
+    from arcsem.preflight import check_config
+
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
+    monkeypatch.setattr(fbase, "DEFAULT_WITHOUT_IMAGENET", "daisy")  # builds without a scene
+    cfg = compose_with("colorize.features=auto")
+    for job in range(2):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="arcsem.colorize.features.base"):
+            check_config(cfg, "all")
+            assert build_extractor("auto").name == "daisy"
+        said = [r.message for r in caplog.records if "colorize.features=auto" in r.message]
+        assert len(said) == 1 and "use 'daisy' features" in said[0], (job, said)
 
 
 def test_tcm_space_choices():

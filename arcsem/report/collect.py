@@ -46,6 +46,11 @@ class Study:
     key: str                      # override key whose value is the row (e.g. "variant")
     rows: dict[str, str]          # row value -> label, in table order
     ours: str | None = None       # the paper's method: other rows are compared with it, paired by seed
+    also: tuple[str, ...] = ()    # further keys whose values join the row: "one/daisy" (key/also...)
+
+
+_REFERENCES = {"one": "1", "two": "2", "three": "3", "four": "4", "five": "5"}
+_EXTRACTORS = ("vgg16", "vgg19", "daisy", "learned", "auto")  # colorize.features, in table order
 
 
 STUDIES: dict[str, Study] = {
@@ -55,6 +60,8 @@ STUDIES: dict[str, Study] = {
         Study("colorization_ablation", "ablation",
               {"full": "full", "no_tcm": "w/o TCM", "no_ccm": "w/o CCM", "no_act": "w/o ACT",
                "no_all": "w/o all"}, "full"),
+        Study("feature_comparison", "colorize.references",  # before reference_count: it has both keys
+              {f"{r}/{f}": f"{n}, {f}" for r, n in _REFERENCES.items() for f in _EXTRACTORS}, also=("colorize.features",)),
         Study("reference_count", "colorize.references",
               {"five": "5", "four": "4", "three": "3", "two": "2", "one": "1"}, "five"),
         Study("runs", "", {}),  # every run of no known study (demo, single runs): one row per run folder
@@ -132,16 +139,26 @@ def identify(overrides: dict[str, str], choices: dict[str, str], config: dict | 
     config = config or {}
     study_cfg = config.get("study") if isinstance(config.get("study"), dict) else {}
     name = (overrides.get("experiment") or choices.get("experiment") or study_cfg.get("name"))
-    if name not in STUDIES or name == OTHER:  # infer from the row key present
-        name = next((s.name for s in STUDIES.values() if s.key and (s.key in overrides or s.key in choices)),
-                    None)
+    if name not in STUDIES or name == OTHER:  # infer from the row keys present
+        name = next((s.name for s in STUDIES.values() if s.key and all(
+            k in overrides or k in choices for k in (s.key, *s.also))), None)
     study = STUDIES.get(name)
     if study is None:
         return OTHER, None
-    row = overrides.get(study.key) or choices.get(study.key) or study_cfg.get("row")
-    if row is None and study.key == "colorize.references":
-        row = ((config.get("colorize") or {}).get("references"))
-    return name, (None if row is None else str(row))
+    parts = [_row_part(k, overrides, choices, config) for k in (study.key, *study.also)]
+    if parts[0] is None:
+        parts[0] = study_cfg.get("row")
+    if any(p is None for p in parts):
+        return name, None
+    return name, "/".join(str(p) for p in parts)
+
+
+def _row_part(key: str, overrides: dict[str, str], choices: dict[str, str], config: dict) -> Any:
+    """The value of ``key`` for a run: its override, Hydra's choice, or (``colorize.*``) the config's value."""
+    value = overrides.get(key) or choices.get(key)
+    if value is None and key.startswith("colorize."):  # e.g. colorize.references set by the experiment
+        value = (config.get("colorize") or {}).get(key.split(".", 1)[1])
+    return value
 
 
 BACKBONE_LABELS = {"gs2d": "2DGS", "gs3d": "3DGS", "plenoxels": "Plenoxels"}

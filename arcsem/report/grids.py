@@ -147,7 +147,7 @@ def _write(img: np.ndarray, path: Path) -> Path:
 
 
 KINDS = {"grayscale_comparison": ("gray", "depth"), "colorization_ablation": ("color",),
-         "reference_count": ("color",)}
+         "reference_count": ("color",), "feature_comparison": ("color",)}
 """Grid kinds per study; any other study (``runs``) gets every kind that has files."""
 STAGE1_RENDERS = ("renders/test", "stage1/renders/test", "renders/train", "stage1/renders/train")
 """Where a run keeps its stage-1 renders: its own folder, or ``stage1/`` (``share_stage1``: a link to the

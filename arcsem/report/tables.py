@@ -76,13 +76,14 @@ LAYOUTS: dict[str, list[Column]] = {
         Column("depth (held-out)", "err.", DEPTH_ABS, "min", 4), CHAMFER] + PAPER_COLUMNS,
     "colorization_ablation": COLOUR,
     "reference_count": COLOUR,
+    "feature_comparison": COLOUR,
     "runs": _ims("grey train (Table 1 protocol)", "stage1.train_paper") + _ims("grey held-out", "stage1.test") + [
         Column("depth", "err. %", DEPTH_PCT, "min", 2), CHAMFER]
     + _ims("colour non-ref.", "stage2.train_nonref") + _ims("colour held-out", "stage2.test")
     + _coverage("colour held-out", "stage2.test") + [FEATURES],
 }
 ROW_HEADER = {"grayscale_comparison": "Model", "colorization_ablation": "Variant",
-              "reference_count": "References", "runs": "Run"}
+              "reference_count": "References", "feature_comparison": "References, features", "runs": "Run"}
 
 
 @dataclass
@@ -131,14 +132,21 @@ def _summary(df: pd.DataFrame, study: str, columns: list[Column], missing: list[
     return pd.DataFrame.from_records(recs)
 
 
+def _recorded(df: pd.DataFrame, suffix: str) -> list[str]:
+    """The columns that hold what runs recorded as ``suffix``: ``suffix`` itself first, then ``*.suffix``
+    (``stage2.features``), not the config key an override sets (``colorize.features=vgg16`` is the request;
+    the run records what it got: ``vgg16-random``)."""
+    cols = [c for c in df.columns if c.endswith("." + suffix) and not c.startswith("colorize.")]
+    return ([suffix] if suffix in df.columns else []) + cols
+
+
 def _distinct(df: pd.DataFrame, suffix: str) -> list[str]:
-    cols = [c for c in df.columns if c == suffix or c.endswith("." + suffix)]
-    return sorted({str(v) for c in cols for v in df[c].dropna()})
+    return sorted({str(v) for c in _recorded(df, suffix) for v in df[c].dropna()})
 
 
 def _per_run(df: pd.DataFrame, suffix: str) -> pd.Series:
-    """The first non-null value per run among the columns named ``suffix`` or ``*.suffix``."""
-    cols = [c for c in df.columns if c == suffix or c.endswith("." + suffix)]
+    """The first non-null recorded value per run among the columns named ``suffix`` or ``*.suffix``."""
+    cols = _recorded(df, suffix)
     return df[cols].bfill(axis=1).iloc[:, 0] if cols else pd.Series([], dtype=object)
 
 

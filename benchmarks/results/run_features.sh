@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs behind benchmarks/results/features/ (see README.md there): for each dataset and seed, the TCM/CCM
 # ablation rows (full, w/o TCM, w/o CCM: one shared stage-1 model) with the default features, then the
-# feature comparison (vgg16 / daisy / learned x 1, 3, 5 references; learned x 5 is the ablation's "full").
+# feature comparison (FEATURES x 1, 3, 5 references, one sweep; default vgg16, daisy and learned).
 # One job at a time, one thread each (a shared 2-core machine); every job reuses the seed's stage-1 model.
 #
 # The ablation runs at the paper's five references and at one (REFS): with five, the references see
@@ -19,6 +19,7 @@ REFS=${REFS:-one five}
 OUT=${OUT:-multirun/features}
 export ARCSEM_CACHE=${ARCSEM_CACHE:-$PWD/multirun/features/cache}
 THREADS=${THREADS:-1}
+FEATURES=${FEATURES:-vgg16,daisy,learned}   # the comparison's extractors (vgg16: random weights without a download)
 EXTRA=${EXTRA:-}                   # further overrides, e.g. "device=cuda" (benchmarks/results/run_features_gpu.sh)
 COMMON="threads=$THREADS colorize.progress=false train.progress=false colorize.eval.video=false $EXTRA"
 
@@ -33,13 +34,10 @@ for part in $PARTS; do
           $cmd
         done
         continue
-      else
-        cmd="$BIN/arcsem experiment=feature_comparison dataset=$ds seed=$seed colorize.features=vgg16,daisy colorize.references=one,three,five $COMMON hydra.sweep.dir=$OUT/comparison-$ds-s$seed"
-        extra="$BIN/arcsem experiment=feature_comparison dataset=$ds seed=$seed colorize.features=learned colorize.references=one,three $COMMON hydra.sweep.dir=$OUT/comparison-learned-$ds-s$seed"
       fi
+      cmd="$BIN/arcsem experiment=feature_comparison dataset=$ds seed=$seed colorize.features=$FEATURES colorize.references=one,three,five $COMMON hydra.sweep.dir=$OUT/comparison-$ds-s$seed"
       echo "== $(date -u '+%H:%M:%S') $cmd"
       $cmd
-      if [ "$part" = comparison ]; then echo "== $(date -u '+%H:%M:%S') $extra"; $extra; fi
     done
   done
 done

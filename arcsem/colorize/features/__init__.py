@@ -8,10 +8,11 @@ from .base import (
     ColourSpace,
     Extractor,
     SceneContext,
+    announce_features,
     build_extractor,
     resolve_features,
     tcm_space,
 )
 
-__all__ = ["DEFAULT_WITHOUT_IMAGENET", "FEATURES", "ColourSpace", "Extractor", "SceneContext", "build_extractor",
-           "resolve_features", "tcm_space"]
+__all__ = ["DEFAULT_WITHOUT_IMAGENET", "FEATURES", "ColourSpace", "Extractor", "SceneContext", "announce_features",
+           "build_extractor", "resolve_features", "tcm_space"]

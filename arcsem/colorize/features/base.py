@@ -29,8 +29,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-__all__ = ["DEFAULT_WITHOUT_IMAGENET", "FEATURES", "ColourSpace", "Extractor", "SceneContext", "build_extractor",
-           "grey_channel", "imagenet_vgg_available", "no_grad_features", "resolve_features", "space_label", "tcm_space"]
+__all__ = ["DEFAULT_WITHOUT_IMAGENET", "FEATURES", "ColourSpace", "Extractor", "SceneContext", "announce_features",
+           "build_extractor", "grey_channel", "imagenet_vgg_available", "no_grad_features", "resolve_features",
+           "space_label", "tcm_space"]
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +39,6 @@ FEATURES = ("auto", "vgg16", "vgg19", "daisy", "learned")
 # The extractor `auto` takes where no ImageNet VGG weights exist: the best measured without them
 # (benchmarks/results/features/README.md: benchmarks/feature_matching.py and benchmarks/feature_comparison.py).
 DEFAULT_WITHOUT_IMAGENET = "learned"
-_ANNOUNCED: set[tuple[str, str]] = set()
 
 
 class Extractor(Protocol):
@@ -101,12 +101,17 @@ def imagenet_vgg_available(arch: str = "vgg16") -> bool:
 
 def resolve_features(name: str) -> str:
     """``auto`` -> ``vgg16`` where its ImageNet weights are in the hub cache, else the measured best
-    (:data:`DEFAULT_WITHOUT_IMAGENET`), said once per process; other names are returned unchanged."""
+    (:data:`DEFAULT_WITHOUT_IMAGENET`); other names are returned unchanged. Says nothing: see :func:`announce_features`."""
     if name != "auto":
         return name
-    chosen = "vgg16" if imagenet_vgg_available("vgg16") else DEFAULT_WITHOUT_IMAGENET
-    if ("auto", chosen) not in _ANNOUNCED:
-        _ANNOUNCED.add(("auto", chosen))
+    return "vgg16" if imagenet_vgg_available("vgg16") else DEFAULT_WITHOUT_IMAGENET
+
+
+def announce_features(name: str) -> str:
+    """:func:`resolve_features`, logging what ``auto`` chose and why. The job's config check calls it (once per
+    job, so each job's log says what it used); :func:`build_extractor` resolves silently."""
+    chosen = resolve_features(name)
+    if name == "auto":
         why = ("ImageNet VGG16 weights found" if chosen == "vgg16" else
                "no ImageNet VGG weights in the torch hub cache; the best extractor measured without them "
                "(benchmarks/results/features)")

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "march.h"
@@ -70,10 +71,11 @@ struct Cell {
 // then hit a table of the touched rows, not scattered lines of an [M]-sized one.
 template <typename T>
 struct Sink {
-  int32_t* slot = nullptr;    // [M]
-  int64_t width = 1;          // 1 + floats per SH row
-  std::vector<int64_t> rows;  // slot -> row
-  std::vector<T> acc;         // [slots, width]
+  static constexpr int kShift = 10;  // slots per chunk: 2^kShift (chunks are never moved: no copies as it grows)
+  int32_t* slot = nullptr;           // [M]
+  int64_t width = 1;                 // 1 + floats per SH row
+  std::vector<int64_t> rows;         // slot -> row
+  std::vector<std::unique_ptr<T[]>> chunks;  // [2^kShift, width] each, zeroed when made
 
   T* at(int64_t row) {
     int32_t s = slot[row];
@@ -81,10 +83,12 @@ struct Sink {
       s = int32_t(rows.size());
       slot[row] = s;
       rows.push_back(row);
-      acc.resize(acc.size() + size_t(width), T(0));
+      if ((s & ((1 << kShift) - 1)) == 0) chunks.emplace_back(new T[size_t(width) << kShift]());
     }
-    return acc.data() + int64_t(s) * width;
+    return get(s);
   }
+
+  T* get(int32_t s) const { return chunks[size_t(s >> kShift)].get() + int64_t(s & ((1 << kShift) - 1)) * width; }
 };
 
 // A cell's gradients summed over its samples: density and colour dot of each corner.

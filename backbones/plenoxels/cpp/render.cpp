@@ -166,24 +166,20 @@ void max_weights_impl(const Params& P, const Grid& G, const T* ro, const T* rd, 
     for (int64_t m = 0; m < M; ++m) best[m] = std::max(best[m], priv[size_t(t - 1) * size_t(M) + size_t(m)]);
 }
 
-// The rows any sink touched, sorted: from the sinks' lists when they are short, else by a scan of the slots.
+// The rows any sink touched, sorted and unique: their bits in a bitmap of the M rows (M / 8 bytes), read back
+// in order (a word at a time, skipping empty words).
 template <typename T>
 std::vector<int64_t> touched_rows(const std::vector<Sink<T>>& sinks, int64_t M) {
+  std::vector<uint64_t> bits(size_t((M + 63) >> 6), 0);
   size_t n = 0;
-  for (const auto& k : sinks) n += k.rows.size();
+  for (const auto& k : sinks) {
+    n += k.rows.size();
+    for (int64_t m : k.rows) bits[size_t(m >> 6)] |= uint64_t(1) << (m & 63);
+  }
   std::vector<int64_t> rows;
   rows.reserve(n);
-  if (n * 32 < size_t(M)) {
-    for (const auto& k : sinks) rows.insert(rows.end(), k.rows.begin(), k.rows.end());
-    std::sort(rows.begin(), rows.end());
-    rows.erase(std::unique(rows.begin(), rows.end()), rows.end());
-    return rows;
-  }
-  for (int64_t m = 0; m < M; ++m) {
-    bool hit = false;
-    for (const auto& k : sinks) hit = hit || k.slot[m] >= 0;
-    if (hit) rows.push_back(m);
-  }
+  for (size_t w = 0; w < bits.size(); ++w)
+    for (uint64_t b = bits[w]; b != 0; b &= b - 1) rows.push_back(int64_t(w << 6) + __builtin_ctzll(b));
   return rows;
 }
 
@@ -201,7 +197,7 @@ void collect(const std::vector<int64_t>& rows, std::vector<Sink<T>>& sinks, int6
     for (const auto& k : sinks) {
       const int32_t s = k.slot[m];
       if (s < 0) continue;
-      const T* q = k.acc.data() + int64_t(s) * k.width;
+      const T* q = k.get(s);
       *od += q[0];
       for (int64_t j = 0; j < stride; ++j) osh[j] += q[1 + j];
     }

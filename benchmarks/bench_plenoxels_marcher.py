@@ -87,7 +87,7 @@ def calls(old, index, dens, sh, o, d, bounds, step):
     empty = torch.zeros(0)
     g = [torch.randn(o.shape[0], 3), torch.randn(o.shape[0]), torch.zeros(o.shape[0])]
     common = (step, 1.0, 1e-4, 2, False)
-    big = fused.PRIVATE_GRAD_BYTES
+    big = float(1 << 30)  # the old kernel's private-buffer limit (bytes): per-thread gradient buffers
 
     def run_old():
         args = (o, d, index, cell_occ, dens, sh, empty, empty, bounds, *common)
@@ -98,8 +98,7 @@ def calls(old, index, dens, sh, o, d, bounds, step):
         cell, block = new.live(index, coords, dens, fused.SKIP_SHIFT)
         args = (o, d, index, cell, block, fused.SKIP_SHIFT, dens, sh, empty, empty, bounds, *common)
         out = new.forward(*args)
-        bufs, atomic = fused.scratch(dens.shape[0], sh.shape[1] * 3, dens.dtype)
-        return new.backward(*args, *out, *g, *bufs, atomic)[:3], out  # sparse: rows, density and SH gradients
+        return new.backward(*args, *out, *g, fused.slots(dens.shape[0]))[:3], out  # sparse: rows, density, SH
 
     return run_old, run_new
 

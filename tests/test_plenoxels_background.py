@@ -61,6 +61,50 @@ def test_background_gradients(kind):
     assert torch.autograd.gradcheck(f, (param, logit), atol=1e-6)
 
 
+def _arc(axis: str, degrees, elevation: float = 0.0):
+    """Orthographic cameras ``[C]`` looking at the origin: a tilt series about the image-vertical world ``x``
+    (``axis="tilt"``, views about ``+z``) or an azimuth arc about ``z`` at ``elevation`` (``axis="azimuth"``)."""
+    from arcsem.cameras import Cameras, look_at
+
+    a, el = torch.deg2rad(torch.tensor(degrees, dtype=F64)), torch.deg2rad(torch.tensor(elevation, dtype=F64))
+    if axis == "tilt":
+        eye = torch.stack([torch.zeros_like(a), 5 * torch.sin(a), 5 * torch.cos(a)], -1)
+        w2c = look_at(eye, torch.zeros_like(eye), torch.tensor([1.0, 0.0, 0.0], dtype=F64))
+    else:
+        eye = 5 * torch.stack([torch.cos(el) * torch.cos(a), torch.cos(el) * torch.sin(a), torch.sin(el).expand_as(a)], -1)
+        w2c = look_at(eye, torch.zeros_like(eye), torch.tensor([0.0, 0.0, 1.0], dtype=F64))
+    K = torch.tensor([[10.0, 0, 16], [0, 10.0, 16], [0, 0, 1]], dtype=F64).repeat(len(a), 1, 1)
+    return Cameras(w2c.float(), K.float(), 32, 32, "orthographic", image_ids=torch.arange(len(a)))
+
+
+def test_plane_faces_a_single_axis_tilt_series():
+    from arcsem.backbones.plenoxels.background import build_background
+    from arcsem.backbones.plenoxels.config import PlenoxelsConfig
+
+    from arcsem.orbit import orbit_frame
+
+    cams = _arc("tilt", [-6.0, 0.0, 6.0])  # the real DSA series' geometry: 3 views, 6 degrees apart
+    assert abs(float(orbit_frame(cams, BOX).up[0])) > 0.99  # the orbit's vertical is the tilt axis ...
+    cfg = PlenoxelsConfig(background_model="plane", background=[0.2, 0.2, 0.2], background_reso=8)
+    bg = build_background(cfg, BOX, cams).double()
+    back = -cams.forward.double()
+    assert (back @ bg.frame[3].double()).min() > 0.99  # ... the plane's normal points at every camera
+    o, d = cams.rays()
+    _, col = bg(o.reshape(-1, 3).double(), d.reshape(-1, 3).double())
+    torch.testing.assert_close(col, torch.full_like(col, 0.5))  # every ray sees the (zero: grey) texture
+
+
+@pytest.mark.parametrize("elevation", [10.0, 40.0])
+def test_plane_of_an_azimuth_arc_lies_on_its_vertical(elevation):
+    from arcsem.backbones.plenoxels.background import plane_normal
+
+    from arcsem.orbit import orbit_frame
+
+    cams = _arc("azimuth", [-150.0, -110.0, -70.0, -30.0], elevation)  # the built-in scene's horizontal arc
+    n = plane_normal(cams, orbit_frame(cams, BOX).up)
+    torch.testing.assert_close(n, torch.tensor([0.0, 0.0, 1.0], dtype=F64), atol=1e-6, rtol=0)
+
+
 def test_msi_puts_near_crossings_in_front_and_far_ones_behind():
     bg = MSIBackground(BOX, UP, torch.tensor([0.0, -1.0, 0.0]), [0.0, 0.0, 1.0], False, reso=8, layers=1,
                        far=4.0).double()
@@ -95,11 +139,13 @@ def test_whole_render_float64_parity_of_the_two_paths_with_background_and_act():
         a.background.texture.normal_(0, 0.3, generator=torch.Generator().manual_seed(2))
     b.load_state_dict(a.state_dict())
     a.double(), b.double()
-    o, d = scene.train.cameras.rays()
+    o, d = (t.reshape(-1, 3).double() for t in scene.train.cameras.rays())
     ids = scene.train.cameras.image_ids[:, None].expand(3, 16 * 12).reshape(-1)
+    # the plane faces the views: every ray hits it; rays turned away from it see the constant
+    o, d, ids = torch.cat([o, o[::8]]), torch.cat([d, -d[::8]]), torch.cat([ids, ids[::8]])
     res = []
     for bb in (a, b):
-        out = bb.render_rays(o.reshape(-1, 3).double(), d.reshape(-1, 3).double(), ids)
+        out = bb.render_rays(o, d, ids)
         params = (bb.density, bb.sh, bb.background.texture, bb.background.const_logit, act.weight, act.bias)
         grads = torch.autograd.grad((out["rgb"] * torch.tensor([1.0, -2.0, 0.5], dtype=F64)).sum(), params)
         res.append((out["rgb"], [g.to_dense() if g.is_sparse else g for g in grads]))

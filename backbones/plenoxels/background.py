@@ -7,8 +7,9 @@ it does the grid's samples. Three models:
 
 * ``constant`` (svox2's default): one colour, learned or fixed (``learn_background``).
 * ``plane`` (our SEM model): the specimen lies on a flat stub. A textured plane through the bottom of the
-  box, normal to the stage's vertical (the direction most orthogonal to the cameras' image-right axes,
-  :func:`arcsem.orbit.orbit_frame`), holds SH coefficients of degree ``background_sh_degree`` per texel
+  box, facing the cameras (:func:`plane_normal`: the stage's vertical of the orbit frame when the views
+  look down on its plane, else the cameras' mean backward direction), holds SH coefficients of degree
+  ``background_sh_degree`` per texel
   (the substrate's brightness changes with the view in SEM: tilt, detector shadow); texture coordinates
   are contracted (``s = x / (|x| + c)``, ``c`` the box's half-size) so that texels are fine under the
   specimen and coarse towards the horizon, which grazing views see. Rays that miss the plane see the
@@ -29,7 +30,10 @@ from torch import Tensor, nn
 
 from ..gaussians.sh import sh_basis
 
-__all__ = ["Background", "ConstantBackground", "MSIBackground", "PlaneBackground", "build_background"]
+__all__ = ["Background", "ConstantBackground", "MSIBackground", "PlaneBackground", "build_background", "plane_normal"]
+
+MIN_ELEVATION_DEG = 5.0
+"""The views must see the stage vertical's plane at least this high on average for the plane to lie in it."""
 
 
 class Background(nn.Module):
@@ -68,16 +72,16 @@ class PlaneBackground(Background):
         frame: ``[4, 3]`` buffer: origin on the plane, in-plane axes ``e1``, ``e2``, normal ``n``.
     """
 
-    def __init__(self, bounds: Tensor, up: Tensor, color: list[float], learn: bool, reso: int, degree: int):
+    def __init__(self, bounds: Tensor, normal: Tensor, color: list[float], learn: bool, reso: int, degree: int):
         super().__init__(color, learn)
-        up = up.double() / up.double().norm()
-        e1 = torch.linalg.svd(up[None])[2][-1]
-        e2 = torch.linalg.cross(up, e1)
+        n = normal.double() / normal.double().norm()
+        e1 = torch.linalg.svd(n[None])[2][-1]
+        e2 = torch.linalg.cross(n, e1)
         corners = torch.stack(torch.meshgrid(*[bounds[:, a].double() for a in range(3)], indexing="ij"), -1)
-        h = float((corners.reshape(-1, 3) @ up).min())
+        h = float((corners.reshape(-1, 3) @ n).min())
         centre = bounds.double().mean(0)
-        origin = centre - (centre @ up - h) * up
-        self.register_buffer("frame", torch.stack([origin, e1, e2, up]).float())
+        origin = centre - (centre @ n - h) * n
+        self.register_buffer("frame", torch.stack([origin, e1, e2, n]).float())
         self.scale = float((bounds[1] - bounds[0]).max() / 2)
         self.degree = degree
         k = (degree + 1) ** 2
@@ -159,6 +163,26 @@ class MSIBackground(Background):
         return front, back
 
 
+def plane_normal(cameras, up: Tensor) -> Tensor:
+    """``[3]`` unit normal of the substrate plane, towards ``cameras``.
+
+    The stage's vertical ``up [3]`` (:func:`arcsem.orbit.orbit_frame`: the direction most orthogonal to the
+    image-right axes) when the views see the plane normal to it at a mean elevation of at least
+    ``MIN_ELEVATION_DEG`` (cameras circling the specimen above its stub, the built-in scene's arcs), signed
+    towards them. Otherwise the cameras' mean backward direction: in a tilt series about an in-image axis the
+    right axes turn about the tilt axis (or stay on it), so ``up`` lies in the substrate plane, which every
+    view would see edge-on; an SEM looks down on its stub, and the series' views gather about its normal.
+    """
+    back = -cameras.forward.double()
+    back = back / back.norm(dim=-1, keepdim=True)
+    up = up.double() / up.double().norm()
+    sin_el = float((back @ up).mean())
+    if abs(sin_el) >= math.sin(math.radians(MIN_ELEVATION_DEG)):
+        return up if sin_el > 0 else -up
+    mean = back.mean(0)
+    return mean / mean.norm()
+
+
 def build_background(cfg, bounds: Tensor, cameras=None) -> Background:
     """The background model of a :class:`~.config.PlenoxelsConfig` for a grid over ``bounds [2, 3]``."""
     kind = cfg.background_model
@@ -172,7 +196,8 @@ def build_background(cfg, bounds: Tensor, cameras=None) -> Background:
     else:
         up, front = torch.tensor([0.0, 0.0, 1.0]), torch.tensor([0.0, -1.0, 0.0])
     if kind == "plane":
-        return PlaneBackground(bounds, up, list(cfg.background), cfg.learn_background, cfg.background_reso,
+        normal = plane_normal(cameras, up) if cameras is not None else up
+        return PlaneBackground(bounds, normal, list(cfg.background), cfg.learn_background, cfg.background_reso,
                                cfg.background_sh_degree)
     return MSIBackground(bounds, up, front, list(cfg.background), cfg.learn_background, cfg.background_reso,
                          cfg.background_layers, cfg.msi_far)

@@ -26,10 +26,7 @@ EXTENSION = cext.Extension(prefix="arcsem_plenoxels_fused", sources=(Path(__file
                            what="fused C++ Plenoxels ray marcher")
 # Empty-space skipping: blocks of 2^SKIP_SHIFT cells per axis (4: benchmarks/bench_plenoxels.py --shift).
 SKIP_SHIFT = int(os.environ.get("ARCSEM_PLX_SKIP_SHIFT", "2"))
-# The backward gives each thread a private gradient buffer (no atomic adds) while they total at most this
-# many bytes; larger grids or more threads fall back to atomic adds into one buffer.
-PRIVATE_GRAD_BYTES = float(os.environ.get("ARCSEM_PLX_PRIVATE_GRAD_BYTES", str(1 << 30)))
-_SCRATCH: dict[tuple, tuple[Tensor, Tensor, Tensor]] = {}
+_SLOTS: dict[tuple, Tensor] = {}
 
 
 def load_extension(verbose: bool = False):
@@ -42,21 +39,15 @@ def resolve_impl(impl: str, device: torch.device | str = "cpu") -> str:
     return cext.resolve_impl(impl, EXTENSION, str(device))
 
 
-def scratch(m: int, stride: int, dtype: torch.dtype) -> tuple[tuple[Tensor, Tensor, Tensor], bool]:
-    """Zero-at-rest gradient buffers of the backward for a grid of ``m`` rows (``stride`` SH floats per row):
-    ``([B, m], [B, m * stride], marks [B, m] uint8)``, one per thread, or one and ``atomic`` when that many
-    would exceed ``PRIVATE_GRAD_BYTES``. Kept between calls (two grids at most: the training grid and a test's)."""
-    nt = max(1, torch.get_num_threads())
-    per = m * (stride + 1) * torch.empty(0, dtype=dtype).element_size() + m
-    atomic = nt > 1 and nt * per > PRIVATE_GRAD_BYTES
-    nbuf = 1 if atomic else nt
-    key = (m, stride, dtype, nbuf)
-    if key not in _SCRATCH:
-        while len(_SCRATCH) >= 2:
-            _SCRATCH.pop(next(iter(_SCRATCH)))
-        _SCRATCH[key] = (torch.zeros(nbuf, m, dtype=dtype), torch.zeros(nbuf, m * stride, dtype=dtype),
-                         torch.zeros(nbuf, m, dtype=torch.uint8))
-    return _SCRATCH[key], atomic
+def slots(m: int) -> Tensor:
+    """``[B, m]`` int32, -1 at rest: each of the backward's ``B`` threads finds the compact slot of a row of a grid
+    of ``m`` rows there (``cpp/cell.h``). Kept between calls (two grids at most: the training grid and a test's)."""
+    key = (m, max(1, torch.get_num_threads()))
+    if key not in _SLOTS:
+        while len(_SLOTS) >= 2:
+            _SLOTS.pop(next(iter(_SLOTS)))
+        _SLOTS[key] = torch.full(key[::-1], -1, dtype=torch.int32)
+    return _SLOTS[key]
 
 
 def _sparse(rows: Tensor, values: Tensor, like: Tensor) -> Tensor:
@@ -92,10 +83,10 @@ class _March(torch.autograd.Function):
         density, sh, act_w, act_b, rays_o, rays_d, index, cell_live, block_dist, bounds, rgb, alpha, wt = \
             ctx.saved_tensors
         shift, step, scale, stop, degree, has_act, sparse = ctx.consts
-        bufs, atomic = scratch(density.shape[0], sh.shape[1] * 3, density.dtype)
         rows, gd, gsh, gw, gb = load_extension().backward(
             rays_o, rays_d, index, cell_live, block_dist, shift, density, sh, act_w, act_b, bounds, step, scale, stop,
-            degree, has_act, rgb, alpha, wt, g_rgb.contiguous(), g_alpha.contiguous(), g_wt.contiguous(), *bufs, atomic,
+            degree, has_act, rgb, alpha, wt, g_rgb.contiguous(), g_alpha.contiguous(), g_wt.contiguous(),
+            slots(density.shape[0]),
         )
         gd, gsh = _sparse(rows, gd, density), _sparse(rows, gsh, sh)
         if not sparse:

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "march.h"
@@ -64,19 +65,34 @@ struct Cell {
   }
 };
 
-// Where the backward accumulates: dense scratch tables that are zero at rest (kept between calls by fused.py),
-// a mark per row, and the rows first marked by this thread. Only marked rows are read back and zeroed, so a
-// call costs what its rays touch, not the size of the grid.
+// Where one thread's backward accumulates: the rows it touches get slots, in first-touch order, in a compact
+// table (density gradient, then the SH row's) that stays as small as what the call touches; `slot` [M] maps a
+// row to its slot (-1 at rest: kept between calls by fused.py, reset by collect in render.cpp). The adds
+// then hit a table of the touched rows, not scattered lines of an [M]-sized one.
 template <typename T>
 struct Sink {
-  T* gd;          // [M]
-  T* gsh;         // [M * stride]
-  uint8_t* mark;  // [M]
-  std::vector<int64_t>* touched;
+  static constexpr int kShift = 10;  // slots per chunk: 2^kShift (chunks are never moved: no copies as it grows)
+  int32_t* slot = nullptr;           // [M]
+  int64_t width = 1;                 // 1 + floats per SH row
+  std::vector<int64_t> rows;         // slot -> row
+  std::vector<std::unique_ptr<T[]>> chunks;  // [2^kShift, width] each, zeroed when made
+
+  T* at(int64_t row) {
+    int32_t s = slot[row];
+    if (s < 0) {
+      s = int32_t(rows.size());
+      slot[row] = s;
+      rows.push_back(row);
+      if ((s & ((1 << kShift) - 1)) == 0) chunks.emplace_back(new T[size_t(width) << kShift]());
+    }
+    return get(s);
+  }
+
+  T* get(int32_t s) const { return chunks[size_t(s >> kShift)].get() + int64_t(s & ((1 << kShift) - 1)) * width; }
 };
 
 // A cell's gradients summed over its samples: density and colour dot of each corner.
-template <typename T, int DEG, bool ATOMIC>
+template <typename T, int DEG>
 struct CellGrad {
   T gdens[8] = {}, gdot[8][3] = {};
   bool used = false;
@@ -89,40 +105,21 @@ struct CellGrad {
     used = true;
   }
 
-  // Scatter into the sink (rows of stored corners; SH gradient = basis_k * gdot[ch]) and reset.
-  void flush(const Cell<T, DEG>& cell, const T* basis, int64_t stride, Sink<T>& sink) {
+  // Add into the sink (every stored corner gets a slot, even with a zero gradient: the optimiser steps the rows
+  // a ray reached; SH gradient = basis_k * gdot[ch]) and reset.
+  void flush(const Cell<T, DEG>& cell, const T* basis, Sink<T>& sink) {
     if (!used) return;
     for (int c = 0; c < 8; ++c) {
       if (!cell.has[c]) continue;
-      const int64_t r = cell.rows[c];
-      mark(sink, r);
-      add_to(sink.gd + r, gdens[c]);
-      T* q = sink.gsh + r * stride;
+      T* q = sink.at(cell.rows[c]);
+      q[0] += gdens[c];
       if (gdot[c][0] != 0 || gdot[c][1] != 0 || gdot[c][2] != 0)
         for (int k = 0; k < num_coef<DEG>(); ++k)
-          for (int ch = 0; ch < 3; ++ch) add_to(q + 3 * k + ch, basis[k] * gdot[c][ch]);
+          for (int ch = 0; ch < 3; ++ch) q[1 + 3 * k + ch] += basis[k] * gdot[c][ch];
       gdens[c] = 0;
       gdot[c][0] = gdot[c][1] = gdot[c][2] = 0;
     }
     used = false;
-  }
-
-  static void add_to(T* p, T v) {
-    if constexpr (ATOMIC) {
-#pragma omp atomic
-      *p += v;
-    } else {
-      *p += v;
-    }
-  }
-
-  static void mark(Sink<T>& k, int64_t row) {
-    if constexpr (ATOMIC) {
-      if (__atomic_exchange_n(k.mark + row, uint8_t(1), __ATOMIC_RELAXED) == 0) k.touched->push_back(row);
-    } else if (!k.mark[row]) {
-      k.mark[row] = 1;
-      k.touched->push_back(row);
-    }
   }
 };
 

@@ -78,13 +78,24 @@ inline void dilate1(const uint8_t* in, uint8_t* out, uint8_t* tmp, const int64_t
 inline void block_distance(const uint8_t* cell, const int64_t* R, int shift, const int64_t* B, uint8_t* dist) {
   const int64_t n = B[0] * B[1] * B[2];
   const size_t sz = static_cast<size_t>(n);
-  std::vector<uint8_t> cover(sz, 0), next(sz, 0), tmp(sz, 0);
-  for (int64_t i = 0; i < R[0] - 1; ++i)
-    for (int64_t j = 0; j < R[1] - 1; ++j) {
-      const uint8_t* row = cell + (i * R[1] + j) * R[2];
-      uint8_t* brow = cover.data() + ((i >> shift) * B[1] + (j >> shift)) * B[2];
-      for (int64_t k = 0; k < R[2] - 1; ++k)
-        if (row[k]) brow[k >> shift] = 1;
+  std::vector<uint8_t> cover(sz, 0), next(sz, 0), tmp(sz, 0), acc(size_t(R[2]), 0);
+  // a block is live when one of its cells is: OR the z rows of each (x, y) block column (vectorised), then
+  // the 2^shift cells of each block along z (the last plane of each axis is no cell: zero in `cell`)
+  const int64_t side = int64_t(1) << shift;
+  for (int64_t bi = 0; bi < B[0]; ++bi)
+    for (int64_t bj = 0; bj < B[1]; ++bj) {
+      std::memset(acc.data(), 0, acc.size());
+      for (int64_t i = bi * side; i < std::min((bi + 1) * side, R[0]); ++i)
+        for (int64_t j = bj * side; j < std::min((bj + 1) * side, R[1]); ++j) {
+          const uint8_t* row = cell + (i * R[1] + j) * R[2];
+          for (int64_t k = 0; k < R[2]; ++k) acc[size_t(k)] |= row[k];
+        }
+      uint8_t* brow = cover.data() + (bi * B[1] + bj) * B[2];
+      for (int64_t bk = 0; bk < B[2]; ++bk) {
+        uint8_t v = 0;
+        for (int64_t k = bk * side; k < std::min((bk + 1) * side, R[2]); ++k) v |= acc[size_t(k)];
+        brow[bk] = v;
+      }
     }
   for (int64_t p = 0; p < n; ++p) dist[p] = cover[p] ? 0 : uint8_t(kMaxDist + 1);
   for (int d = 1; d <= kMaxDist; ++d) {

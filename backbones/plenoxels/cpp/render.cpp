@@ -82,15 +82,14 @@ void forward_impl(const Params& P, const Grid& G, const T* ro, const T* rd, cons
   }
 }
 
-template <typename T, int DEG, bool ATOMIC>
+template <typename T, int DEG>
 void backward_impl(const Params& P, const Grid& G, const T* ro, const T* rd, const T* dens, const T* sh,
                    const T* actW, const T* actB, int64_t nrays, const T* rgb, const T* alpha, const T* wt,
                    const T* g_rgb, const T* g_alpha, const T* g_wt, std::vector<Sink<T>>& sinks, T* gW, T* gB) {
-  // static schedule: a fixed ray -> thread map, so private-buffer gradients are bitwise reproducible
+  // static schedule: a fixed ray -> thread map, so the per-thread sums are bitwise reproducible
 #pragma omp parallel for schedule(static)
   for (int64_t r = 0; r < nrays; ++r) {
-    Sink<T> sink = sinks[ATOMIC ? 0 : omp_get_thread_num()];
-    if constexpr (ATOMIC) sink.touched = sinks[omp_get_thread_num()].touched;
+    Sink<T>& sink = sinks[omp_get_thread_num()];
     const T* gr = g_rgb + 3 * r;
     const T Q = gr[0] * rgb[3 * r] + gr[1] * rgb[3 * r + 1] + gr[2] * rgb[3 * r + 2] + g_alpha[r] * alpha[r] +
                 g_wt[r] * wt[r];
@@ -101,11 +100,11 @@ void backward_impl(const Params& P, const Grid& G, const T* ro, const T* rd, con
     const T* ab = P.has_act ? actB + 3 * r : nullptr;
     T Tr = 1, prefix = 0;
     Cell<T, DEG> cell;
-    CellGrad<T, DEG, ATOMIC> grad;
+    CellGrad<T, DEG> grad;
     Shade<T> o;
     plx::march<T, DEG>(G, ray, [&](const Sample<T>& smp) {
       if (smp.lin != cell.lin) {
-        grad.flush(cell, ray.basis, P.stride, sink);
+        grad.flush(cell, ray.basis, sink);
         cell.load(G, dens, sh, P.stride, ray.basis, smp.lin);
       }
       if (!shade<T, DEG>(P, cell, smp, kscale, Tr, aw, ab, o)) return true;
@@ -130,7 +129,7 @@ void backward_impl(const Params& P, const Grid& G, const T* ro, const T* rd, con
       Tr *= o.e;
       return Tr >= T(P.stop);
     });
-    grad.flush(cell, ray.basis, P.stride, sink);
+    grad.flush(cell, ray.basis, sink);
   }
 }
 
@@ -167,29 +166,24 @@ void max_weights_impl(const Params& P, const Grid& G, const T* ro, const T* rd, 
     for (int64_t m = 0; m < M; ++m) best[m] = std::max(best[m], priv[size_t(t - 1) * size_t(M) + size_t(m)]);
 }
 
-// The rows any sink marked, sorted: from the threads' lists when they are short, else by a scan of the marks.
-std::vector<int64_t> touched_rows(const std::vector<std::vector<int64_t>>& lists, const uint8_t* marks, int nbuf,
-                                  int64_t M) {
+// The rows any sink touched, sorted and unique: their bits in a bitmap of the M rows (M / 8 bytes), read back
+// in order (a word at a time, skipping empty words).
+template <typename T>
+std::vector<int64_t> touched_rows(const std::vector<Sink<T>>& sinks, int64_t M) {
+  std::vector<uint64_t> bits(size_t((M + 63) >> 6), 0);
   size_t n = 0;
-  for (const auto& l : lists) n += l.size();
+  for (const auto& k : sinks) {
+    n += k.rows.size();
+    for (int64_t m : k.rows) bits[size_t(m >> 6)] |= uint64_t(1) << (m & 63);
+  }
   std::vector<int64_t> rows;
-  if (n * 32 < size_t(M)) {
-    rows.reserve(n);
-    for (const auto& l : lists) rows.insert(rows.end(), l.begin(), l.end());
-    std::sort(rows.begin(), rows.end());
-    rows.erase(std::unique(rows.begin(), rows.end()), rows.end());
-    return rows;
-  }
   rows.reserve(n);
-  for (int64_t m = 0; m < M; ++m) {
-    bool hit = false;
-    for (int b = 0; b < nbuf; ++b) hit = hit || marks[b * M + m];
-    if (hit) rows.push_back(m);
-  }
+  for (size_t w = 0; w < bits.size(); ++w)
+    for (uint64_t b = bits[w]; b != 0; b &= b - 1) rows.push_back(int64_t(w << 6) + __builtin_ctzll(b));
   return rows;
 }
 
-// Sums the sinks at `rows` (in buffer order: reproducible) into compact tables and zeroes what was read.
+// Sums the sinks' slots of `rows` (in sink order: reproducible) into compact tables, then resets the slots.
 template <typename T>
 void collect(const std::vector<int64_t>& rows, std::vector<Sink<T>>& sinks, int64_t stride, T* out_d, T* out_sh) {
   const int64_t n = int64_t(rows.size());
@@ -200,17 +194,16 @@ void collect(const std::vector<int64_t>& rows, std::vector<Sink<T>>& sinks, int6
     T* osh = out_sh + i * stride;
     *od = 0;
     for (int64_t j = 0; j < stride; ++j) osh[j] = 0;
-    for (auto& s : sinks) {
-      *od += s.gd[m];
-      s.gd[m] = 0;
-      T* q = s.gsh + m * stride;
-      for (int64_t j = 0; j < stride; ++j) {
-        osh[j] += q[j];
-        q[j] = 0;
-      }
-      s.mark[m] = 0;
+    for (const auto& k : sinks) {
+      const int32_t s = k.slot[m];
+      if (s < 0) continue;
+      const T* q = k.get(s);
+      *od += q[0];
+      for (int64_t j = 0; j < stride; ++j) osh[j] += q[1 + j];
     }
   }
+  for (auto& k : sinks)
+    for (int64_t m : k.rows) k.slot[m] = -1;
 }
 
 // ---------------------------------------------------------------------------- dispatch and bindings
@@ -307,49 +300,39 @@ std::vector<torch::Tensor> plx_forward(torch::Tensor ro, torch::Tensor rd, torch
 }
 
 // Gradients of density and SH as (rows [n] long, sorted; gd [n]; gsh [n, Kstore, 3]) over the n rows the rays
-// touched, and the per-ray ACT gradients gW, gB [R, 3]. scratch_d [B, M], scratch_sh [B, M * stride] and
-// marks [B, M] are zero on entry and on return; B = number of threads (private sinks) or 1 (`atomic`).
+// touched, and the per-ray ACT gradients gW, gB [R, 3]. slots [B, M] int32 are -1 on entry and on return, one
+// row of them per thread (B = the number of OpenMP threads): each thread's rows and sums are its own (cell.h).
 std::vector<torch::Tensor> plx_backward(torch::Tensor ro, torch::Tensor rd, torch::Tensor index,
                                         torch::Tensor cell_live, torch::Tensor block_dist, int64_t shift,
                                         torch::Tensor dens, torch::Tensor sh, torch::Tensor actW, torch::Tensor actB,
                                         torch::Tensor bounds, double step, double scale, double stop, int64_t degree,
                                         bool has_act, torch::Tensor rgb, torch::Tensor alpha, torch::Tensor wt,
                                         torch::Tensor g_rgb, torch::Tensor g_alpha, torch::Tensor g_wt,
-                                        torch::Tensor scratch_d, torch::Tensor scratch_sh, torch::Tensor marks,
-                                        bool atomic) {
+                                        torch::Tensor slots) {
   Params P = make_params(bounds, step, scale, stop, sh, has_act);
   Grid G = make_grid(index, cell_live, block_dist, bounds, shift);
   const int64_t R = ro.size(0), M = dens.numel();
   const int nt = std::max(1, omp_get_max_threads());
-  const int nbuf = int(marks.size(0));
-  TORCH_CHECK(nbuf == (atomic ? 1 : nt), "backward: need one scratch buffer per thread (", nt, ") or one (atomic)");
-  TORCH_CHECK(marks.size(1) == M && scratch_d.size(1) == M && scratch_sh.size(1) == M * P.stride,
-              "backward: scratch buffers do not match the grid");
+  TORCH_CHECK(slots.dim() == 2 && slots.size(0) == nt && slots.size(1) == M && slots.scalar_type() == torch::kInt32 &&
+              slots.is_contiguous(), "backward: slots must be int32 [threads (", nt, "), M]");
   auto gW = torch::zeros({R, 3}, ro.options());
   auto gB = torch::zeros({R, 3}, ro.options());
-  std::vector<std::vector<int64_t>> lists(nt);
   torch::Tensor rows_t, gd, gsh;
   AT_DISPATCH_FLOATING_TYPES(ro.scalar_type(), "plx_backward", [&] {
-    std::vector<Sink<scalar_t>> sinks(nbuf);
-    for (int b = 0; b < nbuf; ++b)
-      sinks[b] = {scratch_d.data_ptr<scalar_t>() + b * M, scratch_sh.data_ptr<scalar_t>() + b * M * P.stride,
-                  marks.data_ptr<uint8_t>() + b * M, &lists[b]};
-    if (atomic)  // one shared sink; each thread records its first touches in its own list
-      for (int t = 1; t < nt; ++t) sinks.push_back({nullptr, nullptr, nullptr, &lists[t]});
+    std::vector<Sink<scalar_t>> sinks(nt);
+    for (int b = 0; b < nt; ++b) {
+      sinks[b].slot = slots.data_ptr<int32_t>() + b * M;
+      sinks[b].width = 1 + P.stride;
+    }
     with_degree(degree, [&](auto deg) {
-      constexpr int D = decltype(deg)::value;
-      auto run = [&](auto atomic_tag) {
-        backward_impl<scalar_t, D, decltype(atomic_tag)::value>(
-            P, G, ro.data_ptr<scalar_t>(), rd.data_ptr<scalar_t>(), dens.data_ptr<scalar_t>(),
-            sh.data_ptr<scalar_t>(), has_act ? actW.data_ptr<scalar_t>() : nullptr,
-            has_act ? actB.data_ptr<scalar_t>() : nullptr, R, rgb.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(),
-            wt.data_ptr<scalar_t>(), g_rgb.data_ptr<scalar_t>(), g_alpha.data_ptr<scalar_t>(),
-            g_wt.data_ptr<scalar_t>(), sinks, gW.data_ptr<scalar_t>(), gB.data_ptr<scalar_t>());
-      };
-      if (atomic) run(std::true_type()); else run(std::false_type());
+      backward_impl<scalar_t, decltype(deg)::value>(
+          P, G, ro.data_ptr<scalar_t>(), rd.data_ptr<scalar_t>(), dens.data_ptr<scalar_t>(), sh.data_ptr<scalar_t>(),
+          has_act ? actW.data_ptr<scalar_t>() : nullptr, has_act ? actB.data_ptr<scalar_t>() : nullptr, R,
+          rgb.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(), wt.data_ptr<scalar_t>(), g_rgb.data_ptr<scalar_t>(),
+          g_alpha.data_ptr<scalar_t>(), g_wt.data_ptr<scalar_t>(), sinks, gW.data_ptr<scalar_t>(),
+          gB.data_ptr<scalar_t>());
     });
-    sinks.resize(nbuf);
-    std::vector<int64_t> rows = touched_rows(lists, marks.data_ptr<uint8_t>(), nbuf, M);
+    std::vector<int64_t> rows = touched_rows(sinks, M);
     const int64_t n = int64_t(rows.size());
     rows_t = torch::from_blob(rows.data(), {n}, torch::kInt64).clone();
     gd = torch::empty({n}, dens.options());

@@ -18,7 +18,8 @@ from report_util import GRAY, _job, _png, _stage1, _sweep
 
 from arcsem.report import build_report
 from arcsem.report.collect import collect, expected_jobs, parse_overrides
-from arcsem.report.tables import LAYOUTS, build_table, to_latex, to_markdown, write_tables
+from arcsem.report.formats import to_latex, to_markdown, write_tables
+from arcsem.report.tables import LAYOUTS, build_table
 
 
 @pytest.fixture

@@ -7,7 +7,7 @@ import yaml
 from report_util import _job, _sweep
 
 from arcsem.report.collect import collect
-from arcsem.report.tables import write_tables
+from arcsem.report.formats import write_tables
 
 # (references, requested extractor) -> (held-out PSNR, in cov., out cov., coverage, recorded features)
 RUNS = {("one", "vgg16"): (24.1, 20.2, 11.5, 0.85, "vgg16-random"), ("one", "daisy"): (24.6, 20.4, 12.1, 0.85, "daisy"),

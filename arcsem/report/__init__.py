@@ -31,10 +31,10 @@ def build_report(paths: list[str | Path], out: str | Path | None = None) -> Path
     from ..errors import DataError
     from .collect import collect
     from .curves import training_curves
+    from .formats import write_tables
     from .grids import study_grids
     from .groundtruth import GroundTruth
     from .html import copy_videos, files_table, write_page
-    from .tables import write_tables
 
     paths = [Path(p) for p in paths]
     for p in paths:

@@ -37,7 +37,7 @@ import numpy as np
 from .geometry import _pairs, left_jacobian, project, rodrigues, rot_x, rot_z, skew, triangulate
 from .tracks import Observations
 
-__all__ = ["OrthoViews", "StageModel", "bundle_adjust", "eliminated_jacobian", "residuals"]
+__all__ = ["OrthoViews", "StageModel", "bundle_adjust", "eliminated_jacobian", "local_values", "residuals"]
 
 _C0 = np.diag([1.0, -1.0, -1.0])
 
@@ -119,10 +119,7 @@ class _Problem:
             self.prior_weight = np.repeat(np.sqrt(np.maximum(n_view, 1.0)), 2) / np.radians(stage.sigma_deg)
 
     def _local(self, p: np.ndarray) -> np.ndarray:
-        """``[V, k]`` local values (0 where held)."""
-        full = np.zeros(self.index.shape)
-        full[self.index >= 0] = p[self.index[self.index >= 0]]
-        return full
+        return local_values(self.index, p)
 
     def views_at(self, p: np.ndarray) -> OrthoViews:
         full = self._local(p)
@@ -184,6 +181,13 @@ class _Problem:
         prior = coo_matrix((self.prior_weight, (np.arange(len(prior_cols)), prior_cols)),
                            shape=(len(prior_cols), self.n_params))
         return vstack([data, prior]).tocsr()
+
+
+def local_values(index: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """``[V, k]`` each view's local columns from the parameters ``p`` through ``index [V, k]`` (0 where held: -1)."""
+    full = np.zeros(index.shape)
+    full[index >= 0] = p[index[index >= 0]]
+    return full
 
 
 def eliminated_jacobian(J: np.ndarray, G: np.ndarray, obs: Observations, index: np.ndarray, n_params: int):

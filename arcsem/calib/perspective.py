@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .bundle import OrthoViews, eliminated_jacobian
+from .bundle import OrthoViews, eliminated_jacobian, local_values
 from .geometry import left_jacobian, rodrigues, skew
 from .tracks import Observations
 
@@ -121,9 +121,7 @@ class _Problem:
             self.prior_weight = np.repeat(np.sqrt(np.maximum(n_view, 1.0)), 3) / np.radians(sigma_deg)
 
     def _local(self, p: np.ndarray) -> np.ndarray:
-        full = np.zeros(self.index.shape)
-        full[self.index >= 0] = p[self.index[self.index >= 0]]
-        return full
+        return local_values(self.index, p)
 
     def views_at(self, p: np.ndarray) -> PinholeViews:
         full = self._local(p)

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["prepare_input", "rotation_errors", "true_rotations"]
+__all__ = ["best_world_rotation", "prepare_input", "read_cameras", "rotation_errors", "true_rotations"]
 
 
 def prepare_input(scene: Path, folder: Path, csv: Path, noise_deg: float, seed: int = 0) -> None:
@@ -52,14 +52,26 @@ def prepare_input(scene: Path, folder: Path, csv: Path, noise_deg: float, seed: 
     csv.write_text("\n".join(rows) + "\n")
 
 
-def true_rotations(path: Path) -> dict[str, np.ndarray]:
-    """``{view: world->camera rotation [3, 3]}`` (OpenCV axes) of a transforms.json."""
+def read_cameras(path: Path) -> tuple[dict[str, tuple[np.ndarray, np.ndarray, float]], bool]:
+    """``{view: (world->camera rotation [3, 3] (OpenCV axes), centre [3], pixels per unit)}`` of a transforms.json
+    and whether its cameras are orthographic."""
     meta = json.loads(path.read_text())
     out = {}
     for f in meta["frames"]:
         c2w = np.array(f["transform_matrix"]) @ np.diag([1.0, -1.0, -1.0, 1.0])
-        out[Path(f["file_path"]).stem] = np.linalg.inv(c2w)[:3, :3]
-    return out
+        out[Path(f["file_path"]).stem] = (c2w[:3, :3].T, c2w[:3, 3], float(f.get("fl_x", meta.get("fl_x"))))
+    return out, meta.get("camera_model") == "ORTHOGRAPHIC"
+
+
+def true_rotations(path: Path) -> dict[str, np.ndarray]:
+    """``{view: world->camera rotation [3, 3]}`` (OpenCV axes) of a transforms.json."""
+    return {name: cam[0] for name, cam in read_cameras(path)[0].items()}
+
+
+def best_world_rotation(Rt: np.ndarray, Rc: np.ndarray) -> np.ndarray:
+    """``Q [3, 3]`` with ``Rc[i] Q ~ Rt[i]`` for rotations ``[n, 3, 3]`` (orthogonal Procrustes, no reflection)."""
+    U, _, Vt = np.linalg.svd(np.einsum("nji,njk->ik", Rc, Rt))
+    return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
 
 
 def rotation_errors(truth: dict[str, np.ndarray], calib: dict[str, np.ndarray], mirror: bool = False
@@ -70,8 +82,7 @@ def rotation_errors(truth: dict[str, np.ndarray], calib: dict[str, np.ndarray], 
     names = sorted(set(truth) & set(calib))
     D = np.diag([-1.0, -1.0, 1.0]) if mirror else np.eye(3)
     Rt, Rc = np.stack([truth[n] for n in names]), np.stack([D @ calib[n] for n in names])
-    U, _, Vt = np.linalg.svd(np.einsum("nji,njk->ik", Rc, Rt))
-    Q = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    Q = best_world_rotation(Rt, Rc)
     E = np.einsum("nij,jk,nlk->nil", Rc, Q, Rt)
     ang = np.degrees(np.arccos(np.clip((np.trace(E, axis1=1, axis2=2) - 1) / 2, -1, 1)))
     return dict(zip(names, ang.tolist()))

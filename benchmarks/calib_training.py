@@ -33,30 +33,17 @@ from pathlib import Path
 __all__ = ["frame_similarity", "held_out", "scene_points_dataset", "train"]
 
 
-def _cameras(path: Path) -> tuple[dict, bool]:
-    """``{view: (world->camera R [3, 3] (OpenCV axes), centre [3], pixels per unit)}`` and "orthographic?"."""
-    import numpy as np
-
-    meta = json.loads((path / "transforms.json").read_text())
-    out = {}
-    for f in meta["frames"]:
-        c2w = np.array(f["transform_matrix"]) @ np.diag([1.0, -1.0, -1.0, 1.0])
-        out[Path(f["file_path"]).stem] = (c2w[:3, :3].T, c2w[:3, 3], float(f.get("fl_x", meta.get("fl_x"))))
-    return out, meta.get("camera_model") == "ORTHOGRAPHIC"
-
-
 def frame_similarity(true_dir: Path, cal_dir: Path):
     """``(s, Q, d)`` with ``X_cal = s Q X_true + d`` for two datasets of the same views: ``Q`` the best rotation
     of the cameras (``R_cal Q ~ R_true``, orthogonal Procrustes), then ``s, d`` by least squares on where the
     views put the world: the image position of the world origin (orthographic: ``s`` is the ratio of the pixels
     per unit), or the camera centres (pinhole)."""
     import numpy as np
+    from calib_synthetic import best_world_rotation, read_cameras  # benchmarks/, beside this script
 
-    (T, ortho), (C, _) = _cameras(true_dir), _cameras(cal_dir)
+    (T, ortho), (C, _) = read_cameras(true_dir / "transforms.json"), read_cameras(cal_dir / "transforms.json")
     names = sorted(set(T) & set(C))
-    Rt, Rc = np.stack([T[n][0] for n in names]), np.stack([C[n][0] for n in names])
-    U, _, Vt = np.linalg.svd(np.einsum("nji,njk->ik", Rc, Rt))
-    Q = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    Q = best_world_rotation(np.stack([T[n][0] for n in names]), np.stack([C[n][0] for n in names]))
     if ortho:  # fl_c (R_c (s Q X + d - c_c))_xy = fl_t (R_t (X - c_t))_xy for all X
         s = float(np.mean([T[n][2] / C[n][2] for n in names]))
         A = np.concatenate([C[n][0][:2] for n in names])

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _bench():
+    sys.path.insert(0, str(ROOT / "benchmarks"))  # as when run as a script: calib_synthetic beside it
     spec = importlib.util.spec_from_file_location("calib_training", ROOT / "benchmarks" / "calib_training.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)

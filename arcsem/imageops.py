@@ -37,8 +37,19 @@ def gaussian_window(size: int = 11, sigma: float = 1.5, dtype=torch.float32, dev
 
 
 def _blur(x: Tensor, g: Tensor) -> Tensor:
-    """Separable Gaussian blur of ``[B, ch, H, W]`` with zero padding (same size out)."""
+    """Separable Gaussian blur of ``[B, ch, H, W]`` with zero padding (same size out).
+
+    float64 (the evaluation's metrics): a weighted sum of ``k`` shifted copies per axis, 2.5x faster on the CPU
+    than ``conv2d``, which has no fast float64 kernel (768x512 RGB: 28 against 69 ms); the same sums, equal to
+    round-off. Other dtypes (training's D-SSIM): grouped ``conv2d``.
+    """
     ch, k = x.shape[1], g.numel()
+    if x.dtype == torch.float64 and x.device.type == "cpu":
+        p, (H, W) = k // 2, x.shape[-2:]
+        xp = F.pad(x, (p, p, 0, 0))
+        y = sum(g[i] * xp[..., i:i + W] for i in range(k))
+        yp = F.pad(y, (0, 0, p, p))
+        return sum(g[i] * yp[..., i:i + H, :] for i in range(k))
     gx = g.view(1, 1, 1, k).expand(ch, 1, 1, k)
     gy = g.view(1, 1, k, 1).expand(ch, 1, k, 1)
     x = F.conv2d(x, gx, padding=(0, k // 2), groups=ch)

@@ -71,3 +71,16 @@ def test_weighted_total_is_the_paper_mix():
     dssim = 1 - ssim_map(pred, tgt).mean()
     torch.testing.assert_close(total, 0.8 * l1 + 0.2 * dssim)
     assert set(terms) == {"l1", "dssim"}
+
+
+def test_float64_blur_equals_the_grouped_convolution_with_zero_padding():
+    import torch.nn.functional as F
+
+    from arcsem.imageops import _blur
+
+    g = gaussian_window(11, 1.5, torch.float64)
+    x = torch.rand(2, 3, 17, 23, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    gx, gy = g.view(1, 1, 1, 11).expand(3, 1, 1, 11), g.view(1, 1, 11, 1).expand(3, 1, 11, 1)
+    ref = F.conv2d(F.conv2d(x, gx, padding=(0, 5), groups=3), gy, padding=(5, 0), groups=3)
+    torch.testing.assert_close(_blur(x, g), ref, atol=1e-14, rtol=0)   # borders included
+    torch.testing.assert_close(_blur(x.float(), g.float()), ref.float(), atol=1e-6, rtol=0)  # the conv2d path

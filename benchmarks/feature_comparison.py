@@ -5,7 +5,7 @@ Rows: the recorded extractor (``features``: ``vgg16-random``, ``daisy``, ``learn
 dataset; columns: references (1, 3, 5) x {PSNR in cov., PSNR out cov.} (pooled over held-out views,
 :mod:`arcsem.colorize.coverage`), mean ± std over seeds; the held-out coverage is printed below.
 With ``--paired A`` each extractor is compared with extractor A per seed (mean difference, 95 %
-t-interval) where two or more seeds pair up.
+t-interval; over the whole image, inside and outside the coverage) where two or more seeds pair up.
 
 Usage::
 
@@ -67,18 +67,24 @@ def table(df: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
+REGIONS = {"all": "whole image", "in": "in cov.", "out": "out cov."}
+
+
 def paired(df: pd.DataFrame, base: str) -> str:
+    """Each extractor minus ``base``, paired by seed, per dataset, references and region (:data:`REGIONS`):
+    mean, 95 % t-interval and the seeds at which it is better."""
     lines = []
     for (ds, r), sub in df.groupby(["dataset", "refs"]):
-        wide = sub.pivot_table(index="seed", columns="features", values="out", aggfunc="first")
-        if base not in wide:
-            continue
-        for feat in [c for c in wide.columns if c != base]:
-            d = (wide[feat] - wide[base]).dropna()
-            if len(d) >= 2:
-                s = summary(d, lower=False)
-                lines.append(f"{ds}, {int(r)} ref., out cov.: {feat} - {base} {s['mean']:+.2f} dB "
-                             f"[{s['ci_low']:+.2f}, {s['ci_high']:+.2f}], better at {s['b_wins']}/{s['n']} seeds")
+        for region, name in REGIONS.items():
+            wide = sub.pivot_table(index="seed", columns="features", values=region, aggfunc="first")
+            if base not in wide:
+                continue
+            for feat in [c for c in wide.columns if c != base]:
+                d = (wide[feat] - wide[base]).dropna()
+                if len(d) >= 2:
+                    s = summary(d, lower=False)
+                    lines.append(f"{ds}, {int(r)} ref., {name}: {feat} - {base} {s['mean']:+.2f} dB "
+                                 f"[{s['ci_low']:+.2f}, {s['ci_high']:+.2f}], better at {s['b_wins']}/{s['n']} seeds")
     return "\n".join(lines) + ("\n" if lines else "")
 
 

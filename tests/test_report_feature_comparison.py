@@ -54,3 +54,23 @@ def test_one_row_per_references_and_extractor(tmp_path):
     one_learned = csv[csv["row"] == "one/learned"].iloc[0]
     assert one_learned["stage2.test.psnr_uncovered"] == 12.0 and one_learned["n"] == 1
     assert (out / "feature_comparison.tex").read_text().count(r"\\") >= 7
+
+
+def test_paired_lines_cover_the_whole_image_and_both_regions():
+    """benchmarks/feature_comparison.py --paired: one line per region, the difference taken per seed."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "feature_comparison.py"
+    spec = importlib.util.spec_from_file_location("feature_comparison_bench", path)
+    fc = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fc)
+    rows = [("grain", feat, seed, 1, a + seed, b + 2 * seed, c - seed)
+            for seed in (0, 1, 2) for feat, (a, b, c) in {"vgg16-random": (25.0, 21.0, 12.0),
+                                                          "learned": (24.5, 20.8, 12.3)}.items()]
+    df = pd.DataFrame(rows, columns=["dataset", "features", "seed", "refs", "all", "in", "out"])
+    df.loc[(df["features"] == "learned") & (df["seed"] == 2), "all"] += 0.6  # learned ahead at one seed
+    lines = fc.paired(df, "vgg16-random").splitlines()
+    assert lines == ["grain, 1 ref., whole image: learned - vgg16-random -0.30 dB [-1.16, +0.56], better at 1/3 seeds",
+                     "grain, 1 ref., in cov.: learned - vgg16-random -0.20 dB [-0.20, -0.20], better at 0/3 seeds",
+                     "grain, 1 ref., out cov.: learned - vgg16-random +0.30 dB [+0.30, +0.30], better at 3/3 seeds"]

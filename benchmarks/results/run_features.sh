@@ -20,6 +20,8 @@ OUT=${OUT:-multirun/features}
 export ARCSEM_CACHE=${ARCSEM_CACHE:-$PWD/multirun/features/cache}
 THREADS=${THREADS:-1}
 FEATURES=${FEATURES:-vgg16,daisy,learned}   # the comparison's extractors (vgg16: random weights without a download)
+CREFS=${CREFS:-one,three,five}     # the comparison's reference counts
+ABLATIONS=${ABLATIONS:-full,no_tcm,no_ccm}  # the ablation's rows
 EXTRA=${EXTRA:-}                   # further overrides, e.g. "device=cuda" (benchmarks/results/run_features_gpu.sh)
 COMMON="threads=$THREADS colorize.progress=false train.progress=false colorize.eval.video=false $EXTRA"
 
@@ -29,13 +31,13 @@ for part in $PARTS; do
       if [ "$part" = ablation ]; then
         for refs in $REFS; do
           sfx=$([ "$refs" = five ] && echo "" || echo "-$refs")
-          cmd="$BIN/arcsem experiment=colorization_ablation dataset=$ds seed=$seed ablation=full,no_tcm,no_ccm colorize.references=$refs $COMMON hydra.sweep.dir=$OUT/ablation-$ds-s$seed$sfx"
+          cmd="$BIN/arcsem experiment=colorization_ablation dataset=$ds seed=$seed ablation=$ABLATIONS colorize.references=$refs $COMMON hydra.sweep.dir=$OUT/ablation-$ds-s$seed$sfx"
           echo "== $(date -u '+%H:%M:%S') $cmd"
           $cmd
         done
         continue
       fi
-      cmd="$BIN/arcsem experiment=feature_comparison dataset=$ds seed=$seed colorize.features=$FEATURES colorize.references=one,three,five $COMMON hydra.sweep.dir=$OUT/comparison-$ds-s$seed"
+      cmd="$BIN/arcsem experiment=feature_comparison dataset=$ds seed=$seed colorize.features=$FEATURES colorize.references=$CREFS $COMMON hydra.sweep.dir=$OUT/comparison-$ds-s$seed"
       echo "== $(date -u '+%H:%M:%S') $cmd"
       $cmd
     done

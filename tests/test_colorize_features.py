@@ -93,13 +93,23 @@ def test_learned_features_train_deterministically_and_are_cached(tmp_path):
     assert f4.shape == (2, 16, 8, 12) and f8.shape == (2, 16, 4, 6)
 
 
-def test_auto_takes_vgg_with_imagenet_weights_else_the_measured_default(tmp_path, monkeypatch):
+def test_auto_takes_vgg_with_imagenet_weights_else_the_measured_default(tmp_path, monkeypatch, caplog):
+    """Without ImageNet weights `auto` takes the measured default, VGG16 with random weights (section 5 of
+    benchmarks/results/features/README.md), and says so; with them, VGG16 with its ImageNet weights."""
+    from arcsem.colorize.features import announce_features
+
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
-    assert resolve_features("auto") == fbase.DEFAULT_WITHOUT_IMAGENET
+    assert fbase.DEFAULT_WITHOUT_IMAGENET == "vgg16"
+    with caplog.at_level(logging.WARNING, logger="arcsem.colorize.features.base"):
+        assert announce_features("auto") == "vgg16"
+    assert "with random weights" in caplog.text and "ImageNet VGG16 weights found" not in caplog.text
     ckpt = tmp_path / "torch" / "hub" / "checkpoints"
     ckpt.mkdir(parents=True)
     (ckpt / "vgg16-397923af.pth").write_bytes(b"present")
-    assert resolve_features("auto") == "vgg16" and resolve_features("daisy") == "daisy"
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="arcsem.colorize.features.base"):
+        assert announce_features("auto") == "vgg16" and resolve_features("daisy") == "daisy"
+    assert "ImageNet VGG16 weights found" in caplog.text and "random" not in caplog.text
 
 
 def test_auto_choice_said_once_per_job(tmp_path, monkeypatch, caplog):

@@ -140,6 +140,33 @@ def test_fused_lowpass_sigma_matches_torch():
 
 
 @pytest.mark.parametrize("kind", ["gs2d", "gs3d"])
+def test_fused_rows_stopped_behind_an_opaque_wall(kind):
+    """Big opaque splats in front stop every pixel of whole tile rows; the small splats behind them still
+    overlap those rows (the backward pass skips a row once all its pixels stopped): values and gradients
+    equal torch."""
+    params, cams = scene(kind, torch.float64, "pinhole", seed=5)
+    means, quats, scales, opac, _ = params
+    wall = slice(0, 6)
+    jitter = torch.rand(6, 3, generator=torch.Generator().manual_seed(6), dtype=torch.float64) - 0.5
+    means[wall] = torch.tensor([-0.35, 0.0, -1.0], dtype=torch.float64) + 0.04 * jitter
+    quats[wall] = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=torch.float64)  # facing the first camera
+    scales[wall] = torch.tensor([2.0, 1.7, 1.4], dtype=torch.float64)[:scales.shape[1]]  # (isotropic: a zero quaternion gradient)
+    opac[wall] = 0.97  # not clamped: no pixel sits on the stopping threshold (ties would be decided by rounding)
+    res = {}
+    for impl in ("torch", "cpp"):
+        ps = [p.clone().requires_grad_() for p in params]
+        out = render(kind, ps, cams, impl)
+        loss = sum((out[k] * (i + 1)).sum() for i, k in enumerate(OUTPUTS[kind]))
+        res[impl] = {k: out[k].detach() for k in OUTPUTS[kind]}, torch.autograd.grad(loss, ps[:4])
+    alpha = res["torch"][0]["alpha"][0, ..., 0]
+    assert (alpha[16:32, 16:32] > 0.99).all(), "the wall should cover a whole tile (its pixels stop)"
+    for k in OUTPUTS[kind]:
+        assert_rel(res["cpp"][0][k], res["torch"][0][k], 1e-10, f"{kind} {k}")
+    for name, a, b in zip(("means", "quats", "scales", "opacities"), res["cpp"][1], res["torch"][1]):
+        assert_rel(a, b, 1e-10, f"{kind} d/d{name}")
+
+
+@pytest.mark.parametrize("kind", ["gs2d", "gs3d"])
 def test_fused_unused_outputs_and_learned_background(kind):
     """Only rgb in the loss (the other outputs get no gradient: the kernels read them as zero) and a
     background that requires grad (composited outside the kernel): same values and gradients as torch."""

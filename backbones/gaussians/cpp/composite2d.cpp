@@ -23,27 +23,33 @@ void forward_tile(const Pair2<T>* pr, int64_t n, int nx, int ny, const T* mc, T 
 #pragma omp simd reduction(+ : stops)
         for (int i = 0; i < kLanes; ++i) {
           const Hit2<T> h = eval2(q, c + i, py, near, lp);
-          const bool ok = h.ok & (lv[i] > T(0));
-          const T T0 = tr[i], next = T0 * (T(1) - h.alpha);
+          // every state value is read once and written back unconditionally (a select, then a full store): masked
+          // stores would stall the next pair's loads of the same pixels (no store-to-load forwarding)
+          const T T0 = tr[i], lv0 = lv[i], ws0 = ws[i], wz0 = wz[i], m10 = m1[i], m20 = m2[i], d0 = dist[i], mr0 = mref[i],
+                  med0 = med[i];
+          const int32_t ls0 = ls[i], mi0 = mi[i];
+          const bool ok = h.ok & (lv0 > T(0));
+          const T next = T0 * (T(1) - h.alpha);
           const bool stop = ok & (next < T(kMinT)), use = ok & !stop;
-          const T w = h.alpha * T0;
-          const T m_abs = mc[0] + mc[1] * h.z + mc[2] / h.z;
-          const bool first = ls[i] < 0;
-          mref[i] = (use & first) ? m_abs : mref[i];
-          const T m = m_abs - mref[i];
-          dist[i] = use ? dist[i] + (m * m * (T(1) - T0) + m2[i] - T(2) * m * m1[i]) * w : dist[i];
-          wz[i] = use ? wz[i] + h.z * w : wz[i];
-          ws[i] = use ? ws[i] + w : ws[i];
-          m1[i] = use ? m1[i] + m * w : m1[i];
-          m2[i] = use ? m2[i] + m * m * w : m2[i];
+          const T w = use ? h.alpha * T0 : T(0);
+          const T z = use ? h.z : T(1);  // finite where unused (the sums below add 0 there, never 0 * inf)
+          const T m_abs = mc[0] + mc[1] * z + mc[2] / z;
+          const T mr = (use & (ls0 < 0)) ? m_abs : mr0;
+          const T m = m_abs - mr;
+          dist[i] = d0 + (m * m * (T(1) - T0) + m20 - T(2) * m * m10) * w;
+          wz[i] = wz0 + z * w;
+          ws[i] = ws0 + w;
+          m1[i] = m10 + m * w;
+          m2[i] = m20 + m * m * w;
+          mref[i] = mr;
           const bool median = use & (T0 > T(0.5));
-          med[i] = median ? h.z : med[i];
-          mi[i] = median ? int32_t(j) : mi[i];
+          med[i] = median ? h.z : med0;
+          mi[i] = median ? int32_t(j) : mi0;
 #pragma GCC unroll 8
-          for (int k = 0; k < K2; ++k) acc[k * kLanes + i] += use ? w * q.f[k] : T(0);
+          for (int k = 0; k < K2; ++k) acc[k * kLanes + i] += w * q.f[k];
           tr[i] = use ? next : T0;
-          ls[i] = use ? int32_t(j) : ls[i];
-          lv[i] = stop ? T(0) : lv[i];
+          ls[i] = use ? int32_t(j) : ls0;
+          lv[i] = stop ? T(0) : lv0;
           stops += stop ? 1 : 0;
         }
         st.row_live[y] -= stops;

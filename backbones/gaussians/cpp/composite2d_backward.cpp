@@ -66,22 +66,26 @@ inline void backward_lanes(const Pair2<T> q, int32_t j, int y, int c, const T* m
 #pragma omp simd
   for (int i = 0; i < kLanes; ++i) {
     const Hit2<T> h = eval2(q, c + i, py, near, lp);
+    // state read once, written back with full stores (a masked store would stall the next pair's loads of the
+    // same pixels); unused lanes get finite stand-ins so that their contributions are exact zeros
+    const T tr0 = tr[i], sa0 = sa[i], gmi = gm[i];
     const bool ok = h.ok & (j <= ls[i]);
-    const T inv = T(1) / (T(1) - h.alpha), Ti = tr[i] * inv, w = h.alpha * Ti, Wt = T(1) - tf[i];
-    const T iz = T(1) / h.z;
-    const T m = mc[0] + mc[1] * h.z + mc[2] * iz - mref[i];
+    const T z = ok ? h.z : T(1);
+    const T inv = T(1) / (T(1) - h.alpha), Ti = tr0 * inv, w = ok ? h.alpha * Ti : T(0), Wt = T(1) - tf[i];
+    const T iz = T(1) / z;
+    const T m = mc[0] + mc[1] * z + mc[2] * iz - mref[i];
     const T dm_dz = mc[1] - mc[2] * iz * iz;
     // dL/dw_i: every output is a sum over w_i of a per-splat value
-    T gw = ga[i] + gd[i] * h.z + gdis[i] * (m * m * Wt - T(2) * m * m1[i] + m2[i]);
+    T gw = ga[i] + gd[i] * z + gdis[i] * (m * m * Wt - T(2) * m * m1[i] + m2[i]);
 #pragma GCC unroll 8
     for (int k = 0; k < K2; ++k) {
       gw += go[k * kLanes + i] * q.f[k];
-      acc[GF + k][i] += ok ? w * go[k * kLanes + i] : T(0);
+      acc[GF + k][i] += w * go[k * kLanes + i];
     }
-    const T gz = w * gd[i] + gdis[i] * T(2) * w * (m * Wt - m1[i]) * dm_dz + (mi[i] == j ? gm[i] : T(0));
-    const T dalpha = gw * Ti - sa[i] * inv;
-    sa[i] = ok ? sa[i] + gw * w : sa[i];
-    tr[i] = ok ? Ti : tr[i];
+    const T gz = w * gd[i] + gdis[i] * T(2) * w * (m * Wt - m1[i]) * dm_dz + ((ok & (mi[i] == j)) ? gmi : T(0));
+    const T dalpha = gw * Ti - sa0 * inv;
+    sa[i] = sa0 + gw * w;
+    tr[i] = ok ? Ti : tr0;
     const bool grad = ok & (q.op * h.g <= T(kMaxAlpha));  // clamped alpha has no gradient
     const T dpow = grad ? dalpha * q.op * h.g : T(0);
     acc[GOP][i] += grad ? dalpha * h.g : T(0);
@@ -107,15 +111,20 @@ template <typename T>
 void backward_tile(const Pair2<T>* pr, int64_t n, int ny, const T* mc, T near, T lp, int64_t x0, int64_t y0,
                    Tile2<T>& st, T* rows) {
   int64_t jmax = -1;
-  for (int y = 0; y < ny; ++y)
-    for (int x = 0; x < st.stride; ++x) jmax = std::max<int64_t>(jmax, st.last[y * st.stride + x]);
+  for (int y = 0; y < ny; ++y) {  // row_live[y]: the last pair any pixel of row y composited (-1: none)
+    st.row_live[y] = -1;
+    for (int x = 0; x < st.stride; ++x) st.row_live[y] = std::max(st.row_live[y], st.last[y * st.stride + x]);
+    jmax = std::max<int64_t>(jmax, st.row_live[y]);
+  }
   std::fill(rows + (jmax + 1) * D2, rows + n * D2, T(0));
   alignas(64) T acc[D2][kLanes];
   for (int64_t j = jmax; j >= 0; --j) {
     const Pair2<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
     for (auto& a : acc) std::fill(a, a + kLanes, T(0));
-    for (int y = q.y0; y <= q.y1 && q.x0 <= q.x1; ++y)
+    for (int y = q.y0; y <= q.y1 && q.x0 <= q.x1; ++y) {
+      if (j > st.row_live[y]) continue;  // the row's pixels all stopped before this pair
       for (int c = q.x0 / kLanes * kLanes; c <= q.x1; c += kLanes) backward_lanes(q, int32_t(j), y, c, mc, near, lp, st, acc);
+    }
     T* r = rows + j * D2;
     for (int d = 0; d < D2; ++d) {
       T sum = 0;

@@ -114,17 +114,21 @@ void forward_tile(const Pair3<T>* pr, int64_t n, int nx, int ny, Tile3<T>& st) {
           T dx, g, alpha;
           bool ok;
           eval3(q, c + i, dy, dx, g, alpha, ok);
-          ok = ok & (lv[i] > T(0));
-          const T next = tr[i] * (T(1) - alpha);
+          // state read once, written back with full stores (masked stores would stall the next pair's loads of
+          // the same pixels: no store-to-load forwarding)
+          const T T0 = tr[i], lv0 = lv[i];
+          const int32_t ls0 = ls[i];
+          ok = ok & (lv0 > T(0));
+          const T next = T0 * (T(1) - alpha);
           const bool stop = ok & (next < T(kMinT));
           const bool use = ok & !stop;
-          const T w = use ? alpha * tr[i] : T(0);
+          const T w = use ? alpha * T0 : T(0);
 #pragma GCC unroll 8
           for (int k = 0; k < K3; ++k) acc[k * kLanes + i] += w * q.f[k];
           ws[i] += w;
-          tr[i] = use ? next : tr[i];
-          ls[i] = use ? int32_t(j) : ls[i];
-          lv[i] = stop ? T(0) : lv[i];
+          tr[i] = use ? next : T0;
+          ls[i] = use ? int32_t(j) : ls0;
+          lv[i] = stop ? T(0) : lv0;
           stops += stop ? 1 : 0;
         }
         st.row_live[y] -= stops;
@@ -179,14 +183,18 @@ template <typename T>
 void backward_tile(const Pair3<T>* pr, int64_t n, int ny, Tile3<T>& st, T* grow) {
   const int S = st.stride;
   int64_t jmax = -1;
-  for (int y = 0; y < ny; ++y)
-    for (int x = 0; x < S; ++x) jmax = std::max<int64_t>(jmax, st.last[y * S + x]);
+  for (int y = 0; y < ny; ++y) {  // row_live[y]: the last pair any pixel of row y composited (-1: none)
+    st.row_live[y] = -1;
+    for (int x = 0; x < S; ++x) st.row_live[y] = std::max(st.row_live[y], st.last[y * S + x]);
+    jmax = std::max<int64_t>(jmax, st.row_live[y]);
+  }
   for (int64_t j = n - 1; j > jmax; --j) std::fill(grow + j * D3, grow + (j + 1) * D3, T(0));
   alignas(64) T acc[D3][kLanes];
   for (int32_t j = int32_t(jmax); j >= 0; --j) {
     const Pair3<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
     for (auto& a : acc) std::fill(a, a + kLanes, T(0));
     for (int y = q.y0; y <= q.y1 && q.x0 <= q.x1; ++y) {
+      if (j > st.row_live[y]) continue;  // the row's pixels all stopped before this pair
       const T dy = (T(y) + T(0.5)) - q.my;
       for (int c = q.x0 / kLanes * kLanes; c <= q.x1; c += kLanes) {
         const int base = y * S + c;
@@ -198,17 +206,19 @@ void backward_tile(const Pair3<T>* pr, int64_t n, int ny, Tile3<T>& st, T* grow)
           T dx, g, alpha;
           bool ok;
           eval3(q, c + i, dy, dx, g, alpha, ok);
+          // state read once, written back with full stores (see forward_tile); w = 0 on unused lanes
+          const T tr0 = tr[i], sg0 = sg[i];
           ok = ok & (j <= ls[i]);
-          const T inv = T(1) / (T(1) - alpha), Ti = tr[i] * inv, w = alpha * Ti;
+          const T inv = T(1) / (T(1) - alpha), Ti = tr0 * inv, w = ok ? alpha * Ti : T(0);
           T gof = 0;
 #pragma GCC unroll 8
           for (int k = 0; k < K3; ++k) gof += go[k * kLanes + i] * q.f[k];
           // alpha_out = 1 - T_final: d/d alpha_i gets g_alpha T_final / (1 - alpha_i)
-          const T dalpha = ga[i] * tf[i] * inv + Ti * gof - sg[i] * inv;
-          sg[i] = ok ? sg[i] + w * gof : sg[i];
-          tr[i] = ok ? Ti : tr[i];
+          const T dalpha = ga[i] * tf[i] * inv + Ti * gof - sg0 * inv;
+          sg[i] = sg0 + w * gof;
+          tr[i] = ok ? Ti : tr0;
 #pragma GCC unroll 8
-          for (int k = 0; k < K3; ++k) acc[6 + k][i] += ok ? w * go[k * kLanes + i] : T(0);
+          for (int k = 0; k < K3; ++k) acc[6 + k][i] += w * go[k * kLanes + i];
           const bool grad = ok & (q.op * g <= T(kMaxAlpha));  // clamped alpha has no gradient
           const T dpow = grad ? dalpha * q.op * g : T(0);
           acc[5][i] += grad ? dalpha * g : T(0);

@@ -1,5 +1,6 @@
 // Python bindings of the fused kernels (api.h; used by backbones/gaussians/fused.py). The argument structs are
-// Python classes whose fields are set by name (an unknown name raises AttributeError).
+// Python classes whose fields are set by name (an unknown name raises AttributeError). They are module-local, so two
+// builds of the kernels (this tree's and another commit's, benchmarks/baseline.py) can be loaded in one process.
 #include <torch/extension.h>
 
 #include "api.h"
@@ -10,35 +11,35 @@ using namespace arcsem;
 #define FIELD(S, f) .def_readwrite(#f, &S::f)
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-  py::class_<Raster>(m, "Raster").def(py::init<>()) FIELD(Raster, C) FIELD(Raster, H) FIELD(Raster, W) FIELD(Raster, tile);
-  py::class_<Projection>(m, "Projection")
+  py::class_<Raster>(m, "Raster", py::module_local()).def(py::init<>()) FIELD(Raster, C) FIELD(Raster, H) FIELD(Raster, W) FIELD(Raster, tile);
+  py::class_<Projection>(m, "Projection", py::module_local())
       .def(py::init<>()) FIELD(Projection, means) FIELD(Projection, quats) FIELD(Projection, scales) FIELD(Projection, P)
           FIELD(Projection, view) FIELD(Projection, ortho) FIELD(Projection, near);
-  py::class_<TileLists>(m, "TileLists")
+  py::class_<TileLists>(m, "TileLists", py::module_local())
       .def(py::init<>()) FIELD(TileLists, radii) FIELD(TileLists, visible) FIELD(TileLists, rects) FIELD(TileLists, box)
           FIELD(TileLists, offsets) FIELD(TileLists, ids) FIELD(TileLists, entry_offsets) FIELD(TileLists, pair_of);
-  py::class_<ShColors>(m, "ShColors")
+  py::class_<ShColors>(m, "ShColors", py::module_local())
       .def(py::init<>()) FIELD(ShColors, means) FIELD(ShColors, sh_dc) FIELD(ShColors, sh_rest) FIELD(ShColors, origins)
           FIELD(ShColors, ortho) FIELD(ShColors, degree);
-  py::class_<Splats3D>(m, "Splats3D")
+  py::class_<Splats3D>(m, "Splats3D", py::module_local())
       .def(py::init<>()) FIELD(Splats3D, means2d) FIELD(Splats3D, conics) FIELD(Splats3D, opacities)
           FIELD(Splats3D, colors) FIELD(Splats3D, depth) FIELD(Splats3D, background);
-  py::class_<Composite3D>(m, "Composite3D")
+  py::class_<Composite3D>(m, "Composite3D", py::module_local())
       .def(py::init<>()) FIELD(Composite3D, rgb) FIELD(Composite3D, alpha) FIELD(Composite3D, depth)
           FIELD(Composite3D, pairs) FIELD(Composite3D, t_final) FIELD(Composite3D, wz) FIELD(Composite3D, last);
-  py::class_<Grads3D>(m, "Grads3D")
+  py::class_<Grads3D>(m, "Grads3D", py::module_local())
       .def(py::init<>()) FIELD(Grads3D, means2d) FIELD(Grads3D, conics) FIELD(Grads3D, opacities) FIELD(Grads3D, colors)
           FIELD(Grads3D, depth);
-  py::class_<Surfels2D>(m, "Surfels2D")
+  py::class_<Surfels2D>(m, "Surfels2D", py::module_local())
       .def(py::init<>()) FIELD(Surfels2D, H) FIELD(Surfels2D, Dz) FIELD(Surfels2D, centres) FIELD(Surfels2D, opacities)
           FIELD(Surfels2D, colors) FIELD(Surfels2D, normals) FIELD(Surfels2D, mcoef) FIELD(Surfels2D, background)
               FIELD(Surfels2D, near) FIELD(Surfels2D, lowpass);
-  py::class_<Composite2D>(m, "Composite2D")
+  py::class_<Composite2D>(m, "Composite2D", py::module_local())
       .def(py::init<>()) FIELD(Composite2D, rgb) FIELD(Composite2D, normal) FIELD(Composite2D, alpha)
           FIELD(Composite2D, depth) FIELD(Composite2D, median) FIELD(Composite2D, distortion) FIELD(Composite2D, pairs)
               FIELD(Composite2D, t_final) FIELD(Composite2D, wz) FIELD(Composite2D, m1) FIELD(Composite2D, m2)
                   FIELD(Composite2D, mref) FIELD(Composite2D, last) FIELD(Composite2D, median_pair);
-  py::class_<Grads2D>(m, "Grads2D")
+  py::class_<Grads2D>(m, "Grads2D", py::module_local())
       .def(py::init<>()) FIELD(Grads2D, H) FIELD(Grads2D, Dz) FIELD(Grads2D, centres) FIELD(Grads2D, opacities)
           FIELD(Grads2D, colors) FIELD(Grads2D, normals);
 

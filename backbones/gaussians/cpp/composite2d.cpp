@@ -8,6 +8,7 @@ template <typename T>
 void forward_tile(const Pair2<T>* pr, int64_t n, int nx, int ny, const T* mc, T near, T lp, Tile2<T>& st) {
   const int S = st.stride;
   int live_total = start_tile(st, nx, ny);
+  Lanes2<T> L;
   for (int64_t j = 0; j < n && live_total > 0; ++j) {
     const Pair2<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
     if (q.x1 < q.x0 || q.y1 < q.y0) continue;
@@ -19,16 +20,17 @@ void forward_tile(const Pair2<T>* pr, int64_t n, int nx, int ny, const T* mc, T 
         T *tr = &st.tr[base], *lv = &st.live[base], *ws = &st.wsum[base], *acc = &st.acc[st.vec(y, c)], *wz = &st.wz[base], *m1 = &st.m1[base],
           *m2 = &st.m2[base], *dist = &st.dist[base], *mref = &st.mref[base], *med = &st.med[base];
         int32_t *ls = &st.last[base], *mi = &st.medi[base];
+        if (!eval_lanes(q, c, py, near, lp, [&](int i) { return lv[i] > T(0); }, L)) continue;
         int stops = 0;
 #pragma omp simd reduction(+ : stops)
         for (int i = 0; i < kLanes; ++i) {
-          const Hit2<T> h = eval2(q, c + i, py, near, lp);
+          const Hit2<T> h = L[i];
           // every state value is read once and written back unconditionally (a select, then a full store): masked
           // stores would stall the next pair's loads of the same pixels (no store-to-load forwarding)
           const T T0 = tr[i], lv0 = lv[i], ws0 = ws[i], wz0 = wz[i], m10 = m1[i], m20 = m2[i], d0 = dist[i], mr0 = mref[i],
                   med0 = med[i];
           const int32_t ls0 = ls[i], mi0 = mi[i];
-          const bool ok = h.ok & (lv0 > T(0));
+          const bool ok = h.ok;  // (and live)
           const T next = T0 * (T(1) - h.alpha);
           const bool stop = ok & (next < T(kMinT)), use = ok & !stop;
           const T w = use ? h.alpha * T0 : T(0);

@@ -70,6 +70,37 @@ inline Hit2<T> eval2(const Pair2<T>& q, int lx, T py, T near, T lp) {
   return h;
 }
 
+// A pair evaluated on the kLanes pixels of a tile row (structure of arrays), so that a block whose lanes all miss
+// is skipped before the compositing arithmetic (about a third of the blocks on a trained model).
+template <typename T>
+struct Lanes2 {
+  alignas(64) T u[kLanes], v[kLanes], ip[kLanes], dx[kLanes], dy[kLanes], z[kLanes], g[kLanes], alpha[kLanes];
+  alignas(64) int32_t use3d[kLanes], ok[kLanes];
+  Hit2<T> operator[](int i) const {
+    Hit2<T> h;
+    h.u = u[i]; h.v = v[i]; h.ip = ip[i]; h.dx = dx[i]; h.dy = dy[i]; h.z = z[i]; h.g = g[i]; h.alpha = alpha[i];
+    h.use3d = use3d[i] != 0; h.ok = ok[i] != 0;
+    h.p0 = h.p1 = T(0);  // (not kept)
+    return h;
+  }
+};
+
+// q on the pixels (c + i, py), i < kLanes; a lane is ok where eval2 says so and gate(i) holds (the forward: the
+// pixel is live; the backward: the pixel composited this pair). Returns whether any lane is ok.
+template <typename T, class Gate>
+inline bool eval_lanes(const Pair2<T>& q, int c, T py, T near, T lp, const Gate& gate, Lanes2<T>& L) {
+  int any = 0;
+#pragma omp simd reduction(| : any)
+  for (int i = 0; i < kLanes; ++i) {
+    const Hit2<T> h = eval2(q, c + i, py, near, lp);
+    const bool ok = h.ok & gate(i);
+    L.u[i] = h.u; L.v[i] = h.v; L.ip[i] = h.ip; L.dx[i] = h.dx; L.dy[i] = h.dy; L.z[i] = h.z; L.g[i] = h.g;
+    L.alpha[i] = h.alpha; L.use3d[i] = h.use3d; L.ok[i] = ok;
+    any |= int(ok);
+  }
+  return any != 0;
+}
+
 template <typename T>
 struct In2 {
   const T *H, *Dz, *c, *op, *col, *nrm, *mc, *bg;

@@ -63,13 +63,15 @@ inline void backward_lanes(const Pair2<T> q, int32_t j, int y, int c, const T* m
   const T *tf = &st.tf[base], *m1 = &st.m1[base], *m2 = &st.m2[base], *mref = &st.mref[base], *go = &st.go[st.vec(y, c)],
           *ga = &st.ga[base], *gd = &st.gd[base], *gm = &st.gm[base], *gdis = &st.gdis[base];
   const int32_t *ls = &st.last[base], *mi = &st.medi[base];
+  Lanes2<T> L;
+  if (!eval_lanes(q, c, py, near, lp, [&](int i) { return j <= ls[i]; }, L)) return;
 #pragma omp simd
   for (int i = 0; i < kLanes; ++i) {
-    const Hit2<T> h = eval2(q, c + i, py, near, lp);
+    const Hit2<T> h = L[i];
     // state read once, written back with full stores (a masked store would stall the next pair's loads of the
     // same pixels); unused lanes get finite stand-ins so that their contributions are exact zeros
     const T tr0 = tr[i], sa0 = sa[i], gmi = gm[i];
-    const bool ok = h.ok & (j <= ls[i]);
+    const bool ok = h.ok;  // (and composited: j <= last)
     const T z = ok ? h.z : T(1);
     const T inv = T(1) / (T(1) - h.alpha), Ti = tr0 * inv, w = ok ? h.alpha * Ti : T(0), Wt = T(1) - tf[i];
     const T iz = T(1) / z;

@@ -166,6 +166,23 @@ def test_fused_rows_stopped_behind_an_opaque_wall(kind):
         assert_rel(a, b, 1e-10, f"{kind} d/d{name}")
 
 
+@pytest.mark.parametrize("model", ["pinhole", "orthographic"])
+def test_fused_frozen_geometry_colour_gradient(model):
+    """Stage 2 freezes the geometry: the 2DGS kernel then computes the colour gradient alone (its own lane loop),
+    equal to torch's, and hands back no other gradient."""
+    params, cams = scene("gs2d", torch.float64, model, seed=3)
+    res = {}
+    for impl in ("torch", "cpp"):
+        ps = [p.clone() for p in params]
+        ps[4].requires_grad_(True)  # colours only
+        out = render_2dgs(*ps, cams, impl=impl, background=torch.tensor([0.1, 0.2, 0.3], dtype=torch.float64))
+        cot = torch.rand(out["rgb"].shape, generator=torch.Generator().manual_seed(7), dtype=torch.float64)
+        res[impl] = torch.autograd.grad((out["rgb"] * cot).sum(), ps[4])[0], out["means2d"].requires_grad
+    assert res["cpp"][1] is False, "no screen-position leaf when the means are frozen"
+    assert res["torch"][0].abs().max() > 0
+    assert_rel(res["cpp"][0], res["torch"][0], 1e-10, f"{model} d/dcolors, geometry frozen")
+
+
 @pytest.mark.parametrize("kind", ["gs2d", "gs3d"])
 def test_fused_unused_outputs_and_learned_background(kind):
     """Only rgb in the loss (the other outputs get no gradient: the kernels read them as zero) and a

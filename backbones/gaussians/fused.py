@@ -144,7 +144,12 @@ class _Composite2D(torch.autograd.Function):
         surfels = _args("Surfels2D", **dict(zip(_SURFEL_FIELDS, saved[:8])), near=ctx.near, lowpass=ctx.lowpass)
         fwd = _args("Composite2D", **dict(zip(("pairs", "t_final", "wz", "m1", "m2", "mref", "last", "median_pair",
                                                 "alpha"), saved[8:])))
-        r = load_extension().composite2d_backward(surfels, ctx.lists, ctx.raster, fwd, *(_grad(x) for x in g))
+        # frozen geometry (stage 2): only the colour gradient is computed
+        geometry = any(ctx.needs_input_grad[i] for i in (0, 1, 2, 3, 5))
+        r = load_extension().composite2d_backward(surfels, ctx.lists, ctx.raster, fwd, *(_grad(x) for x in g),
+                                                  geometry=geometry)
+        if not geometry:
+            return None, None, None, None, r.colors, None, None, None, None, None, None, None
         return r.H, r.Dz, r.centres, r.opacities, r.colors, r.normals, None, None, None, None, None, None
 
 

@@ -229,7 +229,8 @@ def _render_2dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
     C, N, Hh, W = len(cams), means.shape[0], cams.height, cams.width
     P = pixel_projection(cams).to(means.dtype)
     view = (cams.forward if cams.is_ortho else cams.centers).to(means.dtype)
-    leaf = means.new_empty(C, N, 2).requires_grad_(torch.is_grad_enabled())
+    # the screen-position leaf (means2d.grad): only where the geometry trains (a frozen one skips its gradients)
+    leaf = means.new_empty(C, N, 2).requires_grad_(torch.is_grad_enabled() and means.requires_grad)
     with region("arcsem::render/project"):  # profiler regions: benchmarks/profile_step.py
         H9, Dz, centre2d, normals = fused.project_2dgs(means, quats, scales, leaf, P, view, cams.is_ortho)
         with torch.no_grad():

@@ -133,9 +133,10 @@ struct Grads2D {  // gradients of Surfels2D's tensors (H, Dz, centres, opacities
 };
 
 Composite2D composite2d_forward(const Surfels2D& s, const TileLists& lists, const Raster& raster);
+// geometry = false: only the colour gradient (the others undefined), for frozen geometry (stage 2)
 Grads2D composite2d_backward(const Surfels2D& s, const TileLists& lists, const Raster& raster, const Composite2D& fwd,
                              const at::Tensor& g_rgb, const at::Tensor& g_normal, const at::Tensor& g_alpha,
                              const at::Tensor& g_depth, const at::Tensor& g_median,
-                             const at::Tensor& g_distortion);
+                             const at::Tensor& g_distortion, bool geometry = true);
 
 }  // namespace arcsem

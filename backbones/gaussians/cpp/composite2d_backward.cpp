@@ -108,35 +108,61 @@ inline void backward_lanes(const Pair2<T> q, int32_t j, int y, int c, const T* m
   }
 }
 
-// back to front over the tile's pairs from the last one any pixel composited; one gradient row per pair
+// colours only (frozen geometry): pair q on kLanes pixels of row y from column c adds w go_rgb into acc [3][kLanes]
 template <typename T>
+inline void colour_lanes(const Pair2<T> q, int32_t j, int y, int c, T near, T lp, Tile2<T>& st, T (*acc)[kLanes]) {
+  const int base = y * st.stride + c;
+  const T py = T(y) + T(0.5);
+  T* tr = &st.tr[base];
+  const T* go = &st.go[st.vec(y, c)];
+  const int32_t* ls = &st.last[base];
+  Lanes2<T> L;
+  if (!eval_lanes(q, c, py, near, lp, [&](int i) { return j <= ls[i]; }, L)) return;
+#pragma omp simd
+  for (int i = 0; i < kLanes; ++i) {
+    const T tr0 = tr[i], alpha = L.alpha[i];
+    const bool ok = L.ok[i] != 0;
+    const T Ti = tr0 / (T(1) - alpha), w = ok ? alpha * Ti : T(0);
+    for (int k = 0; k < 3; ++k) acc[k][i] += w * go[k * kLanes + i];
+    tr[i] = ok ? Ti : tr0;
+  }
+}
+
+// back to front over the tile's pairs from the last one any pixel composited; one gradient row per pair (D2
+// values; Geo = false: the 3 colour values)
+template <typename T, bool Geo>
 void backward_tile(const Pair2<T>* pr, int64_t n, int ny, const T* mc, T near, T lp, int64_t x0, int64_t y0,
                    Tile2<T>& st, T* rows) {
+  constexpr int D = Geo ? D2 : 3;
   int64_t jmax = -1;
   for (int y = 0; y < ny; ++y) {  // row_live[y]: the last pair any pixel of row y composited (-1: none)
     st.row_live[y] = -1;
     for (int x = 0; x < st.stride; ++x) st.row_live[y] = std::max(st.row_live[y], st.last[y * st.stride + x]);
     jmax = std::max<int64_t>(jmax, st.row_live[y]);
   }
-  std::fill(rows + (jmax + 1) * D2, rows + n * D2, T(0));
-  alignas(64) T acc[D2][kLanes];
+  std::fill(rows + (jmax + 1) * D, rows + n * D, T(0));
+  alignas(64) T acc[D][kLanes];
   for (int64_t j = jmax; j >= 0; --j) {
     const Pair2<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
     for (auto& a : acc) std::fill(a, a + kLanes, T(0));
     for (int y = q.y0; y <= q.y1 && q.x0 <= q.x1; ++y) {
       if (j > st.row_live[y]) continue;  // the row's pixels all stopped before this pair
-      for (int c = q.x0 / kLanes * kLanes; c <= q.x1; c += kLanes) backward_lanes(q, int32_t(j), y, c, mc, near, lp, st, acc);
+      for (int c = q.x0 / kLanes * kLanes; c <= q.x1; c += kLanes) {
+        if constexpr (Geo) backward_lanes(q, int32_t(j), y, c, mc, near, lp, st, acc);
+        else colour_lanes(q, int32_t(j), y, c, near, lp, st, acc);
+      }
     }
-    T* r = rows + j * D2;
-    for (int d = 0; d < D2; ++d) {
+    T* r = rows + j * D;
+    for (int d = 0; d < D; ++d) {
       T sum = 0;
       for (int i = 0; i < kLanes; ++i) sum += acc[d][i];
       r[d] = sum;
     }
-    for (int k = 0; k < 3; ++k) {  // from the tile frame: c' = c + x0 a + y0 b
-      r[GA + k] += T(x0) * r[GA + 6 + k];
-      r[GA + 3 + k] += T(y0) * r[GA + 6 + k];
-    }
+    if constexpr (Geo)
+      for (int k = 0; k < 3; ++k) {  // from the tile frame: c' = c + x0 a + y0 b
+        r[GA + k] += T(x0) * r[GA + 6 + k];
+        r[GA + 3 + k] += T(y0) * r[GA + 6 + k];
+      }
   }
 }
 
@@ -156,7 +182,7 @@ inline void adjugate_to_rows(const double* H, const double* gA, double* gH) {
 
 template <typename T>
 Grads2D backward_impl(const Surfels2D& s, const TileLists& l, const Grid& gr, const Composite2D& fw,
-                      const std::vector<at::Tensor>& og) {
+                      const std::vector<at::Tensor>& og, bool geometry) {
   const In2<T> in = inputs<T>(s, l);
   const int64_t M = s.colors.size(0), P = l.ids.numel();
   const Pair2<T>* pairs = pair_records<Pair2<T>>(fw.pairs);
@@ -164,17 +190,26 @@ Grads2D backward_impl(const Surfels2D& s, const TileLists& l, const Grid& gr, co
                      fw.m2.data_ptr<T>(), fw.mref.data_ptr<T>(), fw.last.data_ptr<int32_t>(),
                      fw.median_pair.data_ptr<int32_t>(), grad_or_null<T>(og[0]), grad_or_null<T>(og[1]),
                      grad_or_null<T>(og[2]), grad_or_null<T>(og[3]), grad_or_null<T>(og[4]), grad_or_null<T>(og[5])};
-  std::vector<T> rows(P * D2);
+  const int64_t D = geometry ? D2 : 3;
+  std::vector<T> rows(P * D);
   std::vector<Tile2<T>> states(num_workers());
   parallel_chunks(gr.C * gr.tiles(), [&](int64_t ct, int w) {
     Tile2<T>& st = states[w];
     st.reset(gr.tile);
-    const int64_t start = in.off[ct];
+    const int64_t start = in.off[ct], n = in.off[ct + 1] - start;
     load_tile(gr, ct, start, sv, in.bg, st);
-    backward_tile(pairs + start, in.off[ct + 1] - start, int(gr.ny(ct)), in.mc + 3 * (ct / gr.tiles()), in.near, in.lp,
-                  gr.x0(ct), gr.y0(ct), st, rows.data() + start * D2);
+    const T* mc = in.mc + 3 * (ct / gr.tiles());
+    if (geometry) backward_tile<T, true>(pairs + start, n, int(gr.ny(ct)), mc, in.near, in.lp, gr.x0(ct), gr.y0(ct), st, rows.data() + start * D);
+    else backward_tile<T, false>(pairs + start, n, int(gr.ny(ct)), mc, in.near, in.lp, gr.x0(ct), gr.y0(ct), st, rows.data() + start * D);
   });
   Grads2D g;
+  if (!geometry) {
+    g.colors = at::empty_like(s.colors);
+    T* gcol = g.colors.data_ptr<T>();
+    reduce_pairs(M, 3, rows.data(), l.entry_offsets.data_ptr<int64_t>(), l.pair_of.data_ptr<int64_t>(),
+                 [&](int64_t e, const double* r) { for (int k = 0; k < 3; ++k) gcol[3 * e + k] = T(r[k]); });
+    return g;
+  }
   g.H = at::empty_like(s.H);
   g.Dz = at::empty_like(s.Dz);
   g.centres = at::empty_like(s.centres);
@@ -207,12 +242,12 @@ Grads2D backward_impl(const Surfels2D& s, const TileLists& l, const Grid& gr, co
 Grads2D composite2d_backward(const Surfels2D& s, const TileLists& lists, const Raster& raster, const Composite2D& fwd,
                              const at::Tensor& g_rgb, const at::Tensor& g_normal, const at::Tensor& g_alpha,
                              const at::Tensor& g_depth, const at::Tensor& g_median,
-                             const at::Tensor& g_distortion) {
+                             const at::Tensor& g_distortion, bool geometry) {
   const Grid gr = make_grid(raster.C, raster.H, raster.W, raster.tile);
   const std::vector<at::Tensor> og{g_rgb, g_normal, g_alpha, g_depth, g_median, g_distortion};
   Grads2D g;
   AT_DISPATCH_FLOATING_TYPES(s.colors.scalar_type(), "composite2d_backward", [&] {
-    g = c2d::backward_impl<scalar_t>(s, lists, gr, fwd, og);
+    g = c2d::backward_impl<scalar_t>(s, lists, gr, fwd, og, geometry);
   });
   return g;
 }

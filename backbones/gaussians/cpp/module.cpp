@@ -63,5 +63,5 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
         py::arg("raster"));
   m.def("composite2d_backward", &composite2d_backward, "2DGS tile compositing, backward", py::arg("surfels"),
         py::arg("lists"), py::arg("raster"), py::arg("fwd"), py::arg("g_rgb"), py::arg("g_normal"), py::arg("g_alpha"),
-        py::arg("g_depth"), py::arg("g_median"), py::arg("g_distortion"));
+        py::arg("g_depth"), py::arg("g_median"), py::arg("g_distortion"), py::arg("geometry") = true);
 }

@@ -79,8 +79,13 @@ class TSDFVolume:
         surface), ``rgb [H, W, 3]`` or None, ``background [H, W]`` bool pixels that clear space, or None."""
         cam = _recentred(cam[:1], self.middle)
         H, W = depth.shape
-        depth, valid = depth.float().reshape(-1), valid.reshape(-1).bool()
-        bg = background.reshape(-1).bool() if background is not None else None
+        # one value per pixel, read once per voxel: the depth where valid, +inf where the pixel clears space
+        # (background), NaN where it says nothing; a last entry (NaN) for voxels outside the view
+        valid = valid.reshape(-1).bool()
+        table = torch.where(valid, depth.float().reshape(-1), torch.tensor(float("nan")))
+        if background is not None:
+            table = torch.where(background.reshape(-1).bool() & ~valid, torch.tensor(float("inf")), table)
+        table = torch.cat([table, table.new_tensor([float("nan")])])
         rgb = rgb.float().reshape(-1, 3) if rgb is not None else None
         n = self.tsdf.numel()
         for start in range(0, n, self.chunk):
@@ -88,23 +93,16 @@ class TSDFVolume:
             uv, z = cam.project(self.points[start:stop])
             u, v, z = uv[0, :, 0].floor().long(), uv[0, :, 1].floor().long(), z[0]
             inside = (u >= 0) & (u < W) & (v >= 0) & (v < H) & ((z > 0) | cam.is_ortho)
-            pix = (v.clamp(0, H - 1) * W + u.clamp(0, W - 1))
-            sdf = depth[pix] - z
-            hit = inside & valid[pix] & (sdf >= -self.trunc)
-            obs = (sdf / self.trunc).clamp(-1.0, 1.0).float()
-            if bg is not None:
-                free = inside & bg[pix] & ~valid[pix]
-                obs = torch.where(free, torch.ones_like(obs), obs)
-                hit = hit | free
-            self._update(start + torch.nonzero(hit)[:, 0], obs[hit])
+            pix = torch.where(inside, v * W + u, H * W)
+            sdf = table[pix] - z  # NaN: no observation; +inf: free space
+            hit = sdf >= -self.trunc  # a surface at most trunc in front of the voxel, or free space
+            obs = (sdf / self.trunc).clamp(-1.0, 1.0)  # (free space: +1)
+            w = self.weight[start:stop]
+            self.tsdf[start:stop] = torch.where(hit, (self.tsdf[start:stop] * w + obs) / (w + 1), self.tsdf[start:stop])
+            self.weight[start:stop] = w + hit
             if rgb is not None:
-                near = hit & (sdf.abs() < self.trunc) & valid[pix]
-                self._update_color(start + torch.nonzero(near)[:, 0], rgb[pix[near]])
-
-    def _update(self, idx: Tensor, obs: Tensor) -> None:
-        w = self.weight[idx]
-        self.tsdf[idx] = (self.tsdf[idx] * w + obs) / (w + 1)
-        self.weight[idx] = w + 1
+                near = torch.nonzero(sdf.abs() < self.trunc)[:, 0]  # (finite: a surface pixel)
+                self._update_color(start + near, rgb[pix[near]])
 
     def _update_color(self, idx: Tensor, rgb: Tensor) -> None:
         w = self.color_weight[idx][:, None]

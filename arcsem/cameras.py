@@ -136,7 +136,10 @@ class Cameras:
         if points.ndim == 2:
             points = points[None].expand(len(self), -1, -1)
         R, t = self.world_to_cam[:, :3, :3], self.world_to_cam[:, :3, 3]
-        return points @ R.transpose(1, 2) + t[:, None, :]
+        pc = points @ R.transpose(1, 2)
+        if pc.requires_grad or t.requires_grad:
+            return pc + t[:, None, :]
+        return pc.add_(t[:, None, :])  # in place: millions of points (mesh fusion) in one pass less
 
     def project(self, points: Tensor) -> tuple[Tensor, Tensor]:
         """World points ``[C, N, 3]`` or ``[N, 3]`` -> pixels ``[C, N, 2]`` and depth ``[C, N]``."""
@@ -147,7 +150,9 @@ class Cameras:
         c = self.K[:, :2, 2][:, None, :]
         skew = self.K[:, 0, 1][:, None]
         uv = xy * f + c
-        uv = torch.stack([uv[..., 0] + skew * xy[..., 1], uv[..., 1]], -1)
+        if uv.requires_grad or skew.requires_grad:
+            return torch.stack([uv[..., 0] + skew * xy[..., 1], uv[..., 1]], -1), z
+        uv[..., 0] += skew * xy[..., 1]  # u = fx x + cx + s y, in place (the same sums)
         return uv, z
 
     def pixels_to_camera(self, uv: Tensor, depth: Tensor) -> Tensor:

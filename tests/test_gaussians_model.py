@@ -155,10 +155,12 @@ def test_render_passes_act_colours_and_mean_act_for_novel_views():
     torch.testing.assert_close(bb.render(cams)["colors_in"], (base * 3.5 / 3).clamp(0, 1))
 
 
-def test_post_backward_densifies_and_optimizer_keeps_stepping():
+@pytest.mark.parametrize("fused", [None, True], ids=["loop", "fused"])  # the trainer's Adam is the fused one
+def test_post_backward_densifies_and_optimizer_keeps_stepping(fused):
     scene = scene_of()
     bb = build("gs3d", scene)
-    opt = torch.optim.Adam([{"params": ps, "name": g} for g, ps in bb.param_groups("geometry").items()], lr=1e-3)
+    opt = torch.optim.Adam([{"params": ps, "name": g} for g, ps in bb.param_groups("geometry").items()], lr=1e-3,
+                           fused=fused)
     n0 = bb.num_primitives()
     for step in range(598, 600):
         out = bb.render(scene.train.cameras[:1])

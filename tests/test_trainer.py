@@ -193,3 +193,20 @@ def test_resize_split_scales_images_masks_and_cameras():
     torch.testing.assert_close(half.images[0, 0, 0], scene.train.images[0, :2, :2].mean((0, 1)))
     assert half.cameras.K[0, 0, 0] == pytest.approx(15.0) and half.cameras.width == 12
     assert resize_split(scene.train, width=12).images.shape == (4, 8, 12, 3)
+
+
+def test_adam_is_fused_unless_switched_off():
+    """``train.optim.fused`` (default true): Adam's fused kernel; ``false``: PyTorch's loop. Both step alike."""
+    from arcsem.train.optim import GroupSchedule, OptimConfig, build_optimizers
+
+    results = {}
+    for fused in (True, False):
+        torch.manual_seed(0)
+        p = nn.Parameter(torch.randn(50, 3))
+        opt = build_optimizers({"xyz": [p]}, {"xyz": GroupSchedule(lr=1e-2)}, OptimConfig(fused=fused))["xyz"]
+        assert bool(opt.defaults["fused"]) is fused
+        for _ in range(5):
+            p.grad = torch.sin(p.detach() * 3)
+            opt.step()
+        results[fused] = p.detach()
+    torch.testing.assert_close(results[True], results[False], rtol=1e-6, atol=1e-7)

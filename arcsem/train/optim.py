@@ -94,7 +94,8 @@ def build_optimizers(groups: dict[str, list[nn.Parameter]], schedules: dict[str,
         lr = lr_at(schedules[g], 0, 1)
         spec = [{"params": list(params), "lr": lr, "name": g}]
         if kind == "adam":
-            out[g] = torch.optim.Adam(spec, lr=lr, betas=tuple(optim.betas), eps=optim.eps)
+            fused = optim.fused and all(p.dtype.is_floating_point and not p.is_sparse for p in params)
+            out[g] = torch.optim.Adam(spec, lr=lr, betas=tuple(optim.betas), eps=optim.eps, fused=fused or None)
         elif kind == "rmsprop":
             out[g] = torch.optim.RMSprop(spec, lr=lr, alpha=optim.rmsprop_alpha, eps=optim.rmsprop_eps)
         else:

@@ -1,0 +1,99 @@
+"""Per-view costs on a finished Gaussian run: the fused compositing kernels and TSDF fusion.
+
+    .venv/bin/python benchmarks/bench_views.py RUN [--threads 1]              # RUN: a stage-1 run folder (the demo's)
+    .venv/bin/python benchmarks/bench_views.py RUN --part tsdf                 # 5.2 M voxels, one 288x192 view
+
+``render``: the run's stage-1 model (``RUN/checkpoints/last.pt``, its own config) renders its training views, forward
+only and forward + backward of ``sum(rgb)``; prints ms per view (median over the views of ``--repeats`` passes) and the
+compositing kernels' own share (``torch.profiler``, 8 views). ``tsdf``: :meth:`TSDFVolume.integrate` of one view
+(a depth map with holes and background pixels) into the demo's grid size, median of 5. Compare commits by running
+this script in each checkout (its venv) on the same run folder.
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from pathlib import Path
+
+import torch
+
+
+def render_part(run: Path, repeats: int) -> None:
+    from omegaconf import OmegaConf
+    from torch.profiler import ProfilerActivity, profile
+
+    from arcsem.data import load_scene
+    from arcsem.train.stage1 import load_stage1, prepare_scene, train_config
+
+    cfg = OmegaConf.load(run / ".hydra" / "config.yaml")
+    scene = load_scene(cfg.dataset)
+    bb, _ = load_stage1(run / "checkpoints" / "last.pt", scene, cfg)
+    cams = prepare_scene(scene, train_config(cfg)).train.cameras
+
+    def forward(i):
+        with torch.no_grad():
+            bb.render(cams[i:i + 1])
+
+    def both(i):
+        bb.render(cams[i:i + 1])["rgb"].sum().backward()
+
+    print(f"{bb.num_primitives():,} Gaussians, {cams.width}x{cams.height}, {torch.get_num_threads()} thread(s)")
+    for name, fn in (("forward", forward), ("forward + backward", both)):
+        fn(0)
+        times = []
+        for _ in range(repeats):
+            for i in range(len(cams)):
+                t0 = time.perf_counter()
+                fn(i)
+                times.append(time.perf_counter() - t0)
+        print(f"{name}: {1e3 * statistics.median(times):.1f} ms a view")
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for i in range(8):
+            both(i)
+    for e in prof.key_averages():
+        if e.key in ("_Composite2D", "_Composite2DBackward", "_Composite3D", "_Composite3DBackward"):
+            print(f"{e.key}: {e.self_cpu_time_total / 1e3 / e.count:.1f} ms a view")
+
+
+def tsdf_part() -> None:
+    from arcsem.cameras import Cameras, look_at
+    from arcsem.mesh.tsdf import TSDFVolume, make_grid
+
+    grid = make_grid(torch.tensor([[-1.3, -1.3, -1.0], [1.3, 1.3, 1.1]], dtype=torch.float64), 0.01447)
+    vol = TSDFVolume(grid, 6 * 0.01447)
+    eye = torch.tensor([[0.0, 0.0, -4.0]], dtype=torch.float64)
+    w2c = look_at(eye, torch.zeros_like(eye), torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64))
+    cam = Cameras(w2c, torch.tensor([[[300.0, 0, 144], [0, 300.0, 96], [0, 0, 1]]], dtype=torch.float64), 288, 192,
+                  "pinhole")
+    g = torch.Generator().manual_seed(0)
+    depth = 3.5 + torch.rand(192, 288, generator=g)
+    valid = torch.rand(192, 288, generator=g) > 0.3
+    rgb = torch.rand(192, 288, 3, generator=g)
+    times = []
+    for _ in range(6):
+        t0 = time.perf_counter()
+        vol.integrate(cam, depth, valid, rgb, ~valid)
+        times.append(time.perf_counter() - t0)
+    n = grid.shape[0] * grid.shape[1] * grid.shape[2]
+    print(f"TSDF integrate, {n / 1e6:.1f} M voxels {grid.shape}: {statistics.median(times[1:]):.3f} s a view")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("run", type=Path, nargs="?", help="a finished stage-1 run folder (--part render)")
+    ap.add_argument("--part", choices=("render", "tsdf"), default="render")
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--repeats", type=int, default=1)
+    a = ap.parse_args()
+    torch.set_num_threads(a.threads)
+    if a.part == "tsdf":
+        tsdf_part()
+    elif a.run is None:
+        ap.error("--part render needs a run folder")
+    else:
+        render_part(a.run, a.repeats)
+
+
+if __name__ == "__main__":
+    main()

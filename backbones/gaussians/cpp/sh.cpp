@@ -102,7 +102,8 @@ at::Tensor sh_colors_forward(const ShColors& a) {
 
 std::vector<at::Tensor> sh_colors_backward(const ShColors& a, const at::Tensor& g_colors) {
   const int64_t N = a.means.size(0), C = a.origins.size(0), K = (a.degree + 1) * (a.degree + 1), R = a.sh_rest.size(1);
-  auto gm = at::zeros_like(a.means), gdc = at::empty_like(a.sh_dc), grest = at::zeros_like(a.sh_rest);
+  // every entry is written below (unused rest coefficients get 0): no zero fill of [N, 15, 3] first
+  auto gm = at::empty_like(a.means), gdc = at::empty_like(a.sh_dc), grest = at::empty_like(a.sh_rest);
   auto g_in = g_colors.contiguous();
   AT_DISPATCH_FLOATING_TYPES(a.means.scalar_type(), "sh_colors_backward", [&] {
     using T = scalar_t;
@@ -140,6 +141,7 @@ std::vector<at::Tensor> sh_colors_backward(const ShColors& a, const at::Tensor& 
         for (int ch = 0; ch < 3; ++ch) odc[3 * n + ch] = gsh[0][ch];
         for (int64_t k = 1; k < K; ++k)
           for (int ch = 0; ch < 3; ++ch) orest[(n * R + k - 1) * 3 + ch] = gsh[k][ch];
+        std::fill(orest + (n * R + K - 1) * 3, orest + (n + 1) * R * 3, T(0));  // coefficients above the degree
         for (int ax = 0; ax < 3; ++ax) om[3 * n + ax] = gv[ax];
       }
     });

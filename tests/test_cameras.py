@@ -92,3 +92,15 @@ def test_batch_plumbing():
     torch.testing.assert_close(both.world_to_cam, cams.world_to_cam[[0, 2]])
     with pytest.raises(ValueError, match="unknown camera model"):
         Cameras(cams.world_to_cam, cams.K, 20, 14, "fisheye")
+
+
+@pytest.mark.parametrize("model", ["pinhole", "orthographic"])
+def test_project_gradients_through_the_in_place_sums(model):
+    """``project`` adds the translation and the skew in place: gradients w.r.t. points, pose and intrinsics are still
+    exact (float64 finite differences)."""
+    eye = torch.tensor([[0.3, 0.2, -4.0]], dtype=torch.float64)
+    w2c = look_at(eye, torch.zeros_like(eye), torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64))
+    K = torch.tensor([[[200.0, 0.5, 72], [0, 190.0, 48], [0, 0, 1]]], dtype=torch.float64)
+    pts = torch.randn(7, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    args = tuple(x.clone().requires_grad_() for x in (pts, w2c, K))
+    assert torch.autograd.gradcheck(lambda p, w, k: Cameras(w, k, 144, 96, model).project(p), args)

@@ -4,7 +4,8 @@ The scene of the peer comparison (3DGS; 2DGS with ``--models 2DGS,3DGS``): a pin
 principal point at the centre) at z = -3 looking down +z; ``torch.manual_seed(0)``; means
 ``(rand(N, 3) - 0.5) * 1.6``, isotropic scale 0.02, opacity 0.5, normalised ``randn(N, 4)`` quaternions, colours
 from degree-3 SH coefficients ``randn(N, 16, 3) * 0.1`` evaluated towards the camera (+0.5, clamped at 0) inside
-the timing (main: PyTorch ops; this tree: the fused kernel the Gaussian backbones use); black background. One run = forward + backward of ``sum(rgb)`` (gradients of means, quaternions,
+the timing (this tree, and a base commit that has it: the fused SH kernel the Gaussian backbones use; a base from
+before it, such as 48f38bf: PyTorch ops, as its GaussianModel.colors); black background. One run = forward + backward of ``sum(rgb)`` (gradients of means, quaternions,
 scales, opacities and SH). Figures: median of the last 3 of 4 runs (``--runs``), wall seconds.
 
     .venv/bin/python benchmarks/bench_peer.py                         # this tree vs main, 1 and 2 threads
@@ -93,7 +94,10 @@ def main() -> None:
     if a.base != "none":
         from baseline import baseline_renderers
 
-        renders = {a.base: {**baseline_renderers(a.base), "colors": torch_colors}, **renders}
+        base = baseline_renderers(a.base)
+        colors = torch_colors if "sh_colors" not in base else (
+            lambda means, dc, rest, cams, f=base["sh_colors"]: f(means, dc, rest, cams.centers, False, 3))
+        renders = {a.base: {**base, "colors": colors}, **renders}
     print(f"shared scene 256x256, fwd+bwd of sum(rgb), median of the last {a.runs - 1} of {a.runs} runs, "
           f"alternating; load average {os.getloadavg()[0]:.2f}")
     names = list(renders)

@@ -207,17 +207,19 @@ def test_fused_unused_outputs_and_learned_background(kind):
 @pytest.mark.parametrize("kind", ["gs2d", "gs3d"])
 def test_fused_footprint_and_binning_equal_torch(kind, model):
     """The C++ footprints, tile rectangles, pixel boxes and (tile, depth)-sorted pairs are those of the torch
-    functions exactly (2 cameras, splats partly off-screen and behind the camera, some ties in depth)."""
+    functions exactly (2 cameras, splats partly off-screen and behind the camera, some ties in depth); each entry's
+    pair positions hold that entry."""
     from arcsem.backbones.gaussians import fused
     from arcsem.backbones.gaussians.raster import bin_tiles
     from arcsem.backbones.gaussians.raster_scenes import orbit_cameras, random_splats
     from arcsem.backbones.gs2d.render import footprint_2dgs, splat_homographies
     from arcsem.backbones.gs3d.render import footprint_3dgs, project_gaussians
 
-    s = random_splats(3000, 1, seed=3, scale=(0.002, 0.3), extent=4.0, opacity=(0.001, 1.0))
+    N = 3000
+    s = random_splats(N, 1, seed=3, scale=(0.002, 0.3), extent=4.0, opacity=(0.001, 1.0))
     s.means[:50] = s.means[50:100]  # equal depths: ties keep the index order
     cams = orbit_cameras(2, 72, 40, ortho=model == "orthographic")
-    C, N, W, H, tile, near = 2, 3000, 72, 40, 16, 0.01
+    C, W, H, tile, near = 2, 72, 40, 16, 0.01
     if kind == "gs2d":
         Hm, _ = splat_homographies(s.means, s.quats, s.scales[:, :2], cams)
         sigma = 0.4 if model == "orthographic" else 0.7071  # a non-default low-pass filter radius too
@@ -238,6 +240,8 @@ def test_fused_footprint_and_binning_equal_torch(kind, model):
     assert torch.equal(rects_c, rects.reshape(-1, 4))
     assert torch.equal(eff_c[visible], eff.reshape(-1, 4)[visible])
     assert torch.equal(offsets, b.offsets) and torch.equal(ids, b.splat)
+    entry = torch.repeat_interleave(torch.arange(C * N), got.entry_offsets.diff())  # [P] entry of each pair slot
+    assert torch.equal(ids[got.pair_of], entry) and torch.equal(got.pair_of.sort().values, torch.arange(len(ids)))
 
 
 def test_resolve_impl_choices():

@@ -86,8 +86,8 @@ def load(ext: Extension, verbose: bool = False):
         return None
 
 
-def resolve_impl(impl: str, ext: Extension, device: str = "cpu") -> str:
-    """``rasterizer`` config value -> ``"cpp"`` or ``"torch"``.
+def resolve_impl(impl: str, ext: Extension, device: str = "cpu", key: str = "rasterizer") -> str:
+    """``rasterizer`` config value (or another choice named ``key``) -> ``"cpp"`` or ``"torch"``.
 
     ``auto``: ``cpp`` for CPU tensors when the extension loads, else ``torch``; ``torch``: always the PyTorch
     path (any device); ``cpp``: must load and the tensors must be on the CPU (else a ConfigError).
@@ -95,12 +95,12 @@ def resolve_impl(impl: str, ext: Extension, device: str = "cpu") -> str:
     from arcsem.errors import ConfigError
 
     if impl not in CHOICES:
-        raise ConfigError(f"rasterizer: '{impl}' is not one of {', '.join(CHOICES)}")
+        raise ConfigError(f"{key}: '{impl}' is not one of {', '.join(CHOICES)}")
     on_cpu = str(device).split(":")[0] == "cpu"
     if impl == "torch" or (impl == "auto" and not on_cpu):
         return "torch"
     ok = on_cpu and load(ext) is not None
     if impl == "cpp" and not ok:
         why = "tensors on the CPU" if not on_cpu else "a C++ toolchain (see the warning above)"
-        raise ConfigError(f"rasterizer: 'cpp' ({ext.what}) needs {why}; use rasterizer=torch or auto")
+        raise ConfigError(f"{key}: 'cpp' ({ext.what}) needs {why}; use {key}=torch or auto")
     return "cpp" if ok else "torch"

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <type_traits>
 #include <vector>
 
 #include "pool.h"
@@ -29,6 +30,22 @@ inline Grid make_grid(int64_t C, int64_t H, int64_t W, int64_t tile) {
 }
 
 constexpr int kLanes = 16;  // pixels of a tile row evaluated together (one AVX-512 / two AVX2 registers of float)
+
+// The lane blocks of a pair's columns [x0, x1] on a tile row: each kLanes-aligned block they overlap, whole where
+// both its halves hold columns of the pair, else only the half that does (kLanes / 2 lanes: a narrow splat is
+// evaluated on half the pixels; the median 2DGS pair's box is 13 pixels on a trained model). f(lanes, first column),
+// lanes a std::integral_constant.
+template <class F>
+inline void for_lane_blocks(int x0, int x1, const F& f) {
+  constexpr int half = kLanes / 2;
+  for (int c = x0 / kLanes * kLanes; c <= x1; c += kLanes) {
+    const bool lo = c + half > x0, hi = c + half <= x1;
+    if (lo && hi)
+      f(std::integral_constant<int, kLanes>(), c);
+    else
+      f(std::integral_constant<int, half>(), lo ? c : c + half);
+  }
+}
 
 // exp(x) for x <= 0, vectorisable (no libm call inside `omp simd` loops). float: Cody-Waite reduction and the
 // degree-6 polynomial of Cephes' expf (about 2 ulp; 0 below -87); double: std::exp (the parity tests' type).

@@ -15,15 +15,16 @@ void forward_tile(const Pair2<T>* pr, int64_t n, int nx, int ny, const T* mc, T 
     for (int y = q.y0; y <= q.y1; ++y) {
       if (st.row_live[y] == 0) continue;
       const T py = T(y) + T(0.5);
-      for (int c = q.x0 / kLanes * kLanes; c <= q.x1; c += kLanes) {
+      for_lane_blocks(q.x0, q.x1, [&](auto lanes, int c) {
+        constexpr int NL = decltype(lanes)::value;
         const int base = y * S + c;
         T *tr = &st.tr[base], *lv = &st.live[base], *ws = &st.wsum[base], *acc = &st.acc[st.vec(y, c)], *wz = &st.wz[base], *m1 = &st.m1[base],
           *m2 = &st.m2[base], *dist = &st.dist[base], *mref = &st.mref[base], *med = &st.med[base];
         int32_t *ls = &st.last[base], *mi = &st.medi[base];
-        if (!eval_lanes(q, c, py, near, lp, [&](int i) { return lv[i] > T(0); }, L)) continue;
+        if (!eval_lanes<NL>(q, c, py, near, lp, [&](int i) { return lv[i] > T(0); }, L)) return;
         int stops = 0;
 #pragma omp simd reduction(+ : stops)
-        for (int i = 0; i < kLanes; ++i) {
+        for (int i = 0; i < NL; ++i) {
           const Hit2<T> h = L[i];
           // every state value is read once and written back unconditionally (a select, then a full store): masked
           // stores would stall the next pair's loads of the same pixels (no store-to-load forwarding)
@@ -56,7 +57,7 @@ void forward_tile(const Pair2<T>* pr, int64_t n, int nx, int ny, const T* mc, T 
         }
         st.row_live[y] -= stops;
         live_total -= stops;
-      }
+      });
     }
   }
 }

@@ -85,13 +85,13 @@ struct Lanes2 {
   }
 };
 
-// q on the pixels (c + i, py), i < kLanes; a lane is ok where eval2 says so and gate(i) holds (the forward: the
-// pixel is live; the backward: the pixel composited this pair). Returns whether any lane is ok.
-template <typename T, class Gate>
+// q on the pixels (c + i, py), i < NL (<= kLanes); a lane is ok where eval2 says so and gate(i) holds (the
+// forward: the pixel is live; the backward: the pixel composited this pair). Returns whether any lane is ok.
+template <int NL, typename T, class Gate>
 inline bool eval_lanes(const Pair2<T>& q, int c, T py, T near, T lp, const Gate& gate, Lanes2<T>& L) {
   int any = 0;
 #pragma omp simd reduction(| : any)
-  for (int i = 0; i < kLanes; ++i) {
+  for (int i = 0; i < NL; ++i) {
     const Hit2<T> h = eval2(q, c + i, py, near, lp);
     const bool ok = h.ok & gate(i);
     L.u[i] = h.u; L.v[i] = h.v; L.ip[i] = h.ip; L.dx[i] = h.dx; L.dy[i] = h.dy; L.z[i] = h.z; L.g[i] = h.g;

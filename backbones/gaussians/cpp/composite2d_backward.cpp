@@ -53,8 +53,8 @@ void load_tile(const Grid& gr, int64_t ct, int64_t start, const Saved2<T>& sv, c
     }
 }
 
-// pair q on kLanes pixels of row y from column c: adds the pixels' gradients into acc [D2][kLanes]
-template <typename T>
+// pair q on NL pixels of row y from column c: adds the pixels' gradients into acc [D2][kLanes] (lanes < NL)
+template <int NL, typename T>
 inline void backward_lanes(const Pair2<T> q, int32_t j, int y, int c, const T* mcoef, T near, T lp, Tile2<T>& st,
                            T (*acc)[kLanes]) {
   const int base = y * st.stride + c;
@@ -64,9 +64,9 @@ inline void backward_lanes(const Pair2<T> q, int32_t j, int y, int c, const T* m
           *ga = &st.ga[base], *gd = &st.gd[base], *gm = &st.gm[base], *gdis = &st.gdis[base];
   const int32_t *ls = &st.last[base], *mi = &st.medi[base];
   Lanes2<T> L;
-  if (!eval_lanes(q, c, py, near, lp, [&](int i) { return j <= ls[i]; }, L)) return;
+  if (!eval_lanes<NL>(q, c, py, near, lp, [&](int i) { return j <= ls[i]; }, L)) return;
 #pragma omp simd
-  for (int i = 0; i < kLanes; ++i) {
+  for (int i = 0; i < NL; ++i) {
     const Hit2<T> h = L[i];
     // state read once, written back with full stores (a masked store would stall the next pair's loads of the
     // same pixels); unused lanes get finite stand-ins so that their contributions are exact zeros
@@ -108,8 +108,8 @@ inline void backward_lanes(const Pair2<T> q, int32_t j, int y, int c, const T* m
   }
 }
 
-// colours only (frozen geometry): pair q on kLanes pixels of row y from column c adds w go_rgb into acc [3][kLanes]
-template <typename T>
+// colours only (frozen geometry): pair q on NL pixels of row y from column c adds w go_rgb into acc [3][kLanes]
+template <int NL, typename T>
 inline void colour_lanes(const Pair2<T> q, int32_t j, int y, int c, T near, T lp, Tile2<T>& st, T (*acc)[kLanes]) {
   const int base = y * st.stride + c;
   const T py = T(y) + T(0.5);
@@ -117,9 +117,9 @@ inline void colour_lanes(const Pair2<T> q, int32_t j, int y, int c, T near, T lp
   const T* go = &st.go[st.vec(y, c)];
   const int32_t* ls = &st.last[base];
   Lanes2<T> L;
-  if (!eval_lanes(q, c, py, near, lp, [&](int i) { return j <= ls[i]; }, L)) return;
+  if (!eval_lanes<NL>(q, c, py, near, lp, [&](int i) { return j <= ls[i]; }, L)) return;
 #pragma omp simd
-  for (int i = 0; i < kLanes; ++i) {
+  for (int i = 0; i < NL; ++i) {
     const T tr0 = tr[i], alpha = L.alpha[i];
     const bool ok = L.ok[i] != 0;
     const T Ti = tr0 / (T(1) - alpha), w = ok ? alpha * Ti : T(0);
@@ -147,10 +147,11 @@ void backward_tile(const Pair2<T>* pr, int64_t n, int ny, const T* mc, T near, T
     for (auto& a : acc) std::fill(a, a + kLanes, T(0));
     for (int y = q.y0; y <= q.y1 && q.x0 <= q.x1; ++y) {
       if (j > st.row_live[y]) continue;  // the row's pixels all stopped before this pair
-      for (int c = q.x0 / kLanes * kLanes; c <= q.x1; c += kLanes) {
-        if constexpr (Geo) backward_lanes(q, int32_t(j), y, c, mc, near, lp, st, acc);
-        else colour_lanes(q, int32_t(j), y, c, near, lp, st, acc);
-      }
+      for_lane_blocks(q.x0, q.x1, [&](auto lanes, int c) {
+        constexpr int NL = decltype(lanes)::value;
+        if constexpr (Geo) backward_lanes<NL>(q, int32_t(j), y, c, mc, near, lp, st, acc);
+        else colour_lanes<NL>(q, int32_t(j), y, c, near, lp, st, acc);
+      });
     }
     T* r = rows + j * D;
     for (int d = 0; d < D; ++d) {

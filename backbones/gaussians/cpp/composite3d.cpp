@@ -103,14 +103,15 @@ void forward_tile(const Pair3<T>* pr, int64_t n, int nx, int ny, Tile3<T>& st) {
     for (int y = q.y0; y <= q.y1; ++y) {
       if (st.row_live[y] == 0) continue;
       const T dy = (T(y) + T(0.5)) - q.my;
-      for (int c = q.x0 / kLanes * kLanes; c <= q.x1; c += kLanes) {
+      for_lane_blocks(q.x0, q.x1, [&](auto lanes, int c) {
+        constexpr int NL = decltype(lanes)::value;
         const int base = y * S + c;
         T *tr = st.tr.data() + base, *lv = st.live.data() + base, *acc = st.acc.data() + st.vec(y, c),
           *ws = st.wsum.data() + base;
         int32_t* ls = st.last.data() + base;
         int stops = 0;
 #pragma omp simd reduction(+ : stops)
-        for (int i = 0; i < kLanes; ++i) {
+        for (int i = 0; i < NL; ++i) {
           T dx, g, alpha;
           bool ok;
           eval3(q, c + i, dy, dx, g, alpha, ok);
@@ -133,7 +134,7 @@ void forward_tile(const Pair3<T>* pr, int64_t n, int nx, int ny, Tile3<T>& st) {
         }
         st.row_live[y] -= stops;
         live_total -= stops;
-      }
+      });
     }
   }
 }
@@ -196,13 +197,14 @@ void backward_tile(const Pair3<T>* pr, int64_t n, int ny, Tile3<T>& st, T* grow)
     for (int y = q.y0; y <= q.y1 && q.x0 <= q.x1; ++y) {
       if (j > st.row_live[y]) continue;  // the row's pixels all stopped before this pair
       const T dy = (T(y) + T(0.5)) - q.my;
-      for (int c = q.x0 / kLanes * kLanes; c <= q.x1; c += kLanes) {
+      for_lane_blocks(q.x0, q.x1, [&](auto lanes, int c) {
+        constexpr int NL = decltype(lanes)::value;
         const int base = y * S + c;
         T *tr = st.tr.data() + base, *sg = st.sg.data() + base;
         const T *go = st.go.data() + st.vec(y, c), *ga = st.ga.data() + base, *tf = st.tf.data() + base;
         const int32_t* ls = st.last.data() + base;
 #pragma omp simd
-        for (int i = 0; i < kLanes; ++i) {
+        for (int i = 0; i < NL; ++i) {
           T dx, g, alpha;
           bool ok;
           eval3(q, c + i, dy, dx, g, alpha, ok);
@@ -228,7 +230,7 @@ void backward_tile(const Pair3<T>* pr, int64_t n, int ny, Tile3<T>& st, T* grow)
           acc[3][i] += -dpow * dx * dy;
           acc[4][i] += dpow * T(-0.5) * dy * dy;
         }
-      }
+      });
     }
     for (int d = 0; d < D3; ++d) {
       T sum = 0;

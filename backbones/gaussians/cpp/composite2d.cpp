@@ -15,7 +15,7 @@ void forward_tile(const Pair2<T>* pr, int64_t n, int nx, int ny, const T* mc, T 
     for (int y = q.y0; y <= q.y1; ++y) {
       if (st.row_live[y] == 0) continue;
       const T py = T(y) + T(0.5);
-      for_lane_blocks(q.x0, q.x1, [&](auto lanes, int c) {
+      for_lane_blocks<4>(q.x0, q.x1, [&](auto lanes, int c) {
         constexpr int NL = decltype(lanes)::value;
         const int base = y * S + c;
         T *tr = &st.tr[base], *lv = &st.live[base], *ws = &st.wsum[base], *acc = &st.acc[st.vec(y, c)], *wz = &st.wz[base], *m1 = &st.m1[base],

@@ -147,7 +147,7 @@ void backward_tile(const Pair2<T>* pr, int64_t n, int ny, const T* mc, T near, T
     for (auto& a : acc) std::fill(a, a + kLanes, T(0));
     for (int y = q.y0; y <= q.y1 && q.x0 <= q.x1; ++y) {
       if (j > st.row_live[y]) continue;  // the row's pixels all stopped before this pair
-      for_lane_blocks(q.x0, q.x1, [&](auto lanes, int c) {
+      for_lane_blocks<8>(q.x0, q.x1, [&](auto lanes, int c) {
         constexpr int NL = decltype(lanes)::value;
         if constexpr (Geo) backward_lanes<NL>(q, int32_t(j), y, c, mc, near, lp, st, acc);
         else colour_lanes<NL>(q, int32_t(j), y, c, near, lp, st, acc);

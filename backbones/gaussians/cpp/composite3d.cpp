@@ -103,7 +103,7 @@ void forward_tile(const Pair3<T>* pr, int64_t n, int nx, int ny, Tile3<T>& st) {
     for (int y = q.y0; y <= q.y1; ++y) {
       if (st.row_live[y] == 0) continue;
       const T dy = (T(y) + T(0.5)) - q.my;
-      for_lane_blocks(q.x0, q.x1, [&](auto lanes, int c) {
+      for_lane_blocks<4>(q.x0, q.x1, [&](auto lanes, int c) {
         constexpr int NL = decltype(lanes)::value;
         const int base = y * S + c;
         T *tr = st.tr.data() + base, *lv = st.live.data() + base, *acc = st.acc.data() + st.vec(y, c),
@@ -197,7 +197,7 @@ void backward_tile(const Pair3<T>* pr, int64_t n, int ny, Tile3<T>& st, T* grow)
     for (int y = q.y0; y <= q.y1 && q.x0 <= q.x1; ++y) {
       if (j > st.row_live[y]) continue;  // the row's pixels all stopped before this pair
       const T dy = (T(y) + T(0.5)) - q.my;
-      for_lane_blocks(q.x0, q.x1, [&](auto lanes, int c) {
+      for_lane_blocks<8>(q.x0, q.x1, [&](auto lanes, int c) {
         constexpr int NL = decltype(lanes)::value;
         const int base = y * S + c;
         T *tr = st.tr.data() + base, *sg = st.sg.data() + base;

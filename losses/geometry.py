@@ -12,10 +12,12 @@ from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
+from arcsem.losses.fused import fused_normal_consistency, usable
 from torch import Tensor
 
 from arcsem.cameras import Cameras
 from arcsem.plugins import LOSSES, Batch, Loss, RenderOutput
+from arcsem.registry import checked
 
 __all__ = ["Distortion", "NormalConsistency", "depth_normals"]
 
@@ -52,6 +54,8 @@ class NormalConsistency(Loss):
         start_step: int = 7000
         official: bool = True
         depth: str = "expected"
+        # the fused C++ kernel (losses/fused.py, official form) for CPU tensors: auto (it where it builds), torch, cpp
+        impl: str = checked("auto", choices=("auto", "torch", "cpp"))
 
     def __init__(self, cfg: Config, **runtime):
         super().__init__(cfg)
@@ -63,6 +67,8 @@ class NormalConsistency(Loss):
 
     def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
         depth = out["median_depth"] if self.cfg.depth == "median" else out["depth"]
+        if self.cfg.official and usable(self.cfg.impl, "normal_consistency.impl", depth, out["normal"]):
+            return fused_normal_consistency(depth, out["normal"], out["alpha"], batch.cameras)
         surf = depth_normals(depth, batch.cameras)
         alpha = out["alpha"].detach()
         if self.cfg.official:

@@ -8,14 +8,14 @@ specimen mask count (falls back to every pixel when the batch has no mask).
 :func:`arcsem.imageops.ssim_map` is the pure, differentiable SSIM used by the ``dssim`` loss and by the
 SSIM metric (Wang et al. 2004, constants ``C1 = 0.01^2``, ``C2 = 0.03^2`` for data range 1, zero padding as
 in 3DGS/2DGS); the loss computes the same map with one fused C++ kernel on the CPU (``impl``,
-:mod:`arcsem.losses.fused_ssim`).
+:mod:`arcsem.losses.fused`).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import ClassVar
 
-from arcsem.losses.fused_ssim import fused_ssim_map, usable
+from arcsem.losses.fused import fused_ssim_map, usable
 from torch import Tensor
 
 from arcsem.imageops import gaussian_window, ssim_map
@@ -80,12 +80,12 @@ class DSSIM(Loss):
         window: int = 11  # Gaussian window size (pixels)
         sigma: float = 1.5  # Gaussian window standard deviation (pixels)
         masked: bool = False  # average the SSIM map inside the specimen mask only
-        # the fused C++ kernel (losses/fused_ssim.py) for CPU images: auto (it where it builds), torch, cpp
+        # the fused C++ kernel (losses/fused.py) for CPU images: auto (it where it builds), torch, cpp
         impl: str = checked("auto", choices=("auto", "torch", "cpp"))
 
     def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
         if batch.images.ndim != 4:
             raise ValueError("dssim needs image batches [C,H,W,3]; ray batches cannot compute SSIM")
-        fused = usable(self.cfg.impl, out["rgb"], batch.images)
+        fused = not batch.images.requires_grad and usable(self.cfg.impl, "dssim.impl", out["rgb"], batch.images)
         s = (fused_ssim_map if fused else ssim_map)(out["rgb"], batch.images, self.cfg.window, self.cfg.sigma)
         return 1.0 - masked_mean(s, batch.masks if self.cfg.masked else None)

@@ -173,10 +173,3 @@ _Pragma("omp simd")
   });
   return gx;
 }
-
-PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-  m.def("ssim_forward", &ssim_forward, "SSIM map and the five blurred statistics", py::arg("x"), py::arg("y"),
-        py::arg("window"));
-  m.def("ssim_backward", &ssim_backward, "gradient of the SSIM map with respect to x", py::arg("g_map"), py::arg("x"),
-        py::arg("y"), py::arg("window"), py::arg("stats"));
-}

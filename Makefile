@@ -5,7 +5,7 @@ VENV    := .venv
 BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.arcsem-installed
 EXT     := $(VENV)/.arcsem-ext
-CPP     := $(wildcard backbones/gaussians/cpp/*.cpp backbones/gaussians/cpp/*.h)
+CPP     := $(wildcard backbones/gaussians/cpp/*.cpp backbones/gaussians/cpp/*.h losses/cpp/*.cpp)
 JOBS    ?= 2
 export PIP_DISABLE_PIP_VERSION_CHECK=1
 
@@ -21,6 +21,7 @@ $(STAMP): pyproject.toml constraints.txt examples/mip_splatting/pyproject.toml
 # JIT-build the fused C++ rasteriser once (about a minute); failure is not fatal: PyTorch path is used.
 $(EXT): $(STAMP) $(CPP)
 	-$(BIN)/python -m arcsem.backbones.gaussians.fused
+	-$(BIN)/python -m arcsem.losses.fused
 	@touch $(EXT)
 
 demo: $(EXT)

@@ -99,3 +99,12 @@ def fused_normal_consistency(depth: Tensor, normal: Tensor, alpha: Tensor, cams)
     origins, dirs = _affine_rays(cams, depth.dtype)
     return _NormalConsistency.apply(depth[..., 0].contiguous(), normal.contiguous(), origins, dirs,
                                     alpha.detach()[..., 0].to(depth.dtype).contiguous())
+
+
+if __name__ == "__main__":  # `python -m arcsem.losses.fused`: build now (make setup does this)
+    import time
+
+    t0 = time.perf_counter()
+    ok = _ext() is not None
+    print(f"fused C++ losses: {'ready' if ok else 'unavailable, PyTorch path will be used'} "
+          f"({time.perf_counter() - t0:.1f} s)")

@@ -76,6 +76,22 @@ inline void diffs(const T* P, int64_t p, int64_t W, T* dy, T* dx, T* c) {
   cross3(dy, dx, c);
 }
 
+// f(row, p, dy, dx, c, |c|, 1 / max(|c|, eps)) at every interior pixel p whose surface normal is not zero
+template <typename T, class F>
+void each_normal(const In<T>& in, const T* P, const F& f) {
+  const Dims& s = in.s;
+  at::parallel_for(0, s.rows(), 8, [&](int64_t b, int64_t e) {
+    for (int64_t row = b; row < e; ++row)
+      for (int64_t x = 1; x < s.W - 1 && in.interior_row(row); ++x) {
+        const int64_t p = row * s.W + x;
+        T dy[3], dx[3], c[3];
+        diffs(P, p, s.W, dy, dx, c);
+        const T len = std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
+        if (len > T(0)) f(row, p, dy, dx, c, len, T(1) / std::max(len, T(kEps)));  // n = 0 (or NaN): not counted
+      }
+  });
+}
+
 Dims check(const at::Tensor& depth, const at::Tensor& o, const at::Tensor& d, const at::Tensor& normal,
            const at::Tensor& alpha) {
   TORCH_CHECK(depth.dim() == 3, "normal_consistency: depth must be [C, H, W]");
@@ -104,19 +120,10 @@ std::vector<at::Tensor> normal_consistency_forward(const at::Tensor& depth, cons
     const In<T> in{depth.data_ptr<T>(), o.data_ptr<T>(), d.data_ptr<T>(), normal.data_ptr<T>(), alpha.data_ptr<T>(), s};
     std::vector<T> P(3 * s.rows() * s.W);
     in.points(P.data());
-    at::parallel_for(0, s.rows(), 8, [&](int64_t b, int64_t e) {
-      for (int64_t row = b; row < e; ++row)
-        for (int64_t x = 1; x < s.W - 1 && in.interior_row(row); ++x) {
-          const int64_t p = row * s.W + x;
-          T dy[3], dx[3], c[3];
-          diffs(P.data(), p, s.W, dy, dx, c);
-          const T len = std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
-          if (!(len > T(0))) continue;  // n = 0: not counted
-          const T inv = T(1) / std::max(len, T(kEps));
-          const T dot = (in.N[3 * p] * c[0] + in.N[3 * p + 1] * c[1] + in.N[3 * p + 2] * c[2]) * inv;
-          err[row] += double(T(1) - dot * in.A[p]);
-          cnt[row] += 1.0;
-        }
+    each_normal(in, P.data(), [&](int64_t row, int64_t p, const T*, const T*, const T* c, T, T inv) {
+      const T dot = (in.N[3 * p] * c[0] + in.N[3 * p + 1] * c[1] + in.N[3 * p + 2] * c[2]) * inv;
+      err[row] += double(T(1) - dot * in.A[p]);
+      cnt[row] += 1.0;
     });
   });
   double e = 0, n = 0;
@@ -140,27 +147,19 @@ std::vector<at::Tensor> normal_consistency_backward(double g, double count, cons
     T *gN = g_normal.data_ptr<T>(), *gd = gdiff.data_ptr<T>();
     std::vector<T> P(3 * s.rows() * s.W);
     in.points(P.data());
-    at::parallel_for(0, s.rows(), 8, [&](int64_t b, int64_t e) {
-      for (int64_t row = b; row < e; ++row)
-        for (int64_t x = 1; x < s.W - 1 && in.interior_row(row); ++x) {
-          const int64_t p = row * s.W + x;
-          T dy[3], dx[3], c[3];
-          diffs(P.data(), p, s.W, dy, dx, c);
-          const T len = std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
-          if (!(len > T(0))) continue;
-          const T inv = T(1) / std::max(len, T(kEps)), w = -k * in.A[p];
-          T n[3], gn[3], gc[3];
-          for (int q = 0; q < 3; ++q) {
-            n[q] = c[q] * inv;
-            gN[3 * p + q] = w * n[q];
-            gn[q] = w * in.N[3 * p + q];
-          }
-          // n = c / max(|c|, eps): (I - n n^T) / |c| above eps, I / eps below
-          const T proj = len > T(kEps) ? n[0] * gn[0] + n[1] * gn[1] + n[2] * gn[2] : T(0);
-          for (int q = 0; q < 3; ++q) gc[q] = (gn[q] - n[q] * proj) * inv;
-          cross3(dx, gc, gd + 6 * p);      // c = dy x dx: dL/d(dy) = dx x gc
-          cross3(gc, dy, gd + 6 * p + 3);  //              dL/d(dx) = gc x dy
-        }
+    each_normal(in, P.data(), [&](int64_t, int64_t p, const T* dy, const T* dx, const T* c, T len, T inv) {
+      const T w = -k * in.A[p];
+      T n[3], gn[3], gc[3];
+      for (int q = 0; q < 3; ++q) {
+        n[q] = c[q] * inv;
+        gN[3 * p + q] = w * n[q];
+        gn[q] = w * in.N[3 * p + q];
+      }
+      // n = c / max(|c|, eps): (I - n n^T) / |c| above eps, I / eps below
+      const T proj = len > T(kEps) ? n[0] * gn[0] + n[1] * gn[1] + n[2] * gn[2] : T(0);
+      for (int q = 0; q < 3; ++q) gc[q] = (gn[q] - n[q] * proj) * inv;
+      cross3(dx, gc, gd + 6 * p);      // c = dy x dx: dL/d(dy) = dx x gc
+      cross3(gc, dy, gd + 6 * p + 3);  //              dL/d(dx) = gc x dy
     });
     T* gD = g_depth.data_ptr<T>();
     at::parallel_for(0, s.rows(), 8, [&](int64_t b, int64_t e) {

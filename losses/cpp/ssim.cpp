@@ -71,6 +71,15 @@ void pad_rows(const Shape& s, std::vector<T>& pad, const F& f) {
     for (int64_t j = 0; j < L; ++j) pad[q * P + off + j] = f(q, j);
 }
 
+// S = (a1 a2) / (b1 b2) from the blurs mx, my, E[x^2], E[y^2], E[xy] of a pixel
+template <typename T>
+inline void ssim_terms(T mx, T my, T sxx, T syy, T sxy, T& a1, T& a2, T& b1, T& b2) {
+  a1 = 2 * mx * my + T(kC1);
+  a2 = 2 * (sxy - mx * my) + T(kC2);
+  b1 = mx * mx + my * my + T(kC1);
+  b2 = (sxx - mx * mx) + (syy - my * my) + T(kC2);
+}
+
 Shape check(const at::Tensor& x, const at::Tensor& y, const at::Tensor& g) {
   TORCH_CHECK(x.dim() == 4 && x.sizes() == y.sizes(), "ssim: x, y must be [B, H, W, ch] of one shape");
   TORCH_CHECK(x.is_contiguous() && y.is_contiguous() && g.is_contiguous(), "ssim: inputs must be contiguous");
@@ -113,9 +122,8 @@ std::vector<at::Tensor> ssim_forward(const at::Tensor& x, const at::Tensor& y, c
         const T *mx = v.data(), *my = mx + L, *sxx = my + L, *syy = sxx + L, *sxy = syy + L;
 _Pragma("omp simd")
         for (int64_t j = 0; j < L; ++j) {
-          const T a1 = 2 * mx[j] * my[j] + T(kC1), a2 = 2 * (sxy[j] - mx[j] * my[j]) + T(kC2);
-          const T b1 = mx[j] * mx[j] + my[j] * my[j] + T(kC1);
-          const T b2 = (sxx[j] - mx[j] * mx[j]) + (syy[j] - my[j] * my[j]) + T(kC2);
+          T a1, a2, b1, b2;
+          ssim_terms(mx[j], my[j], sxx[j], syy[j], sxy[j], a1, a2, b1, b2);
           mp[at + j] = (a1 * a2) / (b1 * b2);
         }
         for (int q = 0; q < 5; ++q) std::copy(v.data() + q * L, v.data() + (q + 1) * L, st + q * s.n() + at);
@@ -148,9 +156,8 @@ at::Tensor ssim_backward(const at::Tensor& g_map, const at::Tensor& x, const at:
         // the partials of S in mx, E[x^2] and E[xy], times G
 _Pragma("omp simd")
         for (int64_t j = 0; j < L; ++j) {
-          const T a1 = 2 * mx[j] * my[j] + T(kC1), a2 = 2 * (sxy[j] - mx[j] * my[j]) + T(kC2);
-          const T b1 = mx[j] * mx[j] + my[j] * my[j] + T(kC1);
-          const T b2 = (sxx[j] - mx[j] * mx[j]) + (syy[j] - my[j] * my[j]) + T(kC2);
+          T a1, a2, b1, b2;
+          ssim_terms(mx[j], my[j], sxx[j], syy[j], sxy[j], a1, a2, b1, b2);
           const T S = (a1 * a2) / (b1 * b2), Gj = G[at + j];
           d[j] = Gj * (2 * my[j] * (a2 - a1) / (b1 * b2) - 2 * mx[j] * S * (1 / b1 - 1 / b2));
           d[L + j] = Gj * (-S / b2);

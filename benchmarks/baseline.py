@@ -4,9 +4,9 @@
 modules into a temporary folder, builds its kernels as a second extension (:mod:`arcsem.cext`: its own build
 folder, named by the hash of its sources) and returns ``{"2DGS": render_2dgs, "3DGS": render_3dgs}`` of that
 commit, and ``"sh_colors"`` where that commit has the fused SH colours. Each call runs with that commit's
-``fused`` module standing in for the working tree's (the render modules import it by name when they render). Everything else (projection camera, SH, the PyTorch reference)
-is the working tree's. Benchmarks time these and the working tree's alternately in one process, so a ratio is
-measured under one machine load.
+``fused`` module standing in for the working tree's (the render modules import it by name when they render).
+Everything else (projection camera, SH, the PyTorch reference) is the working tree's. Benchmarks time these and
+the working tree's alternately in one process, so a ratio is measured under one machine load.
 """
 from __future__ import annotations
 

@@ -6,7 +6,8 @@ principal point at the centre) at z = -3 looking down +z; ``torch.manual_seed(0)
 from degree-3 SH coefficients ``randn(N, 16, 3) * 0.1`` evaluated towards the camera (+0.5, clamped at 0) inside
 the timing (this tree, and a base commit that has it: the fused SH kernel the Gaussian backbones use; a base from
 before it, such as 48f38bf: PyTorch ops, as its GaussianModel.colors); black background. One run = forward +
-backward of ``sum(rgb)`` (gradients of means, quaternions, scales, opacities and SH). Figures: median of the last 3 of 4 runs (``--runs``), wall seconds.
+backward of ``sum(rgb)`` (gradients of means, quaternions, scales, opacities and SH).
+Figures: median of the last 3 of 4 runs (``--runs``), wall seconds.
 
     .venv/bin/python benchmarks/bench_peer.py                         # this tree vs main, 1 and 2 threads
     .venv/bin/python benchmarks/bench_peer.py --base HEAD~1 --threads 2

@@ -8,7 +8,8 @@ at::Tensor ssim_backward(const at::Tensor& g_map, const at::Tensor& x, const at:
                          const at::Tensor& stats);
 std::vector<at::Tensor> normal_consistency_forward(const at::Tensor& depth, const at::Tensor& o, const at::Tensor& d,
                                                    const at::Tensor& normal, const at::Tensor& alpha);
-std::vector<at::Tensor> normal_consistency_backward(double g, double count, const at::Tensor& depth, const at::Tensor& o,
+std::vector<at::Tensor> normal_consistency_backward(double g, double count, const at::Tensor& depth,
+                                                    const at::Tensor& o,
                                                     const at::Tensor& d, const at::Tensor& normal,
                                                     const at::Tensor& alpha);
 

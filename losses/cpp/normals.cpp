@@ -2,8 +2,9 @@
 //
 // World points P = o + D d from the depth map D and the camera's rays (origins o, directions d of unit camera z:
 // Cameras.rays), given per camera as affine functions of the pixel centre (u, v): o = u o_u + v o_v + o_1, the same
-// for d (pinhole and orthographic rays are affine in (u, v)). At an interior pixel the surface normal is n = c / max(|c|, 1e-12), c = (P[y+1] - P[y-1]) x
-// (P[x+1] - P[x-1]) (central differences, as losses/geometry.py depth_normals); the loss is the mean over pixels
+// for d (pinhole and orthographic rays are affine in (u, v)). At an interior pixel the surface normal is
+// n = c / max(|c|, 1e-12), c = (P[y+1] - P[y-1]) x (P[x+1] - P[x-1]) (central differences, as losses/geometry.py
+// depth_normals); the loss is the mean over pixels
 // with n != 0 of 1 - (N . n) alpha, N the rendered normal, alpha detached. Backward: dL/dN = -k alpha n,
 // dL/dn = -k alpha N (k = g / count), through the normalisation to c, the cross product to the two differences,
 // and the differences to P and D (a gather over each pixel's four neighbours).
@@ -133,7 +134,8 @@ std::vector<at::Tensor> normal_consistency_forward(const at::Tensor& depth, cons
 }
 
 // gradient g of the loss -> {g_depth [C, H, W], g_normal [C, H, W, 3]}
-std::vector<at::Tensor> normal_consistency_backward(double g, double count, const at::Tensor& depth, const at::Tensor& o,
+std::vector<at::Tensor> normal_consistency_backward(double g, double count, const at::Tensor& depth,
+                                                    const at::Tensor& o,
                                                     const at::Tensor& d, const at::Tensor& normal,
                                                     const at::Tensor& alpha) {
   const Dims s = check(depth, o, d, normal, alpha);

@@ -203,23 +203,33 @@ def test_fused_unused_outputs_and_learned_background(kind):
         assert_rel(a, b, 1e-10, f"{kind} gradient")
 
 
-@pytest.mark.parametrize("model", ["pinhole", "orthographic"])
+@pytest.mark.parametrize("model,N", [("pinhole", 3000), ("orthographic", 3000), ("pinhole", 40000)])
 @pytest.mark.parametrize("kind", ["gs2d", "gs3d"])
-def test_fused_footprint_and_binning_equal_torch(kind, model):
+def test_fused_footprint_and_binning_equal_torch(kind, model, N):
     """The C++ footprints, tile rectangles, pixel boxes and (tile, depth)-sorted pairs are those of the torch
     functions exactly (2 cameras, splats partly off-screen and behind the camera, some ties in depth); each entry's
-    pair positions hold that entry."""
-    from arcsem.backbones.gaussians import fused
-    from arcsem.backbones.gaussians.raster import bin_tiles
+    pair positions hold that entry. 40,000 splats on two threads: enough pairs for two workers to fill them."""
     from arcsem.backbones.gaussians.raster_scenes import orbit_cameras, random_splats
-    from arcsem.backbones.gs2d.render import footprint_2dgs, splat_homographies
-    from arcsem.backbones.gs3d.render import footprint_3dgs, project_gaussians
 
-    N = 3000
     s = random_splats(N, 1, seed=3, scale=(0.002, 0.3), extent=4.0, opacity=(0.001, 1.0))
     s.means[:50] = s.means[50:100]  # equal depths: ties keep the index order
     cams = orbit_cameras(2, 72, 40, ortho=model == "orthographic")
     C, W, H, tile, near = 2, 72, 40, 16, 0.01
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2 if N > 10000 else threads)
+    try:
+        _check_footprint_and_binning(kind, s, cams, C, W, H, tile, near, N)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _check_footprint_and_binning(kind, s, cams, C, W, H, tile, near, N):
+    from arcsem.backbones.gaussians import fused
+    from arcsem.backbones.gaussians.raster import bin_tiles
+    from arcsem.backbones.gs2d.render import footprint_2dgs, splat_homographies
+    from arcsem.backbones.gs3d.render import footprint_3dgs, project_gaussians
+
+    model = "orthographic" if cams.is_ortho else "pinhole"
     if kind == "gs2d":
         Hm, _ = splat_homographies(s.means, s.quats, s.scales[:, :2], cams)
         sigma = 0.4 if model == "orthographic" else 0.7071  # a non-default low-pass filter radius too
@@ -236,6 +246,7 @@ def test_fused_footprint_and_binning_equal_torch(kind, model):
     b = bin_tiles(rects, depth, W, H, tile)
     vis = (radius > 0) & (rects[..., 1] > rects[..., 0]) & (rects[..., 3] > rects[..., 2])
     assert 0 < int(vis.sum()) < C * N, "the scene should have visible and culled splats"
+    assert N < 10000 or len(got.ids) > 2 * 16384, "the large scene should be binned by two workers"
     assert torch.equal(visible, vis.reshape(-1)) and torch.equal(radii, torch.where(vis, radius, 0).reshape(-1))
     assert torch.equal(rects_c, rects.reshape(-1, 4))
     assert torch.equal(eff_c[visible], eff.reshape(-1, 4)[visible])

@@ -11,6 +11,7 @@
 #include <cstring>
 #include <limits>
 #include <numeric>
+#include <type_traits>
 #include <vector>
 
 #include "api.h"
@@ -81,7 +82,7 @@ inline bool conic_box(const double* T, double cut2, double c[2], double e[2]) {
 
 template <typename T>
 void footprint2d_impl(const T* Hm, const T* Dz, const T* op, int64_t M, int64_t N, double near, double sigma,
-                      const Screen& sc, int64_t* radius, int64_t* rects, int64_t* eff, double* depth) {
+                      const Screen& sc, int64_t* radius, int64_t* rects, int64_t* eff, T* depth) {
   parallel_range(M, kGrain, [&](int64_t b, int64_t e, int) {
     for (int64_t s = b; s < e; ++s) {
       double Td[12];
@@ -103,7 +104,7 @@ void footprint2d_impl(const T* Hm, const T* Dz, const T* op, int64_t M, int64_t 
       const double hi[2] = {std::max(oke ? ce[0] + ee[0] : inf, cx + r2d) + 0.01,
                             std::max(oke ? ce[1] + ee[1] : inf, cy + r2d) + 0.01};
       pixel_box(sc, lo, hi, cut2 > 0, eff + 4 * s);
-      depth[s] = z;
+      depth[s] = T(z);  // exact: z is a value of type T
     }
   });
 }
@@ -129,33 +130,41 @@ void footprint3d_impl(const T* m2d, const T* dep, const T* cov, const T* op, int
   });
 }
 
-// a double as an unsigned key with the same order (-0 = +0; NaN last, as torch.argsort)
-inline uint64_t sort_key(double d) {
-  if (std::isnan(d)) return ~uint64_t(0);
-  if (d == 0.0) d = 0.0;
-  uint64_t b;
+// a float / double as an unsigned key of its width with the same order (-0 = +0; NaN last, as torch.argsort)
+template <typename D>
+inline std::conditional_t<sizeof(D) == 4, uint32_t, uint64_t> sort_key(D d) {
+  using K = std::conditional_t<sizeof(D) == 4, uint32_t, uint64_t>;
+  constexpr int top = 8 * sizeof(K) - 1;
+  if (std::isnan(d)) return ~K(0);
+  if (d == D(0)) d = D(0);
+  K b;
   std::memcpy(&b, &d, sizeof b);
-  return (b >> 63) ? ~b : b | (uint64_t(1) << 63);
+  return (b >> top) ? ~b : b | (K(1) << top);
 }
 
-// the entries that have tiles, by depth (ties: index order): a stable LSD radix sort, 11 bits a pass
+// the entries that have tiles, by depth (ties: index order): a stable LSD radix sort, 11 bits a pass, on keys as
+// wide as the depth's type (float depths: 3 passes, not 6) and 32-bit entry indices
 template <typename D>
-std::vector<int64_t> depth_order(const D* depth, const int64_t* rects, int64_t M) {
-  std::vector<uint64_t> key, key2;
-  std::vector<int64_t> idx, idx2;
+std::vector<int32_t> depth_order(const D* depth, const int64_t* rects, int64_t M) {
+  using K = decltype(sort_key(D(0)));
+  TORCH_CHECK(M < (int64_t(1) << 31), "tile binning: at most 2^31 - 1 (camera, splat) entries");
+  std::vector<K> key, key2;
+  std::vector<int32_t> idx, idx2;
+  key.reserve(size_t(M));
+  idx.reserve(size_t(M));
   for (int64_t s = 0; s < M; ++s) {
     const int64_t* r = rects + 4 * s;
     if (r[1] > r[0] && r[3] > r[2]) {
-      key.push_back(sort_key(double(depth[s])));
-      idx.push_back(s);
+      key.push_back(sort_key(depth[s]));
+      idx.push_back(int32_t(s));
     }
   }
   const size_t n = key.size();
   key2.resize(n);
   idx2.resize(n);
-  for (int shift = 0; shift < 64; shift += 11) {
+  for (int shift = 0; shift < int(8 * sizeof(K)); shift += 11) {
     size_t count[2049] = {0};
-    for (const uint64_t k : key) ++count[((k >> shift) & 2047) + 1];
+    for (const K k : key) ++count[((k >> shift) & 2047) + 1];
     if (count[((key.empty() ? 0 : key[0] >> shift) & 2047) + 1] == n) continue;  // one digit value: nothing moves
     for (int b = 0; b < 2048; ++b) count[b + 1] += count[b];
     for (size_t i = 0; i < n; ++i) {
@@ -174,36 +183,58 @@ template <typename D>
 void bin_impl(const int64_t* rects, const D* depth, int64_t C, int64_t N, const Screen& sc, TileLists& out) {
   const int64_t M = C * N, TT = sc.TX * sc.TY;
   auto lo = out.rects.options();
-  const std::vector<int64_t> order = depth_order(depth, rects, M);
   out.offsets = at::zeros({C * TT + 1}, lo);
   out.entry_offsets = at::empty({M + 1}, lo);
   int64_t* off = out.offsets.data_ptr<int64_t>();
   int64_t* eoff = out.entry_offsets.data_ptr<int64_t>();
-  eoff[0] = 0;
-  for (int64_t s = 0; s < M; ++s) {
-    const int64_t* r = rects + 4 * s;
-    const int64_t base = (s / N) * TT;
-    for (int64_t ty = r[2]; ty < r[3]; ++ty)
-      for (int64_t tx = r[0]; tx < r[1]; ++tx) ++off[base + ty * sc.TX + tx + 1];
-    eoff[s + 1] = eoff[s] + std::max<int64_t>(r[1] - r[0], 0) * std::max<int64_t>(r[3] - r[2], 0);
-  }
-  for (int64_t t = 0; t < C * TT; ++t) off[t + 1] += off[t];
+  std::vector<int32_t> order;
+  parallel_chunks(2, [&](int64_t part, int) {  // the depth order beside the pair counts
+    if (part == 0) {
+      order = depth_order(depth, rects, M);
+      return;
+    }
+    eoff[0] = 0;
+    for (int64_t s = 0; s < M; ++s) {
+      const int64_t* r = rects + 4 * s;
+      const int64_t base = (s / N) * TT;
+      for (int64_t ty = r[2]; ty < r[3]; ++ty)
+        for (int64_t tx = r[0]; tx < r[1]; ++tx) ++off[base + ty * sc.TX + tx + 1];
+      eoff[s + 1] = eoff[s] + std::max<int64_t>(r[1] - r[0], 0) * std::max<int64_t>(r[3] - r[2], 0);
+    }
+    for (int64_t t = 0; t < C * TT; ++t) off[t + 1] += off[t];
+  });
   out.ids = at::empty({off[C * TT]}, lo);
   out.pair_of = at::empty({off[C * TT]}, lo);
   int64_t* ids = out.ids.data_ptr<int64_t>();
   int64_t* pof = out.pair_of.data_ptr<int64_t>();
-  std::vector<int64_t> cur(off, off + C * TT);
-  for (const int64_t s : order) {  // depth order (ties: index) per tile by construction
-    const int64_t* r = rects + 4 * s;
-    const int64_t base = (s / N) * TT;
-    int64_t k = eoff[s];
-    for (int64_t ty = r[2]; ty < r[3]; ++ty)
-      for (int64_t tx = r[0]; tx < r[1]; ++tx) {
-        const int64_t p = cur[base + ty * sc.TX + tx]++;
-        ids[p] = s;
-        pof[k++] = p;
+  // the pairs in depth order (ties: index) per tile by construction; each worker fills the tiles of an equal
+  // share of the pairs and reads all entries
+  const int64_t P = off[C * TT];
+  const int parts = num_workers(std::max<int64_t>(P / 16384, 1));
+  parallel_chunks(parts, [&](int64_t part, int) {
+    const int64_t t0 = std::lower_bound(off, off + C * TT, P * part / parts) - off;
+    const int64_t t1 = part + 1 == parts ? C * TT : std::lower_bound(off, off + C * TT, P * (part + 1) / parts) - off;
+    std::vector<int64_t> cur(off + t0, off + t1);
+    for (size_t i = 0; i < order.size(); ++i) {
+      if (i + 16 < order.size()) {  // the entries come in depth order, scattered in memory: ask for them ahead
+        __builtin_prefetch(rects + 4 * order[i + 16]);
+        __builtin_prefetch(eoff + order[i + 16]);
       }
-  }
+      const int64_t s = order[i];
+      const int64_t* r = rects + 4 * s;
+      const int64_t base = (s / N) * TT;
+      if (base + r[2] * sc.TX + r[0] >= t1 || base + (r[3] - 1) * sc.TX + r[1] <= t0) continue;  // none of mine
+      int64_t k = eoff[s];
+      for (int64_t ty = r[2]; ty < r[3]; ++ty)
+        for (int64_t tx = r[0]; tx < r[1]; ++tx, ++k) {
+          const int64_t t = base + ty * sc.TX + tx;
+          if (t < t0 || t >= t1) continue;
+          const int64_t p = cur[t - t0]++;
+          ids[p] = s;
+          pof[k] = p;
+        }
+    }
+  });
 }
 
 // render._outputs: visible = radius > 0 and a non-empty tile rectangle; radii zeroed where not visible
@@ -245,13 +276,13 @@ TileLists footprint_bin2d(const at::Tensor& Hm, const at::Tensor& Dz, const at::
   TORCH_CHECK(sigma > 0, "footprint_bin2d: the low-pass sigma must be > 0");
   const Screen sc = screen(raster);
   TileLists l = allocate(M, Hm.options().dtype(at::kLong));
-  auto depth = at::empty({M}, Hm.options().dtype(at::kDouble));
+  auto depth = at::empty({M}, Hm.options());  // (the centre's depth Dz.z: a value of the input's type)
   AT_DISPATCH_FLOATING_TYPES(Hm.scalar_type(), "footprint2d", [&] {
     footprint2d_impl<scalar_t>(Hm.data_ptr<scalar_t>(), Dz.data_ptr<scalar_t>(), op.data_ptr<scalar_t>(), M, N, near, sigma, sc,
                                l.radii.data_ptr<int64_t>(), l.rects.data_ptr<int64_t>(), l.box.data_ptr<int64_t>(),
-                               depth.data_ptr<double>());
+                               depth.data_ptr<scalar_t>());
+    bin_impl<scalar_t>(l.rects.data_ptr<int64_t>(), depth.data_ptr<scalar_t>(), C, N, sc, l);
   });
-  bin_impl<double>(l.rects.data_ptr<int64_t>(), depth.data_ptr<double>(), C, N, sc, l);
   l.visible = visibility(l.radii, l.rects);
   return l;
 }

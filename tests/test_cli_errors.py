@@ -92,6 +92,8 @@ def test_unknown_plugin(tmp_path, override, needles):
     ("+backbone.sh_degre=2", ["unknown key(s) 'sh_degre'", "valid keys:"]),  # plugin Config dataclass
     ("threads=0", ["threads: expected a positive integer or null, got 0"]),  # a bad value
     ("act.solvr=adam", ["act.solvr: unknown key", "init_noise"]),  # the act group (ActConfig schema)
+    # a loss key: passed on as ++ (not Hydra's "use +"), then named by the loss's Config
+    ("train.losses.dssim.implx=torch", ["loss 'dssim': unknown key(s) 'implx'", "valid keys:", "impl"]),
 ])
 def test_mistyped_config_key(tmp_path, override, needles):
     assert_one_line_error(run_cli(tmp_path, *dataset(tmp_path), "backbone=gs3d", override), *needles)

@@ -151,3 +151,21 @@ def test_every_tuning_file_is_a_train_preset_for_a_backbone():
     for f in (CONF / "tuning").glob("*.yaml"):
         train, _, backbone = f.stem.partition("_")
         assert train in trains and (backbone in backbones or backbone == "gaussians"), f.name
+
+
+def test_loss_keys_override_without_plus():
+    """A loss's documented keys (its Config's, not all in the presets' YAML) override as written: the CLI
+    passes ``train.losses.<loss>.<key>=v`` as ``++...`` (add or override); the loss validates the key itself."""
+    from arcsem.cli.main import loss_overrides
+
+    args = ["stage=gray", "train.losses.dssim.impl=torch", "colorize.losses.tcm.weight=2", "train.losses.l1=null",
+            "+train.losses.l2.weight=1", "train.steps=5", "train.losses.dssim.impl=torch,cpp"]
+    got = loss_overrides(args)
+    assert got == ["stage=gray", "++train.losses.dssim.impl=torch", "++colorize.losses.tcm.weight=2",
+                   "train.losses.l1=null", "+train.losses.l2.weight=1", "train.steps=5",
+                   "++train.losses.dssim.impl=torch,cpp"]
+    with pytest.raises(Exception, match="impl"):  # Hydra's struct mode: what the rewrite avoids
+        compose_with("train.losses.dssim.impl=torch")
+    cfg = compose_with(*loss_overrides(["train.losses.dssim.impl=torch", "train.losses.l1.masked=true"]))
+    assert cfg.train.losses.dssim.impl == "torch" and cfg.train.losses.dssim.weight == 0.2
+    assert cfg.train.losses.l1.masked is True and cfg.train.losses.l1.weight == 0.8

@@ -29,7 +29,7 @@ from omegaconf import DictConfig
 from ..schemas import setup
 from .errors import EXIT_USER_ERROR, debug_requested, describe, exit_code, with_error_handling
 
-__all__ = ["SweepSummary", "hydra_main", "main"]
+__all__ = ["SweepSummary", "hydra_main", "loss_overrides", "main"]
 
 setup()  # config schemas and plugin config folders, before Hydra composes anything
 
@@ -82,7 +82,27 @@ class SweepSummary(Callback):
                   file=sys.stderr, flush=True)
 
 
+LOSS_KEYS = ("train.losses.", "colorize.losses.")
+
+
+def loss_overrides(args: list[str]) -> list[str]:
+    """``train.losses.<loss>.<key>=v`` (and ``colorize.losses.``) as ``++train.losses.<loss>.<key>=v``.
+
+    A loss's keys are its ``Config``'s (validated when the loss is built: a mistyped key is named there); the
+    presets' YAML lists only the ones they change, so Hydra's struct mode would ask for ``+`` (or ``++`` where a
+    preset sets the key) for a documented key such as ``train.losses.dssim.impl``. Other arguments are unchanged.
+    """
+    out = []
+    for a in args:
+        key = a.split("=", 1)[0]
+        if "=" in a and key.startswith(LOSS_KEYS) and key.count(".") >= 3:
+            a = "++" + a
+        out.append(a)
+    return out
+
+
 def _main() -> Any:
+    sys.argv[1:] = loss_overrides(sys.argv[1:])
     result = hydra_main()
     if _failed_sweeps:
         sys.exit(EXIT_USER_ERROR)

@@ -48,6 +48,7 @@ class Extension:
     prefix: str
     sources: tuple[Path, ...]
     what: str
+    keys: tuple[str, ...] = ("rasterizer",)  # the config keys that choose it (the fallback warning names them)
     cflags: tuple[str, ...] = field(default=("-O3", "-fopenmp"))
     ldflags: tuple[str, ...] = field(default=("-fopenmp",))
 
@@ -82,7 +83,8 @@ def load(ext: Extension, verbose: bool = False):
         )
     except Exception as exc:  # noqa: BLE001 - no compiler, no headers, ...: fall back, say it once
         warnings.warn(f"arcsem: {ext.what} unavailable ({type(exc).__name__}: {str(exc)[:200]}); "
-                      "using the PyTorch path (rasterizer=torch)", RuntimeWarning, stacklevel=2)
+                      f"using the PyTorch path ({', '.join(k + '=torch' for k in ext.keys)})", RuntimeWarning,
+                      stacklevel=2)
         return None
 
 

@@ -21,7 +21,8 @@ __all__ = ["EXTENSION", "fused_normal_consistency", "fused_ssim_map", "usable"]
 CPP_DIR = Path(__file__).parent / "cpp"
 EXTENSION = cext.Extension(prefix="arcsem_losses", sources=tuple(CPP_DIR / n for n in ("ssim.cpp", "normals.cpp",
                                                                                           "module.cpp")),
-                           what="fused C++ losses", cflags=(*cext.NATIVE_CFLAGS, "-fno-trapping-math"))
+                           what="fused C++ losses", keys=("dssim.impl", "normal_consistency.impl"),
+                           cflags=(*cext.NATIVE_CFLAGS, "-fno-trapping-math"))
 
 
 def usable(impl: str, key: str, *inputs: Tensor) -> bool:

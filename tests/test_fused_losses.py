@@ -132,3 +132,28 @@ def test_fused_normal_consistency_float32_and_choice():
     assert a.grad_fn is not None and "NormalConsistency" in type(a.grad_fn).__name__
     for cfg in (NormalConsistency.Config(impl="torch"), NormalConsistency.Config(official=False)):
         assert "NormalConsistency" not in type(NormalConsistency(cfg)(out, batch, 0).grad_fn).__name__
+
+
+def test_unavailable_loss_kernels_warn_once_with_their_keys(monkeypatch):
+    """Without a toolchain the losses take the PyTorch path; the one warning names the losses' own keys."""
+    import warnings
+
+    import torch.utils.cpp_extension as cpp_ext
+
+    from arcsem import cext
+
+    def broken(*a, **k):
+        raise OSError("no compiler here")
+
+    x, y = _pair((1, 8, 8, 3), 6, torch.float32)
+    monkeypatch.setattr(cpp_ext, "load", broken)
+    cext.load.cache_clear()
+    try:
+        with warnings.catch_warnings(record=True) as rec:
+            warnings.simplefilter("always")
+            assert not usable("auto", "dssim.impl", x, y) and not usable("auto", "dssim.impl", x, y)
+        msgs = [str(w.message) for w in rec if issubclass(w.category, RuntimeWarning)]
+        assert len(msgs) == 1 and "fused C++ losses" in msgs[0], msgs
+        assert "dssim.impl=torch, normal_consistency.impl=torch" in msgs[0] and "rasterizer" not in msgs[0], msgs
+    finally:
+        cext.load.cache_clear()

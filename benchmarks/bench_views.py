@@ -4,10 +4,11 @@
     .venv/bin/python benchmarks/bench_views.py RUN --part tsdf                 # 5.2 M voxels, one 288x192 view
 
 ``render``: the run's stage-1 model (``RUN/checkpoints/last.pt``, its own config) renders its training views, forward
-only and forward + backward of ``sum(rgb)``; prints ms per view (median over the views of ``--repeats`` passes) and the
-compositing kernels' own share (``torch.profiler``, 8 views). ``tsdf``: :meth:`TSDFVolume.integrate` of one view
-(a depth map with holes and background pixels) into the demo's grid size, median of 5. Compare commits by running
-this script in each checkout (its venv) on the same run folder.
+only and forward + backward of ``sum(rgb)``; prints ms per view (median over the views of ``--repeats`` passes) and
+the fused kernels' own time a view (``torch.profiler``: ``--passes`` passes over all views; the median pass, then
+each). ``tsdf``: :meth:`TSDFVolume.integrate` of one view (a depth map with holes and background pixels) into the
+demo's grid size, median of 5. Compare commits by running this script in each checkout (its venv) on the same run
+folder, alternately.
 """
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ from pathlib import Path
 import torch
 
 
-def render_part(run: Path, repeats: int) -> None:
+def render_part(run: Path, repeats: int, passes: int) -> None:
     from omegaconf import OmegaConf
     from torch.profiler import ProfilerActivity, profile
 
@@ -48,12 +49,16 @@ def render_part(run: Path, repeats: int) -> None:
                 fn(i)
                 times.append(time.perf_counter() - t0)
         print(f"{name}: {1e3 * statistics.median(times):.1f} ms a view")
-    with profile(activities=[ProfilerActivity.CPU]) as prof:
-        for i in range(8):
-            both(i)
-    for e in prof.key_averages():
-        if e.key in ("_Composite2D", "_Composite2DBackward", "_Composite3D", "_Composite3DBackward"):
-            print(f"{e.key}: {e.self_cpu_time_total / 1e3 / e.count:.1f} ms a view")
+    kernels: dict[str, list[float]] = {}
+    for _ in range(passes):  # the kernels' own time: a pass over every view under the profiler, median of passes
+        with profile(activities=[ProfilerActivity.CPU]) as prof:
+            for i in range(len(cams)):
+                both(i)
+        for e in prof.key_averages():
+            if e.key.startswith(("_Composite", "_Project", "_ShColors")):
+                kernels.setdefault(e.key, []).append(e.self_cpu_time_total / 1e3 / e.count)
+    for key, ms in sorted(kernels.items()):
+        print(f"{key}: {statistics.median(ms):.2f} ms a view ({', '.join(f'{m:.2f}' for m in ms)})")
 
 
 def tsdf_part() -> None:
@@ -85,6 +90,7 @@ def main() -> None:
     ap.add_argument("--part", choices=("render", "tsdf"), default="render")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--passes", type=int, default=3, help="profiled passes over the views (kernel times)")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     if a.part == "tsdf":
@@ -92,7 +98,7 @@ def main() -> None:
     elif a.run is None:
         ap.error("--part render needs a run folder")
     else:
-        render_part(a.run, a.repeats)
+        render_part(a.run, a.repeats, a.passes)
 
 
 if __name__ == "__main__":

@@ -53,9 +53,9 @@ def shorter_openmp_spin(environ=os.environ) -> bool:
 
     PyTorch's CPU operations run on GNU OpenMP, whose threads spin about 300,000 iterations at every barrier
     before they sleep. On a machine shared with other processes they burn the cores those processes need:
-    beside one busy process a 2DGS + ACT step took 4.3x its idle time; with a spin of 1,000 1.6x, idle within
-    the noise (10,000: 1.75x; ``OMP_WAIT_POLICY=PASSIVE``: 1.6x but 11 % slower idle; benchmarks/step_ab.py,
-    figures in the README, "Rasterisers"). Must run before torch is imported (libgomp reads it once).
+    beside one busy process a 2DGS + ACT step took 4.3x its idle time; with a spin of 1,000 1.52x (10,000:
+    1.89x, though 8 % faster idle; ``OMP_WAIT_POLICY=PASSIVE``: 1.6x but 11 % slower idle; benchmarks/step_ab.py,
+    figures in the README, "On a shared machine"). Must run before torch is imported (libgomp reads it once).
     """
     if "GOMP_SPINCOUNT" in environ or "OMP_WAIT_POLICY" in environ:
         return False

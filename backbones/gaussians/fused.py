@@ -41,11 +41,12 @@ EXTENSION = cext.Extension(
                                         "project.cpp", "sh.cpp", "pool.cpp", "module.cpp")),
     what="fused C++ Gaussian rasteriser",
     # the lane loops of the compositing kernels (`omp simd`) vectorise only when GCC may if-convert freely: no FP traps
-    # (the kernels do not use them) and no partial-redundancy elimination hoisting loads into branches. A 16-pixel lane
+    # (the kernels do not use them), no errno from std::sqrt (the SH kernel's lanes), and no partial-redundancy
+    # elimination hoisting loads into branches. A 16-pixel lane
     # block is one 512-bit register where the CPU has them (GCC's default for these CPUs is 256-bit vectors): the
     # 2DGS compositing 13 % faster on two threads, measured (benchmarks/results/README.md); an x86 option, a no-op on
     # x86 CPUs without AVX-512
-    cflags=(*cext.NATIVE_CFLAGS, "-fno-trapping-math", "-fno-tree-pre",
+    cflags=(*cext.NATIVE_CFLAGS, "-fno-trapping-math", "-fno-math-errno", "-fno-tree-pre",
             *(("-mprefer-vector-width=512",) if platform.machine().lower() in ("x86_64", "amd64") else ())),
 )
 

@@ -70,7 +70,7 @@ constexpr int64_t kGrain = 1024;  // splats per chunk
 constexpr int L = 16;             // splats of a block, one a lane: every lane loop below is `omp simd` over them
 
 template <typename T>
-struct Sh {  // the inputs (means [N, 3], sh_dc [N, 3], sh_rest [N, R, 3], origins [C, 3]) and sizes
+struct Sh {  // the inputs (means [N, 3], sh_dc [N, 1, 3], sh_rest [N, R, 3], origins [C, 3]) and sizes
   const T *m, *dc, *rest, *o;
   int64_t N, C, R;
   bool ortho;
@@ -166,9 +166,8 @@ void backward_range(const Sh<T>& a, const T* g, int64_t b, int64_t e, T* om, T* 
             gd1 += gb * bl.dY[3 * k + 1][i];
             gd2 += gb * bl.dY[3 * k + 2][i];
           }
-          const T gd[3] = {gd0, gd1, gd2};
-          const T len = bl.len[i];
-          const T dot = len > T(1e-12) ? gd[0] * bl.d[0][i] + gd[1] * bl.d[1][i] + gd[2] * bl.d[2][i] : T(0);
+          const T gd[3] = {gd0, gd1, gd2}, len = bl.len[i];
+          const T dot = len > T(1e-12) ? gd0 * bl.d[0][i] + gd1 * bl.d[1][i] + gd2 * bl.d[2][i] : T(0);
           const T den = len > T(1e-12) ? len : T(1e-12);  // d = v / max(|v|, eps): dd/dv = (I - d d^T) / |v| above eps
           for (int ax = 0; ax < 3; ++ax) gv[ax][i] += (gd[ax] - bl.d[ax][i] * dot) / den;
         }

@@ -111,7 +111,7 @@ def main() -> None:
         for model in a.models.split(","):
             for N in (int(n) for n in a.sizes.split(",")):
                 t = time_pair(renders, model, N, a.runs)
-                cells = " | ".join(f"{t[k]:.3f} s" for k in names)
+                cells = " | ".join(f"{t[k] * 1e3:.1f} ms" for k in names)
                 r = f" | {t[names[0]] / t['this tree']:.2f}x" if len(names) > 1 else ""
                 print(f"| {model} | {nt} | {N:,} | {cells}{r} |", flush=True)
     print(f"load average at the end {os.getloadavg()[0]:.2f}")

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <memory>
 #include <type_traits>
 #include <vector>
 
@@ -29,6 +30,7 @@ inline Grid make_grid(int64_t C, int64_t H, int64_t W, int64_t tile) {
   return Grid{C, H, W, tile, (W + tile - 1) / tile, (H + tile - 1) / tile};
 }
 
+constexpr int64_t kGatherBatch = 64;  // pairs a forward pass gathers at once (as far as its tile's pixels go on)
 constexpr int kLanes = 16;  // pixels of a tile row evaluated together (one AVX-512 / two AVX2 registers of float)
 
 // The lane blocks of a pair's columns [x0, x1] on a tile row: each kLanes-aligned block they overlap, whole where
@@ -72,17 +74,39 @@ inline float vexp(float x) {
 }
 inline double vexp(double x) { return std::exp(std::min(x, 0.0)); }
 
-// Per-pair gradient rows [P, D] summed per entry in the fixed order of the tile lists' pair_of (so the result
-// does not depend on threads or timing), in double: f(s, sum) for every entry s with pairs, in parallel.
+// Per-pair gradient rows of a backward pass: [P, D] values, written only for the pairs a tile composited (a
+// tile's pairs after its last composited one, or after the forward stopped, are never read: used[p] = 0). Not
+// zero-filled on allocation (a serial memset of tens of MB a view).
+template <typename T>
+struct PairRows {
+  int64_t D;
+  std::unique_ptr<T[]> rows;
+  std::unique_ptr<uint8_t[]> used;
+  PairRows(int64_t P, int64_t D) : D(D), rows(new T[size_t(P * D)]), used(new uint8_t[size_t(P)]) {}
+  T* tile(int64_t start) { return rows.get() + start * D; }
+  // a tile's n pairs from start, of which the first k (its pairs up to the last composited one) have rows
+  void mark(int64_t start, int64_t n, int64_t k) {
+    std::memset(used.get() + start, 1, size_t(k));
+    std::memset(used.get() + start + k, 0, size_t(n - k));
+  }
+};
+
+// The rows summed per entry in the fixed order of the tile lists' pair_of (so the result does not depend on
+// threads or timing), in double, unused pairs adding nothing: f(s, sum) for every entry s, in parallel.
 template <typename T, class F>
-inline void reduce_pairs(int64_t M, int64_t D, const T* rows, const int64_t* entry_offsets, const int64_t* pair_of,
+inline void reduce_pairs(int64_t M, const PairRows<T>& pr, const int64_t* entry_offsets, const int64_t* pair_of,
                          const F& f) {
+  const int64_t D = pr.D;
+  const T* rows = pr.rows.get();
+  const uint8_t* used = pr.used.get();
   parallel_range(M, 2048, [&](int64_t b, int64_t e, int) {
     std::vector<double> acc(D);
     for (int64_t s = b; s < e; ++s) {
       std::fill(acc.begin(), acc.end(), 0.0);
       for (int64_t k = entry_offsets[s]; k < entry_offsets[s + 1]; ++k) {
-        const T* r = rows + pair_of[k] * D;
+        const int64_t p = pair_of[k];
+        if (!used[p]) continue;
+        const T* r = rows + p * D;
         for (int64_t d = 0; d < D; ++d) acc[d] += double(r[d]);
       }
       f(s, acc.data());

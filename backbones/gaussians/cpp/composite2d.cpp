@@ -4,12 +4,16 @@
 namespace arcsem {
 namespace c2d {
 
+// front to back over the n pairs of tile ct, gathered into pr in batches as far as the compositing goes (the
+// pairs after every pixel stopped are not needed, not even by the backward pass); leaves the pixels' state in st
 template <typename T>
-void forward_tile(const Pair2<T>* pr, int64_t n, int nx, int ny, const T* mc, T near, T lp, Tile2<T>& st) {
+void forward_tile(const In2<T>& in, const Grid& gr, int64_t ct, Pair2<T>* pr, int64_t n, const T* mc, Tile2<T>& st) {
   const int S = st.stride;
-  int live_total = start_tile(st, nx, ny);
+  const T near = in.near, lp = in.lp;
+  int live_total = start_tile(st, int(gr.nx(ct)), int(gr.ny(ct)));
   Lanes2<T> L;
-  for (int64_t j = 0; j < n && live_total > 0; ++j) {
+  for (int64_t j = 0, have = 0; j < n && live_total > 0; ++j) {
+    if (j == have) gather(in, gr, ct, j, have = std::min(n, j + kGatherBatch), pr);
     const Pair2<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
     if (q.x1 < q.x0 || q.y1 < q.y0) continue;
     for (int y = q.y0; y <= q.y1; ++y) {
@@ -117,8 +121,7 @@ Composite2D forward_impl(const Surfels2D& s, const TileLists& l, const Grid& gr)
     Tile2<T>& st = states[w];
     st.reset(gr.tile);
     const int64_t start = in.off[ct], c = ct / gr.tiles();
-    gather(in, gr, ct, pairs + start);
-    forward_tile(pairs + start, in.off[ct + 1] - start, int(gr.nx(ct)), int(gr.ny(ct)), in.mc + 3 * c, in.near, in.lp, st);
+    forward_tile(in, gr, ct, pairs + start, in.off[ct + 1] - start, in.mc + 3 * c, st);
     write_tile(gr, ct, start, st, in.bg, out);
   });
   return r;

@@ -119,12 +119,13 @@ In2<T> inputs(const Surfels2D& s, const TileLists& l) {
                 T(s.lowpass)};
 }
 
+// pairs [j0, j1) of tile ct into out (its first pair at out[0])
 template <typename T>
-void gather(const In2<T>& in, const Grid& gr, int64_t ct, Pair2<T>* out) {
+void gather(const In2<T>& in, const Grid& gr, int64_t ct, int64_t j0, int64_t j1, Pair2<T>* out) {
   const int64_t x0 = gr.x0(ct), y0 = gr.y0(ct), nx = gr.nx(ct), ny = gr.ny(ct);
-  for (int64_t p = in.off[ct]; p < in.off[ct + 1]; ++p) {
-    const int64_t s = in.ids[p];
-    Pair2<T>& q = out[p - in.off[ct]];
+  for (int64_t j = j0; j < j1; ++j) {
+    const int64_t s = in.ids[in.off[ct] + j];
+    Pair2<T>& q = out[j];
     double H[9], A[9];
     for (int k = 0; k < 9; ++k) H[k] = double(in.H[9 * s + k]);
     cross(H + 3, H + 6, A);      // a = Tv x Tw

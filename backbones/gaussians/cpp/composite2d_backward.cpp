@@ -129,9 +129,9 @@ inline void colour_lanes(const Pair2<T> q, int32_t j, int y, int c, T near, T lp
 }
 
 // back to front over the tile's pairs from the last one any pixel composited; one gradient row per pair (D2
-// values; Geo = false: the 3 colour values)
+// values; Geo = false: the 3 colour values). Returns the number of pairs with rows (up to the last composited).
 template <typename T, bool Geo>
-void backward_tile(const Pair2<T>* pr, int64_t n, int ny, const T* mc, T near, T lp, int64_t x0, int64_t y0,
+int64_t backward_tile(const Pair2<T>* pr, int ny, const T* mc, T near, T lp, int64_t x0, int64_t y0,
                    Tile2<T>& st, T* rows) {
   constexpr int D = Geo ? D2 : 3;
   int64_t jmax = -1;
@@ -140,7 +140,6 @@ void backward_tile(const Pair2<T>* pr, int64_t n, int ny, const T* mc, T near, T
     for (int x = 0; x < st.stride; ++x) st.row_live[y] = std::max(st.row_live[y], st.last[y * st.stride + x]);
     jmax = std::max<int64_t>(jmax, st.row_live[y]);
   }
-  std::fill(rows + (jmax + 1) * D, rows + n * D, T(0));
   alignas(64) T acc[D][kLanes];
   for (int64_t j = jmax; j >= 0; --j) {
     const Pair2<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
@@ -165,6 +164,7 @@ void backward_tile(const Pair2<T>* pr, int64_t n, int ny, const T* mc, T near, T
         r[GA + 3 + k] += T(y0) * r[GA + 6 + k];
       }
   }
+  return jmax + 1;
 }
 
 // a = Tv x Tw, b = Tw x Tu, c = Tu x Tv: gradients of (a, b, c) -> of the rows Tu, Tv, Tw (gH[9])
@@ -192,7 +192,7 @@ Grads2D backward_impl(const Surfels2D& s, const TileLists& l, const Grid& gr, co
                      fw.median_pair.data_ptr<int32_t>(), grad_or_null<T>(og[0]), grad_or_null<T>(og[1]),
                      grad_or_null<T>(og[2]), grad_or_null<T>(og[3]), grad_or_null<T>(og[4]), grad_or_null<T>(og[5])};
   const int64_t D = geometry ? D2 : 3;
-  std::vector<T> rows(P * D);
+  PairRows<T> rows(P, D);
   std::vector<Tile2<T>> states(num_workers());
   parallel_chunks(gr.C * gr.tiles(), [&](int64_t ct, int w) {
     Tile2<T>& st = states[w];
@@ -200,14 +200,15 @@ Grads2D backward_impl(const Surfels2D& s, const TileLists& l, const Grid& gr, co
     const int64_t start = in.off[ct], n = in.off[ct + 1] - start;
     load_tile(gr, ct, start, sv, in.bg, st);
     const T* mc = in.mc + 3 * (ct / gr.tiles());
-    if (geometry) backward_tile<T, true>(pairs + start, n, int(gr.ny(ct)), mc, in.near, in.lp, gr.x0(ct), gr.y0(ct), st, rows.data() + start * D);
-    else backward_tile<T, false>(pairs + start, n, int(gr.ny(ct)), mc, in.near, in.lp, gr.x0(ct), gr.y0(ct), st, rows.data() + start * D);
+    const int64_t k = geometry ? backward_tile<T, true>(pairs + start, int(gr.ny(ct)), mc, in.near, in.lp, gr.x0(ct), gr.y0(ct), st, rows.tile(start))
+                               : backward_tile<T, false>(pairs + start, int(gr.ny(ct)), mc, in.near, in.lp, gr.x0(ct), gr.y0(ct), st, rows.tile(start));
+    rows.mark(start, n, k);
   });
   Grads2D g;
   if (!geometry) {
     g.colors = at::empty_like(s.colors);
     T* gcol = g.colors.data_ptr<T>();
-    reduce_pairs(M, 3, rows.data(), l.entry_offsets.data_ptr<int64_t>(), l.pair_of.data_ptr<int64_t>(),
+    reduce_pairs(M, rows, l.entry_offsets.data_ptr<int64_t>(), l.pair_of.data_ptr<int64_t>(),
                  [&](int64_t e, const double* r) { for (int k = 0; k < 3; ++k) gcol[3 * e + k] = T(r[k]); });
     return g;
   }
@@ -219,7 +220,7 @@ Grads2D backward_impl(const Surfels2D& s, const TileLists& l, const Grid& gr, co
   g.normals = at::empty_like(s.normals);
   T *gH = g.H.data_ptr<T>(), *gDz = g.Dz.data_ptr<T>(), *gc = g.centres.data_ptr<T>(), *gop = g.opacities.data_ptr<T>(),
     *gcol = g.colors.data_ptr<T>(), *gn = g.normals.data_ptr<T>();
-  reduce_pairs(M, D2, rows.data(), l.entry_offsets.data_ptr<int64_t>(), l.pair_of.data_ptr<int64_t>(),
+  reduce_pairs(M, rows, l.entry_offsets.data_ptr<int64_t>(), l.pair_of.data_ptr<int64_t>(),
                [&](int64_t e, const double* r) {
                  double H[9], h[9];
                  for (int k = 0; k < 9; ++k) H[k] = double(in.H[9 * e + k]);

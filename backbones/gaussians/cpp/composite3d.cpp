@@ -64,12 +64,13 @@ In3<T> inputs(const Splats3D& s, const TileLists& l) {
                 l.ids.data_ptr<int64_t>(), l.box.data_ptr<int64_t>()};
 }
 
+// pairs [j0, j1) of tile ct into out (its first pair at out[0])
 template <typename T>
-void gather(const In3<T>& in, const Grid& gr, int64_t ct, Pair3<T>* out) {
+void gather(const In3<T>& in, const Grid& gr, int64_t ct, int64_t j0, int64_t j1, Pair3<T>* out) {
   const int64_t x0 = gr.x0(ct), y0 = gr.y0(ct), nx = gr.nx(ct), ny = gr.ny(ct);
-  for (int64_t p = in.off[ct]; p < in.off[ct + 1]; ++p) {
-    const int64_t s = in.ids[p];
-    Pair3<T>& q = out[p - in.off[ct]];
+  for (int64_t j = j0; j < j1; ++j) {
+    const int64_t s = in.ids[in.off[ct] + j];
+    Pair3<T>& q = out[j];
     q.mx = in.m2[2 * s] - T(x0);
     q.my = in.m2[2 * s + 1] - T(y0);
     q.ca = in.con[3 * s]; q.cb = in.con[3 * s + 1]; q.cc = in.con[3 * s + 2];
@@ -92,12 +93,14 @@ inline void eval3(const Pair3<T>& q, int lx, T dy, T& dx, T& g, T& alpha, bool& 
   ok = (lx >= q.x0) & (lx <= q.x1) & (power <= T(0)) & (alpha >= T(kMinAlpha));  // no branches: vectorised
 }
 
-// front to back over the tile's n pairs (nx x ny pixels); leaves the pixels' state in st
+// front to back over the n pairs of tile ct, gathered into pr in batches as far as the compositing goes (the
+// pairs after every pixel stopped are not needed, not even by the backward pass); leaves the pixels' state in st
 template <typename T>
-void forward_tile(const Pair3<T>* pr, int64_t n, int nx, int ny, Tile3<T>& st) {
+void forward_tile(const In3<T>& in, const Grid& gr, int64_t ct, Pair3<T>* pr, int64_t n, Tile3<T>& st) {
   const int S = st.stride;
-  int live_total = start_tile(st, nx, ny);
-  for (int64_t j = 0; j < n && live_total > 0; ++j) {
+  int live_total = start_tile(st, int(gr.nx(ct)), int(gr.ny(ct)));
+  for (int64_t j = 0, have = 0; j < n && live_total > 0; ++j) {
+    if (j == have) gather(in, gr, ct, j, have = std::min(n, j + kGatherBatch), pr);
     const Pair3<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
     if (q.x1 < q.x0 || q.y1 < q.y0) continue;
     for (int y = q.y0; y <= q.y1; ++y) {
@@ -161,8 +164,7 @@ Composite3D forward_impl(const Splats3D& s, const TileLists& l, const Grid& gr) 
     Tile3<T>& st = states[w];
     st.reset(gr.tile);
     const int64_t start = in.off[ct], n = in.off[ct + 1] - start, c = ct / gr.tiles();
-    gather(in, gr, ct, pairs + start);
-    forward_tile(pairs + start, n, int(gr.nx(ct)), int(gr.ny(ct)), st);
+    forward_tile(in, gr, ct, pairs + start, n, st);
     for (int ly = 0; ly < int(gr.ny(ct)); ++ly)
       for (int lx = 0; lx < int(gr.nx(ct)); ++lx) {
         const int64_t i = ly * st.stride + lx, pix = (c * gr.H + gr.y0(ct) + ly) * gr.W + gr.x0(ct) + lx;
@@ -180,8 +182,9 @@ Composite3D forward_impl(const Splats3D& s, const TileLists& l, const Grid& gr) 
 }
 
 // Back to front over the tile's pairs from the last one any pixel composited; one gradient row per pair.
+// Returns the number of pairs with rows (from the first one to the last one composited).
 template <typename T>
-void backward_tile(const Pair3<T>* pr, int64_t n, int ny, Tile3<T>& st, T* grow) {
+int64_t backward_tile(const Pair3<T>* pr, int ny, Tile3<T>& st, T* grow) {
   const int S = st.stride;
   int64_t jmax = -1;
   for (int y = 0; y < ny; ++y) {  // row_live[y]: the last pair any pixel of row y composited (-1: none)
@@ -189,7 +192,6 @@ void backward_tile(const Pair3<T>* pr, int64_t n, int ny, Tile3<T>& st, T* grow)
     for (int x = 0; x < S; ++x) st.row_live[y] = std::max(st.row_live[y], st.last[y * S + x]);
     jmax = std::max<int64_t>(jmax, st.row_live[y]);
   }
-  for (int64_t j = n - 1; j > jmax; --j) std::fill(grow + j * D3, grow + (j + 1) * D3, T(0));
   alignas(64) T acc[D3][kLanes];
   for (int32_t j = int32_t(jmax); j >= 0; --j) {
     const Pair3<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
@@ -238,6 +240,7 @@ void backward_tile(const Pair3<T>* pr, int64_t n, int ny, Tile3<T>& st, T* grow)
       grow[j * D3 + d] = sum;
     }
   }
+  return jmax + 1;
 }
 
 template <typename T>
@@ -249,7 +252,7 @@ Grads3D backward_impl(const Splats3D& s, const TileLists& l, const Grid& gr, con
   const T *tf = fw.t_final.data_ptr<T>(), *al = fw.alpha.data_ptr<T>(), *wz = fw.wz.data_ptr<T>();
   const int32_t* last = fw.last.data_ptr<int32_t>();
   const T *gr_rgb = grad_or_null<T>(g_rgb), *gr_al = grad_or_null<T>(g_alpha), *gr_dep = grad_or_null<T>(g_depth);
-  std::vector<T> rows(P * D3);
+  PairRows<T> rows(P, D3);
   std::vector<Tile3<T>> states(num_workers());
   parallel_chunks(gr.C * gr.tiles(), [&](int64_t ct, int w) {
     Tile3<T>& st = states[w];
@@ -278,7 +281,7 @@ Grads3D backward_impl(const Splats3D& s, const TileLists& l, const Grid& gr, con
         st.tf[i] = st.tr[i] = tf[pix];
         st.last[i] = last[pix] < 0 ? -1 : int32_t(last[pix] - start);
       }
-    backward_tile(pairs + start, in.off[ct + 1] - start, int(gr.ny(ct)), st, rows.data() + start * D3);
+    rows.mark(start, in.off[ct + 1] - start, backward_tile(pairs + start, int(gr.ny(ct)), st, rows.tile(start)));
   });
   Grads3D g;
   g.means2d = at::empty_like(s.means2d);
@@ -288,7 +291,7 @@ Grads3D backward_impl(const Splats3D& s, const TileLists& l, const Grid& gr, con
   g.depth = at::empty_like(s.depth);
   T *gm = g.means2d.data_ptr<T>(), *gc = g.conics.data_ptr<T>(), *go = g.opacities.data_ptr<T>(),
     *gcol = g.colors.data_ptr<T>(), *gd = g.depth.data_ptr<T>();
-  reduce_pairs(M, D3, rows.data(), l.entry_offsets.data_ptr<int64_t>(), l.pair_of.data_ptr<int64_t>(),
+  reduce_pairs(M, rows, l.entry_offsets.data_ptr<int64_t>(), l.pair_of.data_ptr<int64_t>(),
                [&](int64_t e, const double* r) {
                  gm[2 * e] = T(r[0]);
                  gm[2 * e + 1] = T(r[1]);

@@ -3,7 +3,7 @@
 The kernels in ``cpp/`` cover the whole ``rasterizer: cpp`` pipeline in a few calls (on a shared,
 oversubscribed 2-core machine every multi-threaded PyTorch op can cost a scheduler slice, so op count
 matters as much as arithmetic): the differentiable projection (``project.cpp``: 2DGS homographies and
-normals, 3DGS EWA conics, with backward kernels), footprints + tile binning + depth sort (``binning.cpp``,
+normals; ``project3d.cpp``: 3DGS EWA conics; with backward kernels), footprints + tile binning + depth sort (``binning.cpp``,
 no gradient) and the front-to-back compositing (``composite2d.cpp``, ``composite3d.cpp``). The PyTorch
 path is the reference: tests/test_fused.py checks values and gradients of both paths against each other.
 
@@ -38,7 +38,7 @@ CPP_DIR = Path(__file__).parent / "cpp"
 EXTENSION = cext.Extension(
     prefix="arcsem_fused_raster",
     sources=tuple(CPP_DIR / n for n in ("composite3d.cpp", "composite2d.cpp", "composite2d_backward.cpp", "binning.cpp",
-                                        "project.cpp", "sh.cpp", "pool.cpp", "module.cpp")),
+                                        "project.cpp", "project3d.cpp", "sh.cpp", "pool.cpp", "module.cpp")),
     what="fused C++ Gaussian rasteriser",
     # the lane loops of the compositing kernels (`omp simd`) vectorise only when GCC may if-convert freely: no FP traps
     # (the kernels do not use them), no errno from std::sqrt (the SH kernel's lanes), and no partial-redundancy

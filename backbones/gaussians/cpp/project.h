@@ -1,0 +1,65 @@
+// What the fused projections of 2DGS surfels (project.cpp) and 3DGS ellipsoids (project3d.cpp) share: the rotation
+// of a quaternion and its vector-Jacobian product, one splat's parameters with its rotation.
+//
+// Ports of the differentiable PyTorch reference code, evaluated in double and stored in the input type. The number
+// type D is double (one splat) or Lanes (kL splats at once, a GCC/Clang vector of doubles: the 3DGS kernels).
+// P [C, 4, 4] is raster_camera.pixel_projection: world -> (x w, y w, w, z). Entries s = c * N + n.
+#pragma once
+#include <cmath>
+#include <cstdint>
+
+#include "api.h"
+
+namespace arcsem {
+namespace proj {
+
+constexpr int64_t kGrain = 1 << 13;  // splats per chunk of the per-splat loops
+constexpr int kL = 8;                 // splats a lane vector holds (8 doubles: one AVX-512 register, two AVX2)
+typedef double Lanes __attribute__((vector_size(8 * kL)));
+
+inline double vsqrt(double x) { return std::sqrt(x); }
+inline Lanes vsqrt(Lanes x) {
+  for (int i = 0; i < kL; ++i) x[i] = std::sqrt(x[i]);
+  return x;
+}
+
+// raster_camera.quat_to_rotmat (row-major R[3 * i + j]) and its vector-Jacobian product
+template <typename D>
+inline void rotmat(const D q[4], D R[9], D qn[4], D& norm) {
+  norm = vsqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+  for (int i = 0; i < 4; ++i) qn[i] = q[i] / norm;
+  const D w = qn[0], x = qn[1], y = qn[2], z = qn[3];
+  R[0] = 1 - 2 * (y * y + z * z); R[1] = 2 * (x * y - w * z); R[2] = 2 * (x * z + w * y);
+  R[3] = 2 * (x * y + w * z); R[4] = 1 - 2 * (x * x + z * z); R[5] = 2 * (y * z - w * x);
+  R[6] = 2 * (x * z - w * y); R[7] = 2 * (y * z + w * x); R[8] = 1 - 2 * (x * x + y * y);
+}
+
+template <typename D>
+inline void rotmat_vjp(const D qn[4], D norm, const D g[9], D gq[4]) {
+  const D w = qn[0], x = qn[1], y = qn[2], z = qn[3];
+  D gn[4];
+  gn[0] = 2 * (-z * g[1] + y * g[2] + z * g[3] - x * g[5] - y * g[6] + x * g[7]);
+  gn[1] = 2 * (y * g[1] + z * g[2] + y * g[3] - 2 * x * g[4] - w * g[5] + z * g[6] + w * g[7] - 2 * x * g[8]);
+  gn[2] = 2 * (-2 * y * g[0] + x * g[1] + w * g[2] + x * g[3] + z * g[5] - w * g[6] + z * g[7] - 2 * y * g[8]);
+  gn[3] = 2 * (-2 * z * g[0] - w * g[1] + x * g[2] + w * g[3] - 2 * z * g[4] + y * g[5] + x * g[6] + y * g[7]);
+  const D dot = gn[0] * w + gn[1] * x + gn[2] * y + gn[3] * z;
+  for (int i = 0; i < 4; ++i) gq[i] = (gn[i] - qn[i] * dot) / norm;
+}
+
+template <typename D>
+struct Splat {  // one splat's (or kL splats') parameters, with the rotation
+  D m[3], q[4], s[3], R[9], qn[4], norm;
+  Splat(const D* mean, const D* quat, const D* scale) {
+    for (int i = 0; i < 3; ++i) m[i] = mean[i];
+    for (int i = 0; i < 4; ++i) q[i] = quat[i];
+    for (int i = 0; i < 3; ++i) s[i] = scale[i];
+    rotmat(q, R, qn, norm);
+  }
+};
+
+inline void check(const at::Tensor& t) {
+  TORCH_CHECK(t.is_contiguous() && t.device().is_cpu(), "project: inputs must be contiguous CPU tensors");
+}
+
+}  // namespace proj
+}  // namespace arcsem

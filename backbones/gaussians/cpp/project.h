@@ -1,12 +1,15 @@
-// What the fused projections of 2DGS surfels (project.cpp) and 3DGS ellipsoids (project3d.cpp) share: the rotation
-// of a quaternion and its vector-Jacobian product, one splat's parameters with its rotation.
+// What the fused projections of 2DGS surfels (project.cpp) and 3DGS ellipsoids (project3d.cpp) share: lane vectors,
+// the rotation of a quaternion and its vector-Jacobian product, one splat's parameters with its rotation.
 //
-// Ports of the differentiable PyTorch reference code, evaluated in double and stored in the input type. The number
-// type D is double (one splat) or Lanes (kL splats at once, a GCC/Clang vector of doubles: the 3DGS kernels).
+// Ports of the differentiable PyTorch reference code, evaluated in double and stored in the input type, on kL splats
+// at once: every value of the per-splat arithmetic is a lane vector (Lanes, a GCC/Clang vector of doubles), so the
+// compiler emits vector instructions for all of it (an `omp simd` loop over the splats did not vectorise: its
+// per-splat arrays stayed in memory). The number type D of the templates is Lanes (or double: one splat).
 // P [C, 4, 4] is raster_camera.pixel_projection: world -> (x w, y w, w, z). Entries s = c * N + n.
 #pragma once
 #include <cmath>
 #include <cstdint>
+#include <type_traits>
 
 #include "api.h"
 
@@ -17,10 +20,22 @@ constexpr int64_t kGrain = 1 << 13;  // splats per chunk of the per-splat loops
 constexpr int kL = 8;                 // splats a lane vector holds (8 doubles: one AVX-512 register, two AVX2)
 typedef double Lanes __attribute__((vector_size(8 * kL)));
 
+typedef int64_t Mask __attribute__((vector_size(8 * kL)));  // a comparison of Lanes: -1 (true) or 0 per lane
+typedef float LanesF __attribute__((vector_size(4 * kL)));
+
+inline Lanes splat(double x) { return Lanes{} + x; }
+
 inline double vsqrt(double x) { return std::sqrt(x); }
 inline Lanes vsqrt(Lanes x) {
   for (int i = 0; i < kL; ++i) x[i] = std::sqrt(x[i]);
   return x;
+}
+
+// x rounded to the storage type T and back (the reference computes from stored values)
+template <typename T>
+inline Lanes stored(Lanes x) {
+  if constexpr (std::is_same_v<T, float>) return __builtin_convertvector(__builtin_convertvector(x, LanesF), Lanes);
+  else return x;
 }
 
 // raster_camera.quat_to_rotmat (row-major R[3 * i + j]) and its vector-Jacobian product

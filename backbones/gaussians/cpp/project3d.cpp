@@ -1,10 +1,7 @@
 // Fused per-splat projection of 3DGS ellipsoids, forward and backward (conventions: project.h).
 //
-// A port of gs3d/render.py project_gaussians + the conics of render_3dgs, evaluated on kL splats at once: every
-// value of the per-splat arithmetic is a lane vector (proj::Lanes), so the compiler emits vector instructions for
-// all of it (an `omp simd` loop over the splats did not vectorise: its per-splat arrays stayed in memory).
+// A port of gs3d/render.py project_gaussians + the conics of render_3dgs, on kL splats at once (proj::Lanes).
 #include <limits>
-#include <type_traits>
 #include <vector>
 
 #include "pool.h"
@@ -15,18 +12,10 @@ namespace {
 
 using proj::kL;
 using proj::Lanes;
+using proj::Mask;
+using proj::splat;
+using proj::stored;
 using Splat = proj::Splat<Lanes>;
-typedef int64_t Mask __attribute__((vector_size(8 * kL)));  // a comparison of Lanes: -1 (true) or 0 per lane
-typedef float LanesF __attribute__((vector_size(4 * kL)));
-
-inline Lanes splat(double x) { return Lanes{} + x; }
-
-// x rounded to the storage type T and back (the reference computes from stored values)
-template <typename T>
-inline Lanes stored(Lanes x) {
-  if constexpr (std::is_same_v<T, float>) return __builtin_convertvector(__builtin_convertvector(x, LanesF), Lanes);
-  else return x;
-}
 
 // EWA: pixel centre, depth, Jacobian Jw [2x3], JM = Jw R S [2x3], cov (a, b, c) with the 0.3 blur
 struct Ewa {

@@ -7,6 +7,7 @@ from test_trainer import build
 from trainer_util import L1_DSSIM, loop, tiny_scene
 
 from arcsem.errors import TrainingError
+from arcsem.train import loop as loop_module
 from arcsem.train.loop import loss_trend_warning, train
 from arcsem.train.losses import build_losses
 
@@ -37,6 +38,34 @@ def test_non_finite_gradient_names_the_step_and_what_is_on_disk(tmp_path, nan_fr
     assert msg.startswith(f"step {nan_from}: gradient of group 'image' is not finite"), msg
     assert msg.endswith(on_disk.format(ckpt=ckpt)), msg
     assert ckpt.exists() == (nan_from > 5)
+
+
+def test_a_parameter_made_non_finite_by_the_step_is_named(tmp_path, monkeypatch):
+    """Finite gradients, yet the optimiser step leaves a parameter non-finite (here a post-step hook, as an update
+    that overflows would): the run stops at that step naming the group and the check, before any checkpoint of it."""
+    scene = tiny_scene()
+    bb = build(scene)
+    steps = {"n": 0}
+
+    def poison(opt, args, kwargs):
+        steps["n"] += 1
+        if steps["n"] == 7:
+            with torch.no_grad():
+                bb.logits.view(-1)[3] = float("inf")
+
+    real = loop_module.make_optimizers
+
+    def with_hook(*args, **kwargs):
+        optimizers = real(*args, **kwargs)
+        optimizers["image"].register_step_post_hook(poison)
+        return optimizers
+    monkeypatch.setattr(loop_module, "make_optimizers", with_hook)
+    with pytest.raises(TrainingError) as info:
+        train(bb, scene.train, build_losses(L1_DSSIM, bb.provides), loop(20, checkpoint_every=5),
+              ckpt_dir=tmp_path / "ckpt")
+    msg = str(info.value)
+    assert msg.startswith("step 7: parameter group 'image' is not finite (after the optimiser step)"), msg
+    assert msg.endswith(f"the checkpoint on disk is from step 5 ({tmp_path / 'ckpt' / 'last.pt'})"), msg
 
 
 def test_non_finite_loss_term_is_named():

@@ -2,9 +2,9 @@
 
 One step: set the scheduled learning rates, draw a batch (whole views or random rays), let the
 stage's ``batch_hook`` add its targets (stage 2: ``batch.color``), render, sum the active loss terms, call
-``backbone.pre_backward``, backpropagate, check gradients, call ``backbone.post_backward`` (densify,
-prune, upsample: it may replace tensors in ``optimizers[group]``), step every optimiser and check
-the parameters. Any non-finite loss term, gradient or parameter stops the run with a
+``backbone.pre_backward``, backpropagate, call ``backbone.post_backward`` (densify, prune, upsample: it
+may replace tensors in ``optimizers[group]``), step every optimiser and check the parameters (and, when
+one is not finite, the gradients: the usual cause). Any non-finite loss term, gradient or parameter stops the run with a
 :class:`TrainingError` that names the step, the term or group, and the checkpoint actually on disk
 (or that there is none); nothing is written after the failure.
 
@@ -99,6 +99,12 @@ def _groups(backbone: nn.Module, act: nn.Module | None, stage: str) -> dict[str,
     if not groups:
         raise ConfigError(f"backbone has no trainable parameters for stage '{stage}'")
     return groups
+
+
+def _all_finite(named: Mapping[str, list]) -> bool:
+    """Whether every tensor of ``named`` is finite (a finite sum: one pass over each)."""
+    return all(t is None or bool(torch.isfinite((t._values() if t.is_sparse else t).sum()))
+               for value in named.values() for t in value)
 
 
 def _check_finite(run: _Run, step: int, what: str, named: Mapping[str, Any], kind: str) -> None:
@@ -211,16 +217,19 @@ def _step(run: _Run, losses: LossSet, batch_hook, step: int) -> tuple[float, flo
         for o in run.optimizers.values():
             o.zero_grad(set_to_none=True)
         total.backward()
-    with region("arcsem::checks"):
-        grads = {g: [p.grad for pg in o.param_groups for p in pg["params"]] for g, o in run.optimizers.items()}
-        _check_finite(run, step, "gradient", grads, "gradient of group")
+    grads = {g: [p.grad for pg in o.param_groups for p in pg["params"]] for g, o in run.optimizers.items()}
     bb.post_backward(step, out, run.optimizers)
     with region("arcsem::optimizer"):
         for o in run.optimizers.values():
             o.step()
     with region("arcsem::checks"):
+        # a non-finite gradient makes its parameters non-finite in the step (Adam: m, v and the update NaN or inf),
+        # so the parameters are checked every step and the gradients (the usual cause, named first) only then: one
+        # pass over the model a step, not two
         params = {g: [p for pg in o.param_groups for p in pg["params"]] for g, o in run.optimizers.items()}
-        _check_finite(run, step, "after the optimiser step", params, "parameter group")
+        if not _all_finite(params):
+            _check_finite(run, step, "gradient", grads, "gradient of group")
+            _check_finite(run, step, "after the optimiser step", params, "parameter group")
     return float(total.detach()), batch_psnr(out["rgb"], batch.images), {k: float(v.detach()) for k, v in terms.items()}
 
 

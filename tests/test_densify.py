@@ -169,3 +169,37 @@ def test_stats_accumulate_only_visible():
     torch.testing.assert_close(s.mean_grad(), torch.tensor([3.0, 6.0, 3.0]))
     torch.testing.assert_close(s.max_radii, torch.tensor([4.0, 3.0, 2.0]))
     assert DensifyStats.zeros(2).mean_grad().tolist() == [0.0, 0.0]
+
+
+@pytest.mark.parametrize("model", ["pinhole", "orthographic"])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_fused_stats_equal_the_reference(model, dtype):
+    """The fused statistics kernel (rasterizer cpp) adds what screen_grad_norms + accumulate add: three cameras,
+    splats visible in some of them, accumulators already holding earlier steps."""
+    from arcsem.backbones.gaussians.fused import densify_stats, load_extension
+
+    from arcsem.cameras import look_at
+
+    if load_extension() is None:
+        pytest.skip("the fused kernels did not build")
+    g = torch.Generator().manual_seed(1)
+    n = 1000
+    eye = torch.tensor([[0.0, 0.0, -4.0], [1.0, -0.5, -3.5], [-2.0, 0.3, -3.0]], dtype=torch.float64)
+    w2c = look_at(eye, torch.zeros_like(eye), torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64))
+    K = torch.tensor([[60.0, 0, 30.0], [0, 55.0, 20.0], [0, 0, 1]], dtype=torch.float64).repeat(3, 1, 1)
+    K[1, 0, 0] = 70.0
+    cams = Cameras(w2c, K, 64, 40, model)
+    means = torch.randn(n, 3, generator=g, dtype=dtype)
+    grad = torch.randn(n, 3, generator=g, dtype=dtype) * 1e-3
+    visible = torch.rand(3, n, generator=g) > 0.4
+    radii = torch.where(visible, torch.randint(1, 30, (3, n), generator=g), torch.zeros(3, n, dtype=torch.long))
+    ref, fused = DensifyStats.zeros(n), DensifyStats.zeros(n)
+    for s in (ref, fused):  # earlier steps
+        s.grad_sum += torch.arange(n) * 1e-4
+        s.count += 2
+        s.max_radii += torch.arange(n) % 17
+    ref.accumulate(screen_grad_norms(grad, means, cams), visible, radii)
+    densify_stats(fused, grad, means, cams, visible, radii)
+    assert (ref.count != 2).any() and (ref.max_radii != torch.arange(n) % 17).any(), "the step should add something"
+    torch.testing.assert_close(fused.grad_sum, ref.grad_sum, rtol=1e-5, atol=1e-9)
+    assert torch.equal(fused.count, ref.count) and torch.equal(fused.max_radii, ref.max_radii)

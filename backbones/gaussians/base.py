@@ -163,7 +163,12 @@ class GaussianBackbone(Backbone):
         visible = out.get("visible", radii > 0)
         if visible.shape[1] != len(self.stats):  # the model changed since this render
             return
-        self.stats.accumulate(screen_grad_norms(grad, self.model.means, cams), visible, radii)
+        if self._impl(grad.device) == "cpp" and self.stats.grad_sum.device == grad.device:
+            from .fused import densify_stats
+
+            densify_stats(self.stats, grad, self.model.means, cams, visible, radii)  # the same, in one fused pass
+        else:
+            self.stats.accumulate(screen_grad_norms(grad, self.model.means, cams), visible, radii)
 
     def densify_and_prune(self, optimizers, screen: bool = True) -> dict[str, int]:
         """One clone/split/prune pass with the accumulated statistics; resets them."""

@@ -38,7 +38,7 @@ CPP_DIR = Path(__file__).parent / "cpp"
 EXTENSION = cext.Extension(
     prefix="arcsem_fused_raster",
     sources=tuple(CPP_DIR / n for n in ("composite3d.cpp", "composite2d.cpp", "composite2d_backward.cpp", "binning.cpp",
-                                        "project.cpp", "project3d.cpp", "sh.cpp", "pool.cpp", "module.cpp")),
+                                        "project.cpp", "project3d.cpp", "sh.cpp", "stats.cpp", "pool.cpp", "module.cpp")),
     what="fused C++ Gaussian rasteriser",
     # the lane loops of the compositing kernels (`omp simd`) vectorise only when GCC may if-convert freely: no FP traps
     # (the kernels do not use them), no errno from std::sqrt (the SH kernel's lanes), and no partial-redundancy
@@ -288,6 +288,19 @@ def footprint_bin_3dgs(means2d: Tensor, depth: Tensor, cov: Tensor, opacities: T
     c = lambda t: t.contiguous()
     return load_extension().footprint_bin3d(c(means2d), c(depth), c(cov), c(opacities), _raster(C, H, W, tile),
                                             float(near))
+
+
+@torch.no_grad()
+def densify_stats(stats, grad_means: Tensor, means: Tensor, cams, visible: Tensor, radii: Tensor) -> None:
+    """Add one step's densification statistics to ``stats`` (a ``DensifyStats``: float32 ``[N]`` accumulators) in
+    one fused pass: ``stats.accumulate(screen_grad_norms(grad_means, means, cams), visible, radii)`` (densify.py, the
+    reference). visible ``[C, N]`` bool, radii ``[C, N]``."""
+    c = lambda t: t.contiguous()
+    d = lambda t: t.to(torch.float64).contiguous()
+    load_extension().densify_stats(_args(
+        "DensifyStatsIn", grad_means=c(grad_means), means=c(means.to(grad_means.dtype)), w2c=d(cams.world_to_cam),
+        K=d(cams.K), visible=c(visible.bool()), radii=c(radii.long()), grad_sum=stats.grad_sum, count=stats.count,
+        max_radii=stats.max_radii, ortho=bool(cams.is_ortho), W=int(cams.width), H=int(cams.height)))
 
 
 if __name__ == "__main__":  # `python -m arcsem.backbones.gaussians.fused`: build now (make setup does this)

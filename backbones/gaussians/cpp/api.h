@@ -66,6 +66,22 @@ std::vector<at::Tensor> project3d_forward(const Projection& p);
 std::vector<at::Tensor> project3d_backward(const Projection& p, const at::Tensor& g_means2d,
                                               const at::Tensor& g_depth, const at::Tensor& g_conics);
 
+// ------------------------------------------------------------------------------ densification statistics (stats.cpp)
+struct DensifyStatsIn {
+  at::Tensor grad_means;  // [N, 3] dL/d mean
+  at::Tensor means;       // [N, 3]
+  at::Tensor w2c;         // [C, 4, 4] float64
+  at::Tensor K;           // [C, 3, 3] float64
+  at::Tensor visible;     // [C, N] bool
+  at::Tensor radii;       // [C, N] long (pixels)
+  at::Tensor grad_sum, count, max_radii;  // [N] float32 accumulators, updated in place
+  bool ortho = false;
+  int64_t W = 0, H = 0;
+};
+
+// adds one step's statistics to grad_sum, count, max_radii (densify.py: screen_grad_norms + DensifyStats.accumulate)
+void densify_stats(const DensifyStatsIn& a);
+
 // ---------------------------------------------------------------------------------------------- SH colours (sh.cpp)
 struct ShColors {
   at::Tensor means;    // [N, 3]

@@ -21,6 +21,11 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   py::class_<ShColors>(m, "ShColors", py::module_local())
       .def(py::init<>()) FIELD(ShColors, means) FIELD(ShColors, sh_dc) FIELD(ShColors, sh_rest) FIELD(ShColors, origins)
           FIELD(ShColors, ortho) FIELD(ShColors, degree);
+  py::class_<DensifyStatsIn>(m, "DensifyStatsIn", py::module_local())
+      .def(py::init<>()) FIELD(DensifyStatsIn, grad_means) FIELD(DensifyStatsIn, means) FIELD(DensifyStatsIn, w2c)
+          FIELD(DensifyStatsIn, K) FIELD(DensifyStatsIn, visible) FIELD(DensifyStatsIn, radii)
+              FIELD(DensifyStatsIn, grad_sum) FIELD(DensifyStatsIn, count) FIELD(DensifyStatsIn, max_radii)
+                  FIELD(DensifyStatsIn, ortho) FIELD(DensifyStatsIn, W) FIELD(DensifyStatsIn, H);
   py::class_<Splats3D>(m, "Splats3D", py::module_local())
       .def(py::init<>()) FIELD(Splats3D, means2d) FIELD(Splats3D, conics) FIELD(Splats3D, opacities)
           FIELD(Splats3D, colors) FIELD(Splats3D, depth) FIELD(Splats3D, background);
@@ -53,6 +58,7 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("project3d_forward", &project3d_forward, "3DGS EWA projection and conics", py::arg("p"));
   m.def("project3d_backward", &project3d_backward, "3DGS projection, backward", py::arg("p"), py::arg("g_means2d"),
         py::arg("g_depth"), py::arg("g_conics"));
+  m.def("densify_stats", &densify_stats, "one step's densification statistics, added in place", py::arg("a"));
   m.def("sh_colors_forward", &sh_colors_forward, "SH colours of every (camera, splat)", py::arg("a"));
   m.def("sh_colors_backward", &sh_colors_backward, "SH colours, backward", py::arg("a"), py::arg("g_colors"));
   m.def("composite3d_forward", &composite3d_forward, "3DGS tile compositing", py::arg("splats"), py::arg("lists"),

@@ -13,7 +13,7 @@ from pathlib import Path
 
 __all__ = ["SPINCOUNT", "cgroup_cpu_limit", "shorter_openmp_spin", "usable_cores"]
 
-SPINCOUNT = "1000"
+SPINCOUNT = "3000"
 
 
 def cgroup_cpu_limit(root: str | os.PathLike = "/sys/fs/cgroup") -> float | None:
@@ -53,8 +53,9 @@ def shorter_openmp_spin(environ=os.environ) -> bool:
 
     PyTorch's CPU operations run on GNU OpenMP, whose threads spin about 300,000 iterations at every barrier
     before they sleep. On a machine shared with other processes they burn the cores those processes need:
-    beside one busy process a 2DGS + ACT step took 4.3x its idle time; with a spin of 1,000 1.52x (10,000:
-    1.89x, though 8 % faster idle; ``OMP_WAIT_POLICY=PASSIVE``: 1.6x but 11 % slower idle; benchmarks/step_ab.py,
+    beside one busy process a 2DGS + ACT step took 4.3x its idle time. With 3,000 (f09ae5e, two threads): idle
+    3 % faster than with 1,000 and beside one busy process 1.62x the idle time (1,000: 1.58x; 10,000: as fast
+    idle as 3,000 but 1.75x); ``OMP_WAIT_POLICY=PASSIVE``: 1.6x but 11 % slower idle (benchmarks/step_ab.py,
     figures in the README, "On a shared machine"). Must run before torch is imported (libgomp reads it once).
     """
     if "GOMP_SPINCOUNT" in environ or "OMP_WAIT_POLICY" in environ:

@@ -31,19 +31,6 @@ P2<T> inputs(const Projection& pr, const at::Tensor& Pd, const at::Tensor& Vd) {
                Vd.data_ptr<double>(), pr.means.size(0), pr.P.size(0), pr.ortho};
 }
 
-// surfels n0 .. n0 + nb - 1 as lane vectors (third scale 0; lanes past nb repeat the last surfel, not written)
-template <typename T>
-Splat load(const P2<T>& a, int64_t n0, int nb) {
-  Lanes in[10] = {};
-  for (int i = 0; i < kL; ++i) {
-    const int64_t n = n0 + std::min(i, nb - 1);
-    for (int j = 0; j < 3; ++j) in[j][i] = a.m[3 * n + j];
-    for (int j = 0; j < 4; ++j) in[3 + j][i] = a.q[4 * n + j];
-    for (int j = 0; j < 2; ++j) in[7 + j][i] = a.sc[2 * n + j];
-  }
-  return Splat(in, in + 3, in + 7);
-}
-
 // homography rows Tu, Tv, Tw, Tz (12 values): H[i][k] = sum_j P[i][j] S[j][k], S = [R0 s0, R1 s1, (m, 1)]
 inline void homography(const Splat& sp, const double* P, Lanes Hm[12]) {
   for (int i = 0; i < 4; ++i) {
@@ -65,7 +52,7 @@ template <typename T>
 void forward_range(const P2<T>& a, int64_t b, int64_t e, T* H, T* Z, T* ct, T* nr) {
   for (int64_t n0 = b; n0 < e; n0 += kL) {
     const int nb = int(std::min<int64_t>(kL, e - n0));
-    const Splat sp = load(a, n0, nb);
+    const Splat sp = proj::load_splats(a.m, a.q, a.sc, 2, n0, nb);
     for (int64_t c = 0; c < a.C; ++c) {
       Lanes h[12];
       homography(sp, a.P + 16 * c, h);
@@ -89,7 +76,7 @@ void backward_range(const P2<T>& a, const T* GH, const T* GZ, const T* GC, const
                     T* oq, T* os, T* osh) {
   for (int64_t n0 = b; n0 < e; n0 += kL) {
     const int nb = int(std::min<int64_t>(kL, e - n0));
-    const Splat sp = load(a, n0, nb);
+    const Splat sp = proj::load_splats(a.m, a.q, a.sc, 2, n0, nb);
     Lanes gR[9] = {}, gmean[3] = {}, gscale[2] = {};  // sums over the cameras
     for (int64_t c = 0; c < a.C; ++c) {
       const double* Pc = a.P + 16 * c;

@@ -7,6 +7,7 @@
 // per-splat arrays stayed in memory). The number type D of the templates is Lanes (or double: one splat).
 // P [C, 4, 4] is raster_camera.pixel_projection: world -> (x w, y w, w, z). Entries s = c * N + n.
 #pragma once
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <type_traits>
@@ -71,6 +72,20 @@ struct Splat {  // one splat's (or kL splats') parameters, with the rotation
     rotmat(q, R, qn, norm);
   }
 };
+
+// splats n0 .. n0 + nb - 1 (means [N, 3], quats [N, 4], scales [N, ns]) as lane vectors: scales past ns are 0;
+// lanes past nb repeat the last splat (they are not written)
+template <typename T>
+Splat<Lanes> load_splats(const T* m, const T* q, const T* sc, int ns, int64_t n0, int nb) {
+  Lanes in[10] = {};
+  for (int i = 0; i < kL; ++i) {
+    const int64_t n = n0 + std::min(i, nb - 1);
+    for (int j = 0; j < 3; ++j) in[j][i] = m[3 * n + j];
+    for (int j = 0; j < 4; ++j) in[3 + j][i] = q[4 * n + j];
+    for (int j = 0; j < ns; ++j) in[7 + j][i] = sc[ns * n + j];
+  }
+  return Splat<Lanes>(in, in + 3, in + 7);
+}
 
 inline void check(const at::Tensor& t) {
   TORCH_CHECK(t.is_contiguous() && t.device().is_cpu(), "project: inputs must be contiguous CPU tensors");

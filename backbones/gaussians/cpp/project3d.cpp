@@ -54,24 +54,11 @@ struct P3 {  // a projection's inputs: means [N, 3], quats [N, 4], scales [N, 3]
   double near;  // as stored: double(T(near))
 };
 
-// splats n0 .. n0 + nb - 1 as lane vectors (lanes past nb repeat the last splat; they are not written)
-template <typename T>
-Splat load(const P3<T>& a, int64_t n0, int nb) {
-  Lanes in[10];
-  for (int i = 0; i < kL; ++i) {
-    const int64_t n = n0 + std::min(i, nb - 1);
-    for (int j = 0; j < 3; ++j) in[j][i] = a.m[3 * n + j];
-    for (int j = 0; j < 4; ++j) in[3 + j][i] = a.q[4 * n + j];
-    for (int j = 0; j < 3; ++j) in[7 + j][i] = a.sc[3 * n + j];
-  }
-  return Splat(in, in + 3, in + 7);
-}
-
 template <typename T>
 void forward_range(const P3<T>& a, int64_t b, int64_t e, T* om, T* od, T* oc, T* ov) {
   for (int64_t n0 = b; n0 < e; n0 += kL) {
     const int nb = int(std::min<int64_t>(kL, e - n0));
-    const Splat sp = load(a, n0, nb);
+    const Splat sp = proj::load_splats(a.m, a.q, a.sc, 3, n0, nb);
     for (int64_t c = 0; c < a.C; ++c) {
       Ewa E;
       ewa(sp, a.P + 16 * c, E);
@@ -93,7 +80,7 @@ template <typename T>
 void backward_range(const P3<T>& a, const T* G2, const T* GD, const T* GC, int64_t b, int64_t e, T* om, T* oq, T* os) {
   for (int64_t n0 = b; n0 < e; n0 += kL) {
     const int nb = int(std::min<int64_t>(kL, e - n0));
-    const Splat sp = load(a, n0, nb);
+    const Splat sp = proj::load_splats(a.m, a.q, a.sc, 3, n0, nb);
     Lanes gR[9] = {}, gmean[3] = {}, gscale[3] = {};  // sums over the cameras
     for (int64_t c = 0; c < a.C; ++c) {
       const double* Pc = a.P + 16 * c;

@@ -114,14 +114,7 @@ void backward_range(const P2<T>& a, const T* GH, const T* GZ, const T* GC, const
       const Lanes sg = facing(sp, a.view + 3 * c, a.ortho);
       for (int j = 0; j < 3; ++j) gR[3 * j + 2] += sg * gn[j];
     }
-    Lanes gquat[4];
-    proj::rotmat_vjp(sp.qn, sp.norm, gR, gquat);
-    for (int i = 0; i < nb; ++i) {
-      const int64_t n = n0 + i;
-      for (int j = 0; j < 3; ++j) om[3 * n + j] = T(gmean[j][i]);
-      for (int j = 0; j < 4; ++j) oq[4 * n + j] = T(gquat[j][i]);
-      for (int j = 0; j < 2; ++j) os[2 * n + j] = T(gscale[j][i]);
-    }
+    proj::store_splat_grads(sp, gR, gmean, gscale, 2, n0, nb, om, oq, os);
   }
 }
 

@@ -87,6 +87,21 @@ Splat<Lanes> load_splats(const T* m, const T* q, const T* sc, int ns, int64_t n0
   return Splat<Lanes>(in, in + 3, in + 7);
 }
 
+// the gradients of splats n0 .. n0 + nb - 1 from those of their rotation (gR [9]), means and scales (ns of them):
+// g_means [N, 3], g_quats [N, 4] (through the normalisation), g_scales [N, ns]
+template <typename T>
+void store_splat_grads(const Splat<Lanes>& sp, const Lanes* gR, const Lanes* gmean, const Lanes* gscale, int ns,
+                       int64_t n0, int nb, T* om, T* oq, T* os) {
+  Lanes gquat[4];
+  rotmat_vjp(sp.qn, sp.norm, gR, gquat);
+  for (int i = 0; i < nb; ++i) {
+    const int64_t n = n0 + i;
+    for (int j = 0; j < 3; ++j) om[3 * n + j] = T(gmean[j][i]);
+    for (int j = 0; j < 4; ++j) oq[4 * n + j] = T(gquat[j][i]);
+    for (int j = 0; j < ns; ++j) os[ns * n + j] = T(gscale[j][i]);
+  }
+}
+
 inline void check(const at::Tensor& t) {
   TORCH_CHECK(t.is_contiguous() && t.device().is_cpu(), "project: inputs must be contiguous CPU tensors");
 }

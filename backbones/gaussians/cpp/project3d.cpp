@@ -122,14 +122,7 @@ void backward_range(const P3<T>& a, const T* G2, const T* GD, const T* GC, int64
       for (int j = 0; j < 3; ++j)
         gmean[j] += Pc[j] * ghom[0] + Pc[4 + j] * ghom[1] + Pc[8 + j] * ghom[2] + Pc[12 + j] * ghom[3];
     }
-    Lanes gquat[4];
-    proj::rotmat_vjp(sp.qn, sp.norm, gR, gquat);
-    for (int i = 0; i < nb; ++i) {
-      const int64_t n = n0 + i;
-      for (int j = 0; j < 3; ++j) om[3 * n + j] = T(gmean[j][i]);
-      for (int j = 0; j < 4; ++j) oq[4 * n + j] = T(gquat[j][i]);
-      for (int j = 0; j < 3; ++j) os[3 * n + j] = T(gscale[j][i]);
-    }
+    proj::store_splat_grads(sp, gR, gmean, gscale, 3, n0, nb, om, oq, os);
   }
 }
 

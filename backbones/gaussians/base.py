@@ -163,7 +163,8 @@ class GaussianBackbone(Backbone):
         visible = out.get("visible", radii > 0)
         if visible.shape[1] != len(self.stats):  # the model changed since this render
             return
-        if self._impl(grad.device) == "cpp" and self.stats.grad_sum.device == grad.device:
+        fusable = self.stats.grad_sum.device == grad.device and self.stats.grad_sum.dtype == torch.float32
+        if fusable and self._impl(grad.device) == "cpp":
             from .fused import densify_stats
 
             densify_stats(self.stats, grad, self.model.means, cams, visible, radii)  # the same, in one fused pass

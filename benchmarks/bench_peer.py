@@ -12,6 +12,7 @@ Figures: median of the last 3 of 4 runs (``--runs``), wall seconds.
     .venv/bin/python benchmarks/bench_peer.py                         # this tree vs main, 1 and 2 threads
     .venv/bin/python benchmarks/bench_peer.py --base HEAD~1 --threads 2
     .venv/bin/python benchmarks/bench_peer.py --base none             # this tree only
+    .venv/bin/python benchmarks/bench_peer.py --composited            # share of 3DGS pairs before each tile's stop
 
 Old and new run alternately (run k of the base, run k of this tree, ...), so their ratio is measured under one
 machine load; the base commit's kernels are built as a second extension (benchmarks/baseline.py).
@@ -59,6 +60,28 @@ def fused_colors(means, sh_dc, sh_rest, cams):
     return sh_colors(means, sh_dc, sh_rest, cams.centers, False, 3)
 
 
+@torch.no_grad()
+def composited_share(N: int, near: float = 0.01) -> tuple[int, float]:
+    """3DGS on the shared scene: the number of (tile, splat) pairs and the share of them up to each tile's last
+    composited pair (the rest lie behind pixels that stopped: the kernels neither gather nor sum them)."""
+    from arcsem.backbones.gaussians import fused
+    from arcsem.backbones.gaussians.raster_camera import pixel_projection
+
+    (means, quats, scales, opac, sh), cams = peer_scene(N)
+    P = pixel_projection(cams).to(means.dtype)
+    m2, depth, conics, cov = fused.project_3dgs(means, quats, scales, means.new_zeros(1, N, 2), P, near)
+    lists = fused.footprint_bin_3dgs(m2, depth, cov, opac, 1, near, cams.width, cams.height, 16)
+    colors = fused_colors(means, sh[:, :1], sh[:, 1:], cams).reshape(N, 3)
+    splats = fused._args("Splats3D", means2d=m2, conics=conics, opacities=opac, colors=colors, depth=depth,
+                         background=colors.new_empty(0))
+    res = fused.load_extension().composite3d_forward(splats, lists, fused._raster(1, cams.height, cams.width, 16))
+    T = 16
+    last = res.last.view(cams.height // T, T, cams.width // T, T).permute(0, 2, 1, 3).reshape(-1, T * T).long()
+    jmax, off = last.max(1).values, lists.offsets
+    used = torch.where(jmax >= 0, jmax - off[:-1] + 1, torch.zeros_like(jmax)).sum().item()
+    return int(off[-1]), used / max(int(off[-1]), 1)
+
+
 def run_once(fns: dict, dims: int, params: list[torch.Tensor], cams: Cameras) -> float:
     """Wall seconds of SH colours + render + backward of ``sum(rgb)``."""
     means, quats, scales, opac, sh_dc, sh_rest = [p.detach().clone().requires_grad_(True)
@@ -90,7 +113,14 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=4)
     ap.add_argument("--models", default="3DGS")
     ap.add_argument("--sizes", default=",".join(map(str, SIZES)))
+    ap.add_argument("--composited", action="store_true", help="print the share of 3DGS pairs composited, then stop")
     a = ap.parse_args()
+    if a.composited:
+        for N in (int(n) for n in a.sizes.split(",")):
+            pairs, share = composited_share(N)
+            print(f"3DGS, {N:,} splats: {pairs:,} (tile, splat) pairs, {100 * share:.1f} % up to each tile's last "
+                  "composited one")
+        return
     renders = {"this tree": {"2DGS": render_2dgs, "3DGS": render_3dgs, "colors": fused_colors}}
     if a.base != "none":
         from baseline import baseline_renderers

@@ -3,8 +3,9 @@
 The kernels in ``cpp/`` cover the whole ``rasterizer: cpp`` pipeline in a few calls (on a shared,
 oversubscribed 2-core machine every multi-threaded PyTorch op can cost a scheduler slice, so op count
 matters as much as arithmetic): the differentiable projection (``project.cpp``: 2DGS homographies and
-normals; ``project3d.cpp``: 3DGS EWA conics; with backward kernels), footprints + tile binning + depth sort (``binning.cpp``,
-no gradient) and the front-to-back compositing (``composite2d.cpp``, ``composite3d.cpp``). The PyTorch
+normals; ``project3d.cpp``: 3DGS EWA conics; with backward kernels), footprints + tile binning + depth sort
+(``binning.cpp``, no gradient), the front-to-back compositing (``composite2d.cpp``, ``composite3d.cpp``) and the
+densification statistics (``stats.cpp``). The PyTorch
 path is the reference: tests/test_fused.py checks values and gradients of both paths against each other.
 
 ``load_extension()`` compiles once (about a minute with gcc; cached under

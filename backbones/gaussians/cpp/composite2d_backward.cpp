@@ -131,8 +131,8 @@ inline void colour_lanes(const Pair2<T> q, int32_t j, int y, int c, T near, T lp
 // back to front over the tile's pairs from the last one any pixel composited; one gradient row per pair (D2
 // values; Geo = false: the 3 colour values). Returns the number of pairs with rows (up to the last composited).
 template <typename T, bool Geo>
-int64_t backward_tile(const Pair2<T>* pr, int ny, const T* mc, T near, T lp, int64_t x0, int64_t y0,
-                   Tile2<T>& st, T* rows) {
+int64_t backward_tile(const Pair2<T>* pr, int ny, const T* mc, T near, T lp, int64_t x0, int64_t y0, Tile2<T>& st,
+                      T* rows) {
   constexpr int D = Geo ? D2 : 3;
   int64_t jmax = -1;
   for (int y = 0; y < ny; ++y) {  // row_live[y]: the last pair any pixel of row y composited (-1: none)
@@ -200,8 +200,11 @@ Grads2D backward_impl(const Surfels2D& s, const TileLists& l, const Grid& gr, co
     const int64_t start = in.off[ct], n = in.off[ct + 1] - start;
     load_tile(gr, ct, start, sv, in.bg, st);
     const T* mc = in.mc + 3 * (ct / gr.tiles());
-    const int64_t k = geometry ? backward_tile<T, true>(pairs + start, int(gr.ny(ct)), mc, in.near, in.lp, gr.x0(ct), gr.y0(ct), st, rows.tile(start))
-                               : backward_tile<T, false>(pairs + start, int(gr.ny(ct)), mc, in.near, in.lp, gr.x0(ct), gr.y0(ct), st, rows.tile(start));
+    const Pair2<T>* pr = pairs + start;
+    const int ny = int(gr.ny(ct));
+    T* r = rows.tile(start);
+    const int64_t k = geometry ? backward_tile<T, true>(pr, ny, mc, in.near, in.lp, gr.x0(ct), gr.y0(ct), st, r)
+                               : backward_tile<T, false>(pr, ny, mc, in.near, in.lp, gr.x0(ct), gr.y0(ct), st, r);
     rows.mark(start, n, k);
   });
   Grads2D g;

@@ -15,7 +15,7 @@ using proj::kL;
 using proj::Lanes;
 using proj::splat;
 using proj::stored;
-using Splat = proj::Splat<Lanes>;
+using proj::Splat;
 
 template <typename T>
 struct P2 {  // a projection's inputs: means [N, 3], quats [N, 4], scales [N, 2], P [C, 16], view [C, 3] (double)

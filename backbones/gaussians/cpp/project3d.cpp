@@ -15,7 +15,7 @@ using proj::Lanes;
 using proj::Mask;
 using proj::splat;
 using proj::stored;
-using Splat = proj::Splat<Lanes>;
+using proj::Splat;
 
 // EWA: pixel centre, depth, Jacobian Jw [2x3], JM = Jw R S [2x3], cov (a, b, c) with the 0.3 blur
 struct Ewa {

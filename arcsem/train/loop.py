@@ -4,8 +4,8 @@ One step: set the scheduled learning rates, draw a batch (whole views or random 
 stage's ``batch_hook`` add its targets (stage 2: ``batch.color``), render, sum the active loss terms, call
 ``backbone.pre_backward``, backpropagate, call ``backbone.post_backward`` (densify, prune, upsample: it
 may replace tensors in ``optimizers[group]``), step every optimiser and check the parameters (and, when
-one is not finite, the gradients: the usual cause). Any non-finite loss term, gradient or parameter stops the run with a
-:class:`TrainingError` that names the step, the term or group, and the checkpoint actually on disk
+one is not finite, the gradients: the usual cause). Any non-finite loss term, gradient or parameter stops
+the run with a :class:`TrainingError` that names the step, the term or group, and the checkpoint actually on disk
 (or that there is none); nothing is written after the failure.
 
 Checkpoints go to ``ckpt_dir/last.pt`` every ``checkpoint_every`` steps and at the end. With
@@ -101,10 +101,13 @@ def _groups(backbone: nn.Module, act: nn.Module | None, stage: str) -> dict[str,
     return groups
 
 
-def _all_finite(named: Mapping[str, list]) -> bool:
-    """Whether every tensor of ``named`` is finite (a finite sum: one pass over each)."""
-    return all(t is None or bool(torch.isfinite((t._values() if t.is_sparse else t).sum()))
-               for value in named.values() for t in value)
+def _finite(t: torch.Tensor | None) -> bool:
+    """Whether every element of ``t`` is finite (None: yes; sparse: its stored values). One pass when the sum is
+    finite; element-wise only when it is not (a sum can overflow)."""
+    if t is None:
+        return True
+    t = t._values() if t.is_sparse else t
+    return bool(torch.isfinite(t.sum())) or bool(torch.isfinite(t).all())
 
 
 def _check_finite(run: _Run, step: int, what: str, named: Mapping[str, Any], kind: str) -> None:
@@ -113,10 +116,7 @@ def _check_finite(run: _Run, step: int, what: str, named: Mapping[str, Any], kin
     for name, value in named.items():
         tensors = value if isinstance(value, (list, tuple)) else [value]
         for t in tensors:
-            if t is not None and t.is_sparse:  # sparse gradients (Plenoxels): their stored values
-                t = t._values()
-            # one pass: a finite sum means every element is finite (a non-finite one is checked element-wise)
-            if t is not None and not bool(torch.isfinite(t.sum())) and not bool(torch.isfinite(t).all()):
+            if not _finite(t):
                 raise TrainingError(f"step {step + 1}: {kind} '{name}' is not finite ({what}); training stopped, "
                                     f"{run.on_disk()}")
 
@@ -227,7 +227,7 @@ def _step(run: _Run, losses: LossSet, batch_hook, step: int) -> tuple[float, flo
         # so the parameters are checked every step and the gradients (the usual cause, named first) only then: one
         # pass over the model a step, not two
         params = {g: [p for pg in o.param_groups for p in pg["params"]] for g, o in run.optimizers.items()}
-        if not _all_finite(params):
+        if not all(_finite(p) for group in params.values() for p in group):
             _check_finite(run, step, "gradient", grads, "gradient of group")
             _check_finite(run, step, "after the optimiser step", params, "parameter group")
     return float(total.detach()), batch_psnr(out["rgb"], batch.images), {k: float(v.detach()) for k, v in terms.items()}

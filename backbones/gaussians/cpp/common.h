@@ -91,25 +91,34 @@ struct PairRows {
   }
 };
 
-// The rows summed per entry in the fixed order of the tile lists' pair_of (so the result does not depend on
-// threads or timing), in double, unused pairs adding nothing: f(s, sum) for every entry s, in parallel.
-template <typename T, class F>
+// The rows (D values each: pr.D) summed per entry in the fixed order of the tile lists' pair_of (so the result
+// does not depend on threads or timing), in double, unused pairs adding nothing: f(s, sum) for every entry s, in
+// parallel. The rows are read in entry order, scattered in memory: a row and its flag are asked for 8 pairs ahead.
+template <int D, typename T, class F>
 inline void reduce_pairs(int64_t M, const PairRows<T>& pr, const int64_t* entry_offsets, const int64_t* pair_of,
                          const F& f) {
-  const int64_t D = pr.D;
+  TORCH_CHECK(pr.D == D, "reduce_pairs: rows of ", pr.D, " values, expected ", D);
+  constexpr int64_t ahead = 8;
   const T* rows = pr.rows.get();
   const uint8_t* used = pr.used.get();
   parallel_range(M, 2048, [&](int64_t b, int64_t e, int) {
-    std::vector<double> acc(D);
+    const int64_t k1 = entry_offsets[e];
+    double acc[D];
     for (int64_t s = b; s < e; ++s) {
-      std::fill(acc.begin(), acc.end(), 0.0);
+      std::fill(acc, acc + D, 0.0);
       for (int64_t k = entry_offsets[s]; k < entry_offsets[s + 1]; ++k) {
+        if (k + ahead < k1) {
+          const int64_t q = pair_of[k + ahead];
+          __builtin_prefetch(used + q);
+          __builtin_prefetch(rows + q * D);
+          if constexpr (D > 1) __builtin_prefetch(rows + q * D + D - 1);
+        }
         const int64_t p = pair_of[k];
         if (!used[p]) continue;
         const T* r = rows + p * D;
-        for (int64_t d = 0; d < D; ++d) acc[d] += double(r[d]);
+        for (int d = 0; d < D; ++d) acc[d] += double(r[d]);
       }
-      f(s, acc.data());
+      f(s, static_cast<const double*>(acc));
     }
   });
 }

@@ -123,8 +123,16 @@ In2<T> inputs(const Surfels2D& s, const TileLists& l) {
 template <typename T>
 void gather(const In2<T>& in, const Grid& gr, int64_t ct, int64_t j0, int64_t j1, Pair2<T>* out) {
   const int64_t x0 = gr.x0(ct), y0 = gr.y0(ct), nx = gr.nx(ct), ny = gr.ny(ct);
+  const int64_t* ids = in.ids + in.off[ct];
   for (int64_t j = j0; j < j1; ++j) {
-    const int64_t s = in.ids[in.off[ct] + j];
+    if (j + 4 < j1) {  // the entries are in depth order, scattered in memory: ask for one 4 pairs ahead
+      const int64_t a = ids[j + 4];
+      for (const T* x : {in.H + 9 * a, in.H + 9 * a + 8, in.Dz + 3 * a, in.c + 2 * a, in.op + a, in.col + 3 * a,
+                         in.nrm + 3 * a})
+        __builtin_prefetch(x);
+      __builtin_prefetch(in.box + 4 * a);
+    }
+    const int64_t s = ids[j];
     Pair2<T>& q = out[j];
     double H[9], A[9];
     for (int k = 0; k < 9; ++k) H[k] = double(in.H[9 * s + k]);

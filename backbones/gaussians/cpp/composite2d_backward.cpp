@@ -211,7 +211,7 @@ Grads2D backward_impl(const Surfels2D& s, const TileLists& l, const Grid& gr, co
   if (!geometry) {
     g.colors = at::empty_like(s.colors);
     T* gcol = g.colors.data_ptr<T>();
-    reduce_pairs(M, rows, l.entry_offsets.data_ptr<int64_t>(), l.pair_of.data_ptr<int64_t>(),
+    reduce_pairs<3>(M, rows, l.entry_offsets.data_ptr<int64_t>(), l.pair_of.data_ptr<int64_t>(),
                  [&](int64_t e, const double* r) { for (int k = 0; k < 3; ++k) gcol[3 * e + k] = T(r[k]); });
     return g;
   }
@@ -223,7 +223,7 @@ Grads2D backward_impl(const Surfels2D& s, const TileLists& l, const Grid& gr, co
   g.normals = at::empty_like(s.normals);
   T *gH = g.H.data_ptr<T>(), *gDz = g.Dz.data_ptr<T>(), *gc = g.centres.data_ptr<T>(), *gop = g.opacities.data_ptr<T>(),
     *gcol = g.colors.data_ptr<T>(), *gn = g.normals.data_ptr<T>();
-  reduce_pairs(M, rows, l.entry_offsets.data_ptr<int64_t>(), l.pair_of.data_ptr<int64_t>(),
+  reduce_pairs<D2>(M, rows, l.entry_offsets.data_ptr<int64_t>(), l.pair_of.data_ptr<int64_t>(),
                [&](int64_t e, const double* r) {
                  double H[9], h[9];
                  for (int k = 0; k < 9; ++k) H[k] = double(in.H[9 * e + k]);

@@ -291,7 +291,7 @@ Grads3D backward_impl(const Splats3D& s, const TileLists& l, const Grid& gr, con
   g.depth = at::empty_like(s.depth);
   T *gm = g.means2d.data_ptr<T>(), *gc = g.conics.data_ptr<T>(), *go = g.opacities.data_ptr<T>(),
     *gcol = g.colors.data_ptr<T>(), *gd = g.depth.data_ptr<T>();
-  reduce_pairs(M, rows, l.entry_offsets.data_ptr<int64_t>(), l.pair_of.data_ptr<int64_t>(),
+  reduce_pairs<D3>(M, rows, l.entry_offsets.data_ptr<int64_t>(), l.pair_of.data_ptr<int64_t>(),
                [&](int64_t e, const double* r) {
                  gm[2 * e] = T(r[0]);
                  gm[2 * e + 1] = T(r[1]);

@@ -7,13 +7,14 @@ namespace c2d {
 // front to back over the n pairs of tile ct, gathered into pr in batches as far as the compositing goes (the
 // pairs after every pixel stopped are not needed, not even by the backward pass); leaves the pixels' state in st
 template <typename T>
-void forward_tile(const In2<T>& in, const Grid& gr, int64_t ct, Pair2<T>* pr, int64_t n, const T* mc, Tile2<T>& st) {
+void forward_tile(const In2<T>& in, const Entry2<T>* ent, const Grid& gr, int64_t ct, Pair2<T>* pr, int64_t n,
+                  const T* mc, Tile2<T>& st) {
   const int S = st.stride;
   const T near = in.near, lp = in.lp;
   int live_total = start_tile(st, int(gr.nx(ct)), int(gr.ny(ct)));
   Lanes2<T> L;
   for (int64_t j = 0, have = 0; j < n && live_total > 0; ++j) {
-    if (j == have) gather(in, gr, ct, j, have = std::min(n, j + kGatherBatch), pr);
+    if (j == have) gather(ent, in.ids + in.off[ct], gr, ct, j, have = std::min(n, j + kGatherBatch), pr);
     const Pair2<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
     if (q.x1 < q.x0 || q.y1 < q.y0) continue;
     for (int y = q.y0; y <= q.y1; ++y) {
@@ -116,12 +117,13 @@ Composite2D forward_impl(const Surfels2D& s, const TileLists& l, const Grid& gr)
                     r.wz.data_ptr<T>(), r.depth.data_ptr<T>(), r.median.data_ptr<T>(), r.distortion.data_ptr<T>(),
                     r.m1.data_ptr<T>(), r.m2.data_ptr<T>(), r.mref.data_ptr<T>(), r.last.data_ptr<int32_t>(),
                     r.median_pair.data_ptr<int32_t>()};
+  const std::vector<Entry2<T>> ent = pack_entries(in, s.colors.size(0));
   std::vector<Tile2<T>> states(num_workers());
   parallel_chunks(gr.C * gr.tiles(), [&](int64_t ct, int w) {
     Tile2<T>& st = states[w];
     st.reset(gr.tile);
     const int64_t start = in.off[ct], c = ct / gr.tiles();
-    forward_tile(in, gr, ct, pairs + start, in.off[ct + 1] - start, in.mc + 3 * c, st);
+    forward_tile(in, ent.data(), gr, ct, pairs + start, in.off[ct + 1] - start, in.mc + 3 * c, st);
     write_tile(gr, ct, start, st, in.bg, out);
   });
   return r;

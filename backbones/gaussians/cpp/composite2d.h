@@ -119,40 +119,68 @@ In2<T> inputs(const Surfels2D& s, const TileLists& l) {
                 T(s.lowpass)};
 }
 
+// What a pair needs of its entry, packed (2-3 cache lines instead of one or two in each of seven arrays: the
+// entries of a tile come in depth order, scattered in memory): adjugate columns a, b, c (double), depth row,
+// centre, opacity, features and the pixel box.
+template <typename T>
+struct Entry2 {
+  double A[9];
+  T dz[3], f[K2], cx, cy, op;
+  int32_t box[4];
+};
+
+// the M entries' records, in parallel
+template <typename T>
+std::vector<Entry2<T>> pack_entries(const In2<T>& in, int64_t M) {
+  std::vector<Entry2<T>> out(static_cast<size_t>(M));
+  parallel_range(M, 4096, [&](int64_t b, int64_t e, int) {
+    for (int64_t s = b; s < e; ++s) {
+      Entry2<T>& r = out[size_t(s)];
+      double H[9];
+      for (int k = 0; k < 9; ++k) H[k] = double(in.H[9 * s + k]);
+      cross(H + 3, H + 6, r.A);      // a = Tv x Tw
+      cross(H + 6, H, r.A + 3);      // b = Tw x Tu
+      cross(H, H + 3, r.A + 6);      // c = Tu x Tv
+      for (int k = 0; k < 3; ++k) {
+        r.dz[k] = in.Dz[3 * s + k];
+        r.f[k] = in.col[3 * s + k];
+        r.f[3 + k] = in.nrm[3 * s + k];
+      }
+      r.cx = in.c[2 * s];
+      r.cy = in.c[2 * s + 1];
+      r.op = in.op[s];
+      for (int k = 0; k < 4; ++k)  // (clamped: only the part inside the image is ever drawn)
+        r.box[k] = int32_t(std::min<int64_t>(std::max<int64_t>(in.box[4 * s + k], -1), int64_t(1) << 30));
+    }
+  });
+  return out;
+}
+
 // pairs [j0, j1) of tile ct into out (its first pair at out[0])
 template <typename T>
-void gather(const In2<T>& in, const Grid& gr, int64_t ct, int64_t j0, int64_t j1, Pair2<T>* out) {
+void gather(const Entry2<T>* ent, const int64_t* ids, const Grid& gr, int64_t ct, int64_t j0, int64_t j1,
+            Pair2<T>* out) {
   const int64_t x0 = gr.x0(ct), y0 = gr.y0(ct), nx = gr.nx(ct), ny = gr.ny(ct);
-  const int64_t* ids = in.ids + in.off[ct];
   for (int64_t j = j0; j < j1; ++j) {
-    if (j + 4 < j1) {  // the entries are in depth order, scattered in memory: ask for one 4 pairs ahead
-      const int64_t a = ids[j + 4];
-      for (const T* x : {in.H + 9 * a, in.H + 9 * a + 8, in.Dz + 3 * a, in.c + 2 * a, in.op + a, in.col + 3 * a,
-                         in.nrm + 3 * a})
-        __builtin_prefetch(x);
-      __builtin_prefetch(in.box + 4 * a);
+    if (j + 4 < j1) {  // ask for the entry 4 pairs ahead
+      const char* a = reinterpret_cast<const char*>(ent + ids[j + 4]);
+      for (int k = 0; k < int(sizeof(Entry2<T>)); k += 64) __builtin_prefetch(a + k);
+      __builtin_prefetch(a + sizeof(Entry2<T>) - 1);
     }
-    const int64_t s = ids[j];
+    const Entry2<T>& e = ent[ids[j]];
     Pair2<T>& q = out[j];
-    double H[9], A[9];
-    for (int k = 0; k < 9; ++k) H[k] = double(in.H[9 * s + k]);
-    cross(H + 3, H + 6, A);      // a = Tv x Tw
-    cross(H + 6, H, A + 3);      // b = Tw x Tu
-    cross(H, H + 3, A + 6);      // c = Tu x Tv
     for (int k = 0; k < 3; ++k) {
-      q.a[k] = T(A[k]);
-      q.b[k] = T(A[3 + k]);
-      q.c[k] = T(A[6 + k] + double(x0) * A[k] + double(y0) * A[3 + k]);
-      q.dz[k] = in.Dz[3 * s + k];
-      q.f[k] = in.col[3 * s + k];
-      q.f[3 + k] = in.nrm[3 * s + k];
+      q.a[k] = T(e.A[k]);
+      q.b[k] = T(e.A[3 + k]);
+      q.c[k] = T(e.A[6 + k] + double(x0) * e.A[k] + double(y0) * e.A[3 + k]);
+      q.dz[k] = e.dz[k];
     }
-    q.cx = in.c[2 * s] - T(x0);
-    q.cy = in.c[2 * s + 1] - T(y0);
-    q.op = in.op[s];
-    const int64_t* b = in.box + 4 * s;
-    q.x0 = int32_t(std::max<int64_t>(b[0] - x0, 0)); q.x1 = int32_t(std::min<int64_t>(b[1] - x0, nx - 1));
-    q.y0 = int32_t(std::max<int64_t>(b[2] - y0, 0)); q.y1 = int32_t(std::min<int64_t>(b[3] - y0, ny - 1));
+    for (int k = 0; k < K2; ++k) q.f[k] = e.f[k];
+    q.cx = e.cx - T(x0);
+    q.cy = e.cy - T(y0);
+    q.op = e.op;
+    q.x0 = std::max<int32_t>(e.box[0] - int32_t(x0), 0); q.x1 = std::min<int32_t>(e.box[1] - int32_t(x0), int32_t(nx - 1));
+    q.y0 = std::max<int32_t>(e.box[2] - int32_t(y0), 0); q.y1 = std::min<int32_t>(e.box[3] - int32_t(y0), int32_t(ny - 1));
   }
 }
 

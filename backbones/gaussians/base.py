@@ -74,11 +74,8 @@ class GaussianBackbone(Backbone):
         m = self.model
         cams = cams.to(device=m.means.device, dtype=m.means.dtype)
         impl = self._impl(m.means.device)
-        with region("arcsem::render/sh"):  # profiler regions: benchmarks/profile_step.py
-            colors = m.colors(cams, impl=impl)  # [C, N, 3]
-        if self.act is not None:
-            with region("arcsem::render/act"):
-                colors = self.act.apply(colors, cams.image_ids)
+        with region("arcsem::render/sh"):  # SH colours and ACT; profiler regions: benchmarks/profile_step.py
+            colors = m.colors(cams, impl=impl, act=self.act)  # [C, N, 3]
         if background is None:
             background = torch.tensor(self.cfg.background, dtype=m.means.dtype, device=m.means.device)
         means, quats, scales, opacities = self.splat_params()

@@ -245,31 +245,40 @@ def project_3dgs(means: Tensor, quats: Tensor, scales: Tensor, leaf: Tensor, P: 
 
 class _ShColors(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means, sh_dc, sh_rest, origins, ortho, degree):
-        args = _args("ShColors", means=means, sh_dc=sh_dc, sh_rest=sh_rest, origins=origins, ortho=ortho, degree=degree)
-        ctx.save_for_backward(means, sh_dc, sh_rest, origins)
+    def forward(ctx, means, sh_dc, sh_rest, origins, act_w, act_b, ortho, degree):
+        args = _args("ShColors", means=means, sh_dc=sh_dc, sh_rest=sh_rest, origins=origins, act_w=act_w, act_b=act_b,
+                     ortho=ortho, degree=degree)
+        ctx.save_for_backward(means, sh_dc, sh_rest, origins, act_w, act_b)
         ctx.ortho, ctx.degree = ortho, degree
         return load_extension().sh_colors_forward(args)
 
     @staticmethod
     def backward(ctx, g):
-        means, sh_dc, sh_rest, origins = ctx.saved_tensors
-        args = _args("ShColors", means=means, sh_dc=sh_dc, sh_rest=sh_rest, origins=origins, ortho=ctx.ortho,
-                     degree=ctx.degree)
-        gm, gdc, grest = load_extension().sh_colors_backward(args, g)
+        means, sh_dc, sh_rest, origins, act_w, act_b = ctx.saved_tensors
+        args = _args("ShColors", means=means, sh_dc=sh_dc, sh_rest=sh_rest, origins=origins, act_w=act_w, act_b=act_b,
+                     ortho=ctx.ortho, degree=ctx.degree)
+        gm, gdc, grest, gw, gb = load_extension().sh_colors_backward(args, g)
         # degree 0 reads no rest coefficient and no direction: no gradient, as the PyTorch path
-        return (gm if ctx.degree > 0 else None), gdc, (grest if ctx.degree > 0 else None), None, None, None
+        return (gm if ctx.degree > 0 else None), gdc, (grest if ctx.degree > 0 else None), None, gw, gb, None, None
 
 
-def sh_colors(means: Tensor, sh_dc: Tensor, sh_rest: Tensor, origins: Tensor, ortho: bool, degree: int) -> Tensor:
-    """Fused ``max(eval_sh(degree, sh, view direction) + 0.5, 0)`` of every (camera, splat) (sh.py is the reference).
+def sh_colors(means: Tensor, sh_dc: Tensor, sh_rest: Tensor, origins: Tensor, ortho: bool, degree: int,
+              act: tuple[Tensor, Tensor] | None = None) -> Tensor:
+    """Fused ``max(eval_sh(degree, sh, view direction) + 0.5, 0)`` of every (camera, splat) (sh.py is the reference),
+    with ``act = (w, b)`` then ``clamp(w[c] * rgb + b[c], 0, 1)`` per camera (ACT.apply is the reference).
 
     Args: means ``[N, 3]``; sh_dc ``[N, 1, 3]``; sh_rest ``[N, R, 3]``; origins ``[C, 3]``: camera centres (pinhole,
-        direction ``mean - centre``) or forward axes (orthographic); degree 0..3.
+        direction ``mean - centre``) or forward axes (orthographic); degree 0..3; act: w, b ``[C, 3]`` or ``[C, 1]``
+        (broadcast over the channels; :meth:`ACT.transforms`), or None.
     Returns: ``[C, N, 3]``.
     """
     c = lambda t: t.contiguous()
-    return _ShColors.apply(c(means), c(sh_dc), c(sh_rest), c(origins.to(means.dtype)), bool(ortho), int(degree))
+    if act is None:
+        w = b = means.new_empty(0)
+    else:
+        C = origins.shape[0]
+        w, b = (c(t.to(means.dtype).expand(C, 3)) for t in act)
+    return _ShColors.apply(c(means), c(sh_dc), c(sh_rest), c(origins.to(means.dtype)), w, b, bool(ortho), int(degree))
 
 
 @torch.no_grad()

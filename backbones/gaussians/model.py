@@ -18,6 +18,8 @@ parameter         shape                  activation
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import torch
 from torch import Tensor, nn
 
@@ -25,6 +27,9 @@ from arcsem.cameras import Cameras
 from arcsem.rotations import quat_to_rotmat
 
 from .sh import eval_sh, num_sh_coeffs
+
+if TYPE_CHECKING:
+    from arcsem.act import ACT
 
 __all__ = ["PARAM_NAMES", "GaussianModel", "active_sh_degree_at"]
 
@@ -88,11 +93,12 @@ class GaussianModel(nn.Module):
             return cams.forward[:, None, :].to(self.means.dtype).expand(len(cams), len(self), 3)
         return self.means[None] - cams.centers[:, None, :].to(self.means.dtype)
 
-    def colors(self, cams: Cameras, degree: int | None = None, impl: str = "torch") -> Tensor:
-        """``[C, N, 3]`` colours seen by each camera: ``max(SH(view dir) + 0.5, 0)``.
+    def colors(self, cams: Cameras, degree: int | None = None, impl: str = "torch", act: ACT | None = None) -> Tensor:
+        """``[C, N, 3]`` colours seen by each camera: ``max(SH(view dir) + 0.5, 0)``, then ``act`` by the cameras'
+        image ids if given (:meth:`ACT.apply`).
 
-        ``degree`` defaults to :attr:`active_sh_degree`; ``impl``: ``torch`` (:func:`eval_sh`, the reference) or
-        ``cpp`` (the fused kernel, :func:`arcsem.backbones.gaussians.fused.sh_colors`; CPU tensors).
+        ``degree`` defaults to :attr:`active_sh_degree`; ``impl``: ``torch`` (:func:`eval_sh` and :meth:`ACT.apply`,
+        the reference) or ``cpp`` (one fused kernel, :func:`arcsem.backbones.gaussians.fused.sh_colors`; CPU tensors).
         """
         deg = int(self.active_sh_degree) if degree is None else degree
         deg = min(deg, self.sh_degree)
@@ -100,10 +106,11 @@ class GaussianModel(nn.Module):
             from .fused import sh_colors
 
             origins = cams.forward if cams.is_ortho else cams.centers
-            return sh_colors(self.means, self.sh_dc, self.sh_rest, origins, cams.is_ortho, deg)
+            affine = None if act is None else act.transforms(torch.as_tensor(cams.image_ids))
+            return sh_colors(self.means, self.sh_dc, self.sh_rest, origins, cams.is_ortho, deg, act=affine)
         sh = self.sh if deg > 0 else self.sh_dc
-        rgb = eval_sh(deg, sh[None], self.view_dirs(cams))
-        return torch.clamp_min(rgb + 0.5, 0.0)
+        rgb = torch.clamp_min(eval_sh(deg, sh[None], self.view_dirs(cams)) + 0.5, 0.0)
+        return rgb if act is None else act.apply(rgb, cams.image_ids)
 
     # ------------------------------------------------------------------ resizing
     def set_params(self, values: dict[str, Tensor]) -> None:

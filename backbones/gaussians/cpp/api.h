@@ -90,11 +90,14 @@ struct ShColors {
   at::Tensor origins;  // [C, 3] camera centres (pinhole) or forward axes (orthographic)
   bool ortho = false;
   int64_t degree = 0;     // 0..3
+  at::Tensor act_w;       // [C, 3] per-camera affine colour transform (ACT) or empty: none
+  at::Tensor act_b;       // [C, 3]
 };
 
-// -> [C, N, 3] max(SH(view direction) + 0.5, 0)
+// -> [C, N, 3] rgb = max(SH(view direction) + 0.5, 0), with ACT clamp(act_w[c] rgb + act_b[c], 0, 1)
 at::Tensor sh_colors_forward(const ShColors& a);
-// -> {g_means [N, 3] (zero for orthographic cameras), g_sh_dc, g_sh_rest}
+// -> {g_means [N, 3] (zero for orthographic cameras), g_sh_dc, g_sh_rest, g_act_w [C, 3], g_act_b [C, 3]} (the
+// last two empty without ACT)
 std::vector<at::Tensor> sh_colors_backward(const ShColors& a, const at::Tensor& g_colors);
 
 // ---------------------------------------------------------------------------------------------- 3DGS compositing

@@ -20,7 +20,8 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
           FIELD(TileLists, offsets) FIELD(TileLists, ids) FIELD(TileLists, entry_offsets) FIELD(TileLists, pair_of);
   py::class_<ShColors>(m, "ShColors", py::module_local())
       .def(py::init<>()) FIELD(ShColors, means) FIELD(ShColors, sh_dc) FIELD(ShColors, sh_rest) FIELD(ShColors, origins)
-          FIELD(ShColors, ortho) FIELD(ShColors, degree);
+          FIELD(ShColors, ortho) FIELD(ShColors, degree)
+          FIELD(ShColors, act_w) FIELD(ShColors, act_b);
   py::class_<DensifyStatsIn>(m, "DensifyStatsIn", py::module_local())
       .def(py::init<>()) FIELD(DensifyStatsIn, grad_means) FIELD(DensifyStatsIn, means) FIELD(DensifyStatsIn, w2c)
           FIELD(DensifyStatsIn, K) FIELD(DensifyStatsIn, visible) FIELD(DensifyStatsIn, radii)

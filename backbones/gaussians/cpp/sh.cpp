@@ -2,6 +2,7 @@
 // reference: the same basis, normalisation and clamp).
 //   dir = normalize(mean - centre) (pinhole) or the camera's forward axis (orthographic); F.normalize's eps 1e-12
 //   rgb = max(sum_k sh[k] Y_k(dir) + 0.5, 0) over the first (degree + 1)^2 coefficients
+//   with ACT (arcsem/act.py ACT.apply is the reference): clamp(w[c] rgb + b[c], 0, 1) per camera c and channel
 // Parallel over splats (each handles its cameras), so sums over cameras have a fixed order; blocks of 16 splats, one
 // a lane of the vectorised loops (the coefficients transposed per block).
 #include <algorithm>
@@ -70,8 +71,8 @@ constexpr int64_t kGrain = 1024;  // splats per chunk
 constexpr int L = 16;             // splats of a block, one a lane: every lane loop below is `omp simd` over them
 
 template <typename T>
-struct Sh {  // the inputs (means [N, 3], sh_dc [N, 1, 3], sh_rest [N, R, 3], origins [C, 3]) and sizes
-  const T *m, *dc, *rest, *o;
+struct Sh {  // the inputs (means [N, 3], sh_dc [N, 1, 3], sh_rest [N, R, 3], origins [C, 3], ACT [C, 3] or null)
+  const T *m, *dc, *rest, *o, *aw, *ab;
   int64_t N, C, R;
   bool ortho;
 };
@@ -128,14 +129,18 @@ void forward_range(const Sh<T>& a, int64_t b, int64_t e, T* rgb) {
     for (int64_t c = 0; c < a.C; ++c) {
       bl.template view<Deg, false>(a, c);
       for (int i = 0; i < nb; ++i)
-        for (int ch = 0; ch < 3; ++ch) rgb[(c * a.N + n0 + i) * 3 + ch] = std::max(bl.x[ch][i], T(0));
+        for (int ch = 0; ch < 3; ++ch) {
+          const T v = std::max(bl.x[ch][i], T(0));
+          rgb[(c * a.N + n0 + i) * 3 + ch] = a.aw ? std::min(std::max(a.aw[3 * c + ch] * v + a.ab[3 * c + ch], T(0)), T(1)) : v;
+        }
     }
   }
 }
 
-// gradients of the splats [b, e): means (through the viewing direction: Dir), sh_dc, sh_rest (0 above the degree)
+// gradients of the splats [b, e): means (through the viewing direction: Dir), sh_dc, sh_rest (0 above the degree);
+// with ACT the range's sums for its w and b into gact [C][6] (w: 0..2, b: 3..5)
 template <int Deg, bool Dir, typename T>
-void backward_range(const Sh<T>& a, const T* g, int64_t b, int64_t e, T* om, T* odc, T* orest) {
+void backward_range(const Sh<T>& a, const T* g, int64_t b, int64_t e, T* om, T* odc, T* orest, double* gact) {
   constexpr int K = (Deg + 1) * (Deg + 1);
   Block<K, T> bl;
   alignas(64) T gsh[K][3][L], gv[3][L], gc[3][L];
@@ -146,9 +151,18 @@ void backward_range(const Sh<T>& a, const T* g, int64_t b, int64_t e, T* om, T* 
     std::fill(&gv[0][0], &gv[0][0] + 3 * L, T(0));
     for (int64_t c = 0; c < a.C; ++c) {
       bl.template view<Deg, Dir>(a, c);
-      for (int i = 0; i < L; ++i)  // clamp_min(x, 0) passes the gradient where x >= 0
+      for (int i = 0; i < L; ++i)  // clamp_min(x, 0) passes the gradient where x >= 0 (clamp: where in [0, 1])
         for (int ch = 0; ch < 3; ++ch) {
-          const T gi = g[(c * a.N + bl.n[i]) * 3 + ch];
+          T gi = g[(c * a.N + bl.n[i]) * 3 + ch];
+          if (a.aw) {
+            const T v = std::max(bl.x[ch][i], T(0)), w = a.aw[3 * c + ch], y = w * v + a.ab[3 * c + ch];
+            gi = (y >= T(0)) & (y <= T(1)) ? gi : T(0);
+            if (i < nb) {
+              gact[6 * c + ch] += double(gi * v);
+              gact[6 * c + 3 + ch] += double(gi);
+            }
+            gi *= w;
+          }
           gc[ch][i] = bl.x[ch][i] >= T(0) ? gi : T(0);
         }
 #pragma omp simd
@@ -197,7 +211,14 @@ inline void with_degree(int64_t degree, const F& f) {
 
 template <typename T>
 Sh<T> inputs(const ShColors& a) {
+  const bool act = a.act_w.defined() && a.act_w.numel() > 0;
+  if (act) {
+    for (auto* t : {&a.act_w, &a.act_b})
+      TORCH_CHECK(t->is_contiguous() && t->dim() == 2 && t->size(0) == a.origins.size(0) && t->size(1) == 3 &&
+                      t->scalar_type() == a.means.scalar_type(), "sh_colors: ACT w, b must be contiguous [C, 3] of the means' type");
+  }
   return Sh<T>{a.means.data_ptr<T>(), a.sh_dc.data_ptr<T>(), a.sh_rest.data_ptr<T>(), a.origins.data_ptr<T>(),
+               act ? a.act_w.data_ptr<T>() : nullptr, act ? a.act_b.data_ptr<T>() : nullptr,
                a.means.size(0), a.origins.size(0), a.sh_rest.size(1), a.ortho};
 }
 
@@ -221,21 +242,40 @@ at::Tensor sh_colors_forward(const ShColors& a) {
 std::vector<at::Tensor> sh_colors_backward(const ShColors& a, const at::Tensor& g_colors) {
   // every entry is written below (unused rest coefficients get 0): no zero fill of [N, 15, 3] first
   auto gm = at::empty_like(a.means), gdc = at::empty_like(a.sh_dc), grest = at::empty_like(a.sh_rest);
+  at::Tensor gw, gb;
   auto g_in = g_colors.contiguous();
   AT_DISPATCH_FLOATING_TYPES(a.means.scalar_type(), "sh_colors_backward", [&] {
     using T = scalar_t;
     const Sh<T> in = inputs<T>(a);
     const T* g = g_in.data_ptr<T>();
     T *om = gm.data_ptr<T>(), *odc = gdc.data_ptr<T>(), *orest = grest.data_ptr<T>();
+    // ACT: each chunk's sums apart, then added in chunk order (the result does not depend on threads or timing)
+    const int64_t chunks = (in.N + kGrain - 1) / kGrain;
+    std::vector<double> part(in.aw ? size_t(chunks * in.C * 6) : 0, 0.0);
     with_degree(a.degree, [&](auto deg) {
       constexpr int Deg = decltype(deg)::value;
       parallel_range(in.N, kGrain, [&](int64_t b, int64_t e, int) {
-        if (!a.ortho && Deg > 0) backward_range<Deg, true>(in, g, b, e, om, odc, orest);
-        else backward_range<Deg, false>(in, g, b, e, om, odc, orest);
+        double* gact = in.aw ? part.data() + b / kGrain * in.C * 6 : nullptr;
+        if (!a.ortho && Deg > 0) backward_range<Deg, true>(in, g, b, e, om, odc, orest, gact);
+        else backward_range<Deg, false>(in, g, b, e, om, odc, orest, gact);
       });
     });
+    if (in.aw) {
+      gw = at::empty_like(a.act_w);
+      gb = at::empty_like(a.act_b);
+      T *ow = gw.data_ptr<T>(), *ob = gb.data_ptr<T>();
+      for (int64_t k = 0; k < in.C * 3; ++k) {
+        double sw = 0, sb = 0;
+        for (int64_t ch = 0; ch < chunks; ++ch) {
+          sw += part[size_t((ch * in.C + k / 3) * 6 + k % 3)];
+          sb += part[size_t((ch * in.C + k / 3) * 6 + 3 + k % 3)];
+        }
+        ow[k] = T(sw);
+        ob[k] = T(sb);
+      }
+    }
   });
-  return {gm, gdc, grest};
+  return {gm, gdc, grest, gw.defined() ? gw : at::Tensor(), gb.defined() ? gb : at::Tensor()};
 }
 
 }  // namespace arcsem

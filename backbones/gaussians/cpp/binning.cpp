@@ -16,6 +16,7 @@
 
 #include "api.h"
 #include "pool.h"
+#include "project.h"
 
 namespace arcsem {
 namespace {
@@ -61,50 +62,65 @@ inline void pixel_box(const Screen& sc, const double lo[2], const double hi[2], 
   if (!ok) box[1] = -1;
 }
 
-// gs2d render._conic_box: bounding box of the image of the disk u^2 + v^2 <= cut2 under rows T[0..2]
-inline bool conic_box(const double* T, double cut2, double c[2], double e[2]) {
-  const double f[3] = {1.0, 1.0, -1.0 / cut2};
-  double D[3][3];
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j) {
-      double acc = 0;
-      for (int k = 0; k < 3; ++k) acc += T[3 * i + k] * f[k] * T[3 * j + k];
-      D[i][j] = acc;
-    }
-  const bool valid = D[2][2] < 0;
-  const double d22 = valid ? D[2][2] : 1.0;
-  c[0] = D[0][2] / d22;
-  c[1] = D[1][2] / d22;
-  e[0] = std::sqrt(std::max(c[0] * c[0] - D[0][0] / d22, 1e-4));
-  e[1] = std::sqrt(std::max(c[1] * c[1] - D[1][1] / d22, 1e-4));
-  return valid;
+// gs2d render._conic_box on kL splats at once (lane vectors): bounding box (centre c, half extents e) of the image
+// of the disk u^2 + v^2 <= cut2 under rows T[0..2], valid where d22 < 0
+inline void conic_box_lanes(const proj::Lanes* T, proj::Lanes cut2, proj::Lanes c[2], proj::Lanes e[2],
+                            proj::Lanes& d22) {
+  using proj::Lanes;
+  const Lanes f[3] = {proj::splat(1.0), proj::splat(1.0), -1.0 / cut2};
+  auto D = [&](int i, int j) {
+    Lanes acc = proj::splat(0.0);
+    for (int k = 0; k < 3; ++k) acc += T[3 * i + k] * f[k] * T[3 * j + k];
+    return acc;
+  };
+  const Lanes D00 = D(0, 0), D02 = D(0, 2), D11 = D(1, 1), D12 = D(1, 2);
+  d22 = D(2, 2);
+  const Lanes den = d22 < 0 ? d22 : proj::splat(1.0), lo = proj::splat(1e-4);
+  c[0] = D02 / den;
+  c[1] = D12 / den;
+  const Lanes q0 = c[0] * c[0] - D00 / den, q1 = c[1] * c[1] - D11 / den;
+  e[0] = proj::vsqrt(q0 < lo ? lo : q0);  // std::max(q, 1e-4): NaN stays NaN
+  e[1] = proj::vsqrt(q1 < lo ? lo : q1);
 }
 
+// footprint2d: the floating-point part (both conic boxes, the centre) on lane vectors of kL splats, the integer
+// rectangles and boxes per splat
 template <typename T>
 void footprint2d_impl(const T* Hm, const T* Dz, const T* op, int64_t M, int64_t N, double near, double sigma,
                       const Screen& sc, int64_t* radius, int64_t* rects, int64_t* eff, T* depth) {
+  using proj::Lanes;
+  using proj::kL;
   parallel_range(M, kGrain, [&](int64_t b, int64_t e, int) {
-    for (int64_t s = b; s < e; ++s) {
-      double Td[12];
-      for (int j = 0; j < 9; ++j) Td[j] = double(Hm[9 * s + j]);
-      for (int j = 0; j < 3; ++j) Td[9 + j] = double(Dz[3 * s + j]);
-      const double z = Td[11], cx = Td[2] / Td[8], cy = Td[5] / Td[8];
-      double c3[2], e3[2];
-      const bool ok3 = conic_box(Td, 9.0, c3, e3);
-      const bool ok = ok3 && z > near && std::isfinite(e3[0]) && std::isfinite(e3[1]);
-      const double r = std::ceil(std::max(std::max(e3[0], e3[1]), 3.0 * sigma));
-      radius[s] = ok ? int64_t(std::min(r, 1e7)) : 0;
-      tile_rect(sc, c3[0], c3[1], radius[s], rects + 4 * s);
-      const double cut2 = cutoff2(double(op[s % N]));
-      double ce[2], ee[2];
-      const bool oke = conic_box(Td, std::max(cut2, 1e-6), ce, ee);
-      const double r2d = std::sqrt(std::max(cut2, 0.0)) * sigma, inf = std::numeric_limits<double>::infinity();
-      const double lo[2] = {std::min(oke ? ce[0] - ee[0] : -inf, cx - r2d) - 0.01,
-                            std::min(oke ? ce[1] - ee[1] : -inf, cy - r2d) - 0.01};
-      const double hi[2] = {std::max(oke ? ce[0] + ee[0] : inf, cx + r2d) + 0.01,
-                            std::max(oke ? ce[1] + ee[1] : inf, cy + r2d) + 0.01};
-      pixel_box(sc, lo, hi, cut2 > 0, eff + 4 * s);
-      depth[s] = T(z);  // exact: z is a value of type T
+    for (int64_t s0 = b; s0 < e; s0 += kL) {
+      const int nb = int(std::min<int64_t>(kL, e - s0));
+      Lanes Td[12], cut2;
+      for (int i = 0; i < kL; ++i) {  // lanes past the range repeat its last splat (not written)
+        const int64_t s = s0 + std::min(i, nb - 1);
+        for (int j = 0; j < 9; ++j) Td[j][i] = double(Hm[9 * s + j]);
+        for (int j = 0; j < 3; ++j) Td[9 + j][i] = double(Dz[3 * s + j]);
+        cut2[i] = cutoff2(double(op[s % N]));
+      }
+      const Lanes cx = Td[2] / Td[8], cy = Td[5] / Td[8], small = proj::splat(1e-6), zero = proj::splat(0.0);
+      Lanes c3[2], e3[2], ce[2], ee[2], d3, de;
+      conic_box_lanes(Td, proj::splat(9.0), c3, e3, d3);
+      conic_box_lanes(Td, cut2 < small ? small : cut2, ce, ee, de);
+      const Lanes r2d = proj::vsqrt(cut2 < zero ? zero : cut2) * sigma;
+      for (int i = 0; i < nb; ++i) {
+        const int64_t s = s0 + i;
+        const double z = Td[11][i];
+        const bool ok = d3[i] < 0 && z > near && std::isfinite(e3[0][i]) && std::isfinite(e3[1][i]);
+        const double r = std::ceil(std::max(std::max(e3[0][i], e3[1][i]), 3.0 * sigma));
+        radius[s] = ok ? int64_t(std::min(r, 1e7)) : 0;
+        tile_rect(sc, c3[0][i], c3[1][i], radius[s], rects + 4 * s);
+        const bool oke = de[i] < 0;
+        const double inf = std::numeric_limits<double>::infinity();
+        const double lo[2] = {std::min(oke ? ce[0][i] - ee[0][i] : -inf, cx[i] - r2d[i]) - 0.01,
+                              std::min(oke ? ce[1][i] - ee[1][i] : -inf, cy[i] - r2d[i]) - 0.01};
+        const double hi[2] = {std::max(oke ? ce[0][i] + ee[0][i] : inf, cx[i] + r2d[i]) + 0.01,
+                              std::max(oke ? ce[1][i] + ee[1][i] : inf, cy[i] + r2d[i]) + 0.01};
+        pixel_box(sc, lo, hi, cut2[i] > 0, eff + 4 * s);
+        depth[s] = T(z);  // exact: z is a value of type T
+      }
     }
   });
 }

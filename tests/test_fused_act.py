@@ -54,3 +54,4 @@ def test_fused_sh_colors_with_act_match_torch(mode, model, degree):
         else:
             assert a is not None and b.abs().max() > 0, name
             assert_rel(a, b, 1e-12, f"d/d{name}")
+

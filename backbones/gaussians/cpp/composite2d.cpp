@@ -16,7 +16,11 @@ void forward_tile(const In2<T>& in, const Entry2<T>* ent, const Grid& gr, int64_
   for (int64_t j = 0, have = 0; j < n && live_total > 0; ++j) {
     if (j == have) gather(ent, in.ids + in.off[ct], gr, ct, j, have = std::min(n, j + kGatherBatch), pr);
     const Pair2<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
-    if (q.x1 < q.x0 || q.y1 < q.y0) continue;
+    uint32_t rows = 0;  // the rows where the pair is composited (the backward pass visits only those)
+    if (q.x1 < q.x0 || q.y1 < q.y0) {
+      pr[j].rows = 0;
+      continue;
+    }
     for (int y = q.y0; y <= q.y1; ++y) {
       if (st.row_live[y] == 0) continue;
       const T py = T(y) + T(0.5);
@@ -27,6 +31,7 @@ void forward_tile(const In2<T>& in, const Entry2<T>* ent, const Grid& gr, int64_
           *m2 = &st.m2[base], *dist = &st.dist[base], *mref = &st.mref[base], *med = &st.med[base];
         int32_t *ls = &st.last[base], *mi = &st.medi[base];
         if (!eval_lanes<NL>(q, c, py, near, lp, [&](int i) { return lv[i] > T(0); }, L)) return;
+        if (y < 32) rows |= 1u << y;  // (a lane that stops here is not composited: the backward finds none)
         int stops = 0;
 #pragma omp simd reduction(+ : stops)
         for (int i = 0; i < NL; ++i) {
@@ -64,6 +69,7 @@ void forward_tile(const In2<T>& in, const Entry2<T>* ent, const Grid& gr, int64_
         live_total -= stops;
       });
     }
+    pr[j].rows = rows;
   }
 }
 

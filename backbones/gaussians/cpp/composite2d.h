@@ -38,7 +38,11 @@ template <typename T>
 struct Pair2 {
   T a[3], b[3], c[3], dz[3], cx, cy, op, f[K2];  // adjugate in the tile frame, depth row, centre - origin, ...
   int32_t x0, x1, y0, y1;                         // pixel box clipped to the tile (local, inclusive)
+  uint32_t rows;  // set by the forward: bit y where some live pixel of tile row y (y < 32) drew the pair
 };
+
+// whether the forward drew a pair on row y (rows past 32 are not recorded: assumed yes); the backward skips the others
+inline bool composited_row(uint32_t rows, int y) { return y >= 32 || ((rows >> y) & 1u); }
 
 // What a lane (pixel) sees of a pair: intersection (u, v), low-pass offset, depth, Gaussian, alpha.
 template <typename T>

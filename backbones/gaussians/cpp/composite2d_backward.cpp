@@ -145,7 +145,7 @@ int64_t backward_tile(const Pair2<T>* pr, int ny, const T* mc, T near, T lp, int
     const Pair2<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
     for (auto& a : acc) std::fill(a, a + kLanes, T(0));
     for (int y = q.y0; y <= q.y1 && q.x0 <= q.x1; ++y) {
-      if (j > st.row_live[y]) continue;  // the row's pixels all stopped before this pair
+      if (j > st.row_live[y] || !composited_row(q.rows, y)) continue;  // stopped before it, or none composited
       for_lane_blocks<8>(q.x0, q.x1, [&](auto lanes, int c) {
         constexpr int NL = decltype(lanes)::value;
         if constexpr (Geo) backward_lanes<NL>(q, int32_t(j), y, c, mc, near, lp, st, acc);

@@ -16,7 +16,7 @@ void forward_tile(const In2<T>& in, const Entry2<T>* ent, const Grid& gr, int64_
   for (int64_t j = 0, have = 0; j < n && live_total > 0; ++j) {
     if (j == have) gather(ent, in.ids + in.off[ct], gr, ct, j, have = std::min(n, j + kGatherBatch), pr);
     const Pair2<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
-    uint32_t rows = 0;  // the rows where the pair is composited (the backward pass visits only those)
+    uint32_t rows = 0;  // the tile rows where a live pixel drew the pair (the backward pass visits only those)
     if (q.x1 < q.x0 || q.y1 < q.y0) {
       pr[j].rows = 0;
       continue;

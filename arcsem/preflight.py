@@ -61,8 +61,28 @@ def _check_gray(cfg: Any) -> None:
     from .train.stage1 import act_config, backbone_config, stage1_losses, train_config
 
     tc = train_config(cfg)
-    backbone_config(cfg)  # the plugin's Config
+    _check_rasterizer(backbone_config(cfg), cfg)  # the plugin's Config
     stage1_losses(cfg, tc, act=act_config(cfg).enabled)
+
+
+def _check_rasterizer(bcfg: dict, cfg: Any) -> None:
+    """``backbone.rasterizer=gsplat`` (the optional CUDA rasteriser) needs gsplat and ``device=cuda``."""
+    if bcfg.get("rasterizer") == "gsplat":
+        from .backbones.gaussians.gsplat_bridge import require_gsplat
+
+        require_gsplat(cfg.get("device", "cpu"))
+
+
+def _check_gsplat_scene(bcfg: dict, scene: Any) -> None:
+    """``backbone.rasterizer=gsplat``: the scene's cameras and the 2DGS low-pass filter must be ones gsplat draws."""
+    if bcfg.get("rasterizer") != "gsplat":
+        return
+    from .backbones.gaussians.gsplat_bridge import gsplat_cameras, require_lowpass
+
+    two_d = bcfg.get("name") == "gs2d"
+    gsplat_cameras(scene.cameras, two_d=two_d)
+    if two_d:
+        require_lowpass(float(bcfg.get("lowpass_sigma", 2**-0.5)))
 
 
 def _check_color(cfg: Any) -> None:
@@ -70,6 +90,7 @@ def _check_color(cfg: Any) -> None:
     from .plugins import BACKBONES
 
     cc = colorize_config(cfg)
+    _check_rasterizer(dict(cfg.backbone), cfg)
     losses = colorize_losses(cc, BACKBONES.get(str(cfg.backbone.name)))
     if any(n in losses.terms for n in ("tcm", "ccm")):
         _check_features(cc)
@@ -179,6 +200,7 @@ def check_scene(cfg: Any, scene: Any, stage: str, run_dir: Path) -> list[str]:
         raise DataError(f"{scene.root}: {len(scene.train)} training view(s); a 3-D scene needs at least 2 "
                         "(check dataset.split and dataset.max_views)")
     warnings = _check_sizes(cfg, scene, stages)
+    _check_gsplat_scene(dict(cfg.backbone), scene)
     if "color" in stages:
         from .colorize.references import load_references
         from .colorize.stage2 import check_stage1_model, colorize_config

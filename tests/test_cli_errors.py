@@ -94,6 +94,8 @@ def test_unknown_plugin(tmp_path, override, needles):
     ("act.solvr=adam", ["act.solvr: unknown key", "init_noise"]),  # the act group (ActConfig schema)
     # a loss key: passed on as ++ (not Hydra's "use +"), then named by the loss's Config
     ("train.losses.dssim.implx=torch", ["loss 'dssim': unknown key(s) 'implx'", "valid keys:", "impl"]),
+    # the optional CUDA rasteriser on the CPU: refused before anything is read
+    ("backbone.rasterizer=gsplat", ["backbone.rasterizer=gsplat needs the model on a CUDA device", "=auto"]),
 ])
 def test_mistyped_config_key(tmp_path, override, needles):
     assert_one_line_error(run_cli(tmp_path, *dataset(tmp_path), "backbone=gs3d", override), *needles)

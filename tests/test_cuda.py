@@ -36,11 +36,13 @@ def test_torch_rasterizer_on_cuda_matches_cpu(kind, model):
         assert err < 1e-9, f"{name}: relative error {err:.2e} between CUDA and CPU"
 
 
-@pytest.mark.parametrize("backbone,stages", [("gs2d", ["gray", "color"]), ("gs3d", ["gray", "color"]),
-                                             ("plenoxels", ["gray"])])  # stage 2's losses need image batches
-def test_stages_end_to_end_on_cuda(tmp_path, backbone, stages):
-    """``device=cuda``: every stage completes (Plenoxels: stage 1), and the checkpoint written from the GPU loads
-    on a machine without one (tensors mapped to the CPU)."""
+@pytest.mark.parametrize("backbone,stages,extra", [
+    ("gs2d", ["gray", "color"], []), ("gs3d", ["gray", "color"], []),
+    ("plenoxels", ["gray"], []),  # stage 2's losses need image batches
+    ("gs2d", ["gray", "color"], ["backbone.rasterizer=gsplat"]), ("gs3d", ["gray", "color"], ["backbone.rasterizer=gsplat"])])
+def test_stages_end_to_end_on_cuda(tmp_path, backbone, stages, extra):
+    """``device=cuda``: every stage completes (Plenoxels: stage 1), also on gsplat's rasterisers, and the checkpoint
+    written from the GPU loads on a machine without one (tensors mapped to the CPU)."""
     from arcsem import app
     from arcsem.train.checkpoint import load_checkpoint
 
@@ -51,7 +53,7 @@ def test_stages_end_to_end_on_cuda(tmp_path, backbone, stages):
                        "train.progress=false", "colorize.steps=5", "colorize.progress=false",
                        "colorize.eval.lpips=false", "colorize.losses.tcm.weight=0", "colorize.losses.ccm.weight=0",
                        f"colorize.references={tmp_path / 'view_01.png'}", f"cache_dir={tmp_path / 'cache'}",
-                       "mesh.enabled=false")
+                       "mesh.enabled=false", *extra)
     metrics = app.run(cfg, run_dir=tmp_path / "run")
     assert metrics["status"] == "complete" and metrics["completed_stages"] == stages
     assert np.isfinite(metrics["stage1"]["train"]["psnr"])

@@ -75,7 +75,7 @@ class GaussianBackbone(Backbone):
         cams = cams.to(device=m.means.device, dtype=m.means.dtype)
         impl = self._impl(m.means.device)
         with region("arcsem::render/sh"):  # SH colours and ACT; profiler regions: benchmarks/profile_step.py
-            colors = m.colors(cams, impl=impl, act=self.act)  # [C, N, 3]
+            colors = m.colors(cams, impl="torch" if impl == "gsplat" else impl, act=self.act)  # [C, N, 3]
         if background is None:
             background = torch.tensor(self.cfg.background, dtype=m.means.dtype, device=m.means.device)
         means, quats, scales, opacities = self.splat_params()
@@ -86,10 +86,15 @@ class GaussianBackbone(Backbone):
         return out
 
     def _impl(self, device) -> str:
-        """The ``rasterizer`` choice resolved for ``device``: ``cpp`` (fused kernels: SH colours and the rasteriser)
-        or ``torch``."""
+        """The ``rasterizer`` choice resolved for ``device``: ``cpp`` (fused kernels: SH colours and the rasteriser),
+        ``torch``, or ``gsplat`` (gsplat's CUDA rasteriser, PyTorch SH colours; a ConfigError where it cannot run)."""
         from .fused import resolve_impl
 
+        if self.cfg.rasterizer == "gsplat":
+            from .gsplat_bridge import require_gsplat
+
+            require_gsplat(device)
+            return "gsplat"
         return resolve_impl(self.cfg.rasterizer, str(device))
 
     def splat_params(self) -> tuple[Tensor, Tensor, Tensor, Tensor]:

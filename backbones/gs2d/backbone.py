@@ -39,7 +39,10 @@ class GS2DBackbone(GaussianBackbone):
             raise ConfigError(f"backbone.{e}") from None
 
     def _rasterize(self, means, quats, scales, opacities, colors, cams, **kw) -> RenderOutput:
-        from .render import render_2dgs  # the rasteriser module (imported when first used)
+        if kw.get("impl") == "gsplat":
+            from ..gaussians.gsplat_bridge import render_gsplat_2dgs as render_2dgs
+        else:
+            from .render import render_2dgs  # the rasteriser module (imported when first used)
 
         return render_2dgs(means, quats, scales, opacities, colors, cams, dist_depth=self._dist_depth(),
                            lowpass_sigma=float(self.cfg.lowpass_sigma), **kw)

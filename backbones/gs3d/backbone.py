@@ -22,6 +22,9 @@ class GS3DBackbone(GaussianBackbone):
     Config = GS3DConfig
 
     def _rasterize(self, means, quats, scales, opacities, colors, cams, **kw) -> RenderOutput:
-        from .render import render_3dgs  # the rasteriser module (imported when first used)
+        if kw.get("impl") == "gsplat":
+            from ..gaussians.gsplat_bridge import render_gsplat_3dgs as render_3dgs
+        else:
+            from .render import render_3dgs  # the rasteriser module (imported when first used)
 
         return render_3dgs(means, quats, scales, opacities, colors, cams, **kw)

@@ -1,0 +1,142 @@
+"""``backbone.rasterizer=gsplat``: gsplat's CUDA rasterisers (nerfstudio) for 3DGS and 2DGS, optional.
+
+Used only where gsplat is installed (``pip install gsplat``; it compiles its CUDA code on first use) and
+the model is on a CUDA device; anywhere else the choice is a one-line ConfigError. Our model still computes
+the colours (SH + ACT, the PyTorch path) and gsplat gets them decoded (``sh_degree=None``), so ACT, the
+densification statistics (read from the 3-D means' gradient) and every loss are unchanged.
+
+How our conventions map (checked on the CPU against gsplat's own PyTorch projection in
+tests/test_gsplat_bridge.py; the rendered images in tests/test_cuda.py on a GPU):
+
+* cameras: ``world_to_cam`` -> ``viewmats`` (both OpenCV axes), ``K`` -> ``Ks``; pinhole -> ``pinhole``,
+  orthographic -> ``ortho`` (3DGS only: gsplat's 2DGS is pinhole only). gsplat's Jacobian has no skew term,
+  so a skewed ``K`` is refused;
+* splats: quaternions ``(w, x, y, z)`` as ours; 2DGS scales get a third axis of 1 (gsplat's CUDA 2DGS reads only
+  the first two and takes the normal from ``R diag(s0, s1, 1)``); opacities after the sigmoid;
+* outputs: ``rgb``, ``alpha``, ``depth`` = expected camera ``z`` (``sum w z / alpha``), ``radii`` the larger of
+  gsplat's per-axis radii, ``visible = radii > 0``, ``means2d`` gsplat's screen positions (pixels).
+
+Where gsplat differs from our rasterisers (not mapped; the CUDA test keeps its scene clear of them):
+alpha is clamped at 0.999 (ours 0.99, the official value); the 3DGS Jacobian is evaluated at the centre
+clamped to 1.3x the view frustum (as the official code); footprints are 3.33 sigma per axis (ours 3 sigma);
+the 2DGS depth channels (expected and median depth, distortion) use each splat's centre depth, not the depth
+where the ray meets the splat, and its low-pass filter is fixed at ours ``lowpass_sigma=1/sqrt(2)``.
+"""
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from arcsem.cameras import Cameras
+from arcsem.errors import ConfigError
+
+__all__ = ["gsplat_cameras", "render_gsplat_2dgs", "render_gsplat_3dgs", "require_gsplat", "require_lowpass"]
+
+KEY = "backbone.rasterizer"
+
+
+def require_gsplat(device) -> None:
+    """ConfigError unless gsplat imports and ``device`` is a CUDA device."""
+    if str(device).split(":")[0] != "cuda":
+        raise ConfigError(f"{KEY}=gsplat needs the model on a CUDA device (device=cuda), not '{device}'; "
+                          f"use {KEY}=auto")
+    try:
+        import gsplat  # noqa: F401
+    except ImportError as e:
+        raise ConfigError(f"{KEY}=gsplat needs the gsplat package (pip install gsplat): {e}") from None
+
+
+def require_lowpass(lowpass_sigma: float) -> None:
+    """ConfigError unless the 2DGS low-pass sigma is gsplat's fixed one (``1/sqrt(2)`` px, the official)."""
+    if abs(lowpass_sigma - 2**-0.5) > 1e-9:
+        raise ConfigError(f"{KEY}=gsplat: gsplat's low-pass filter is fixed at backbone.lowpass_sigma=0.7071 "
+                          f"(got {lowpass_sigma}); use {KEY}=auto")
+
+
+def gsplat_cameras(cams: Cameras, two_d: bool = False) -> tuple[Tensor, Tensor, str]:
+    """Our cameras as gsplat's: ``viewmats [C, 4, 4]``, ``Ks [C, 3, 3]`` and its ``camera_model`` name."""
+    if bool((cams.K[:, 0, 1] != 0).any()):
+        raise ConfigError(f"{KEY}=gsplat: the cameras have a skewed K (K[0, 1] != 0), which gsplat's projection "
+                          f"ignores; use {KEY}=auto")
+    if cams.is_ortho and two_d:
+        raise ConfigError(f"{KEY}=gsplat: gsplat's 2DGS has no orthographic camera; use {KEY}=auto")
+    return cams.world_to_cam.contiguous(), cams.K.contiguous(), "ortho" if cams.is_ortho else "pinhole"
+
+
+def _background(background: Tensor | None, rgb: Tensor, alpha: Tensor) -> Tensor:
+    return rgb if background is None else rgb + (1 - alpha) * background.to(rgb)
+
+
+def _screen(meta: dict) -> tuple[Tensor, Tensor, Tensor]:
+    """radii ``[C, N]`` long (the larger axis), visible ``[C, N]``, means2d ``[C, N, 2]`` (its grad retained)."""
+    radii = meta["radii"]
+    radii = radii.amax(-1) if radii.ndim == 3 else radii  # gsplat >= 1.5: per-axis radii [C, N, 2]
+    means2d = meta["means2d"]
+    if means2d.requires_grad:
+        means2d.retain_grad()
+    return radii.long(), radii > 0, means2d
+
+
+def _colors(colors: Tensor, C: int, N: int) -> Tensor:
+    return (colors.expand(C, N, 3) if colors.ndim == 2 else colors).contiguous()
+
+
+def render_gsplat_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
+                       cams: Cameras, *, background: Tensor | None = None, tile: int = 16, near: float = 0.01,
+                       **_: object) -> dict[str, Tensor]:
+    """:func:`arcsem.backbones.gs3d.render.render_3dgs` on ``gsplat.rasterization`` (same arguments and outputs:
+    rgb ``[C, H, W, 3]``, alpha and depth ``[C, H, W, 1]``, radii/visible ``[C, N]``, means2d ``[C, N, 2]``)."""
+    from gsplat import rasterization
+
+    C, N = len(cams), means.shape[0]
+    viewmats, Ks, model = gsplat_cameras(cams.to(dtype=means.dtype))
+    out, alpha, meta = rasterization(
+        means, quats, scales, opacities, _colors(colors, C, N), viewmats, Ks, cams.width, cams.height,
+        near_plane=near, eps2d=0.3, packed=False, tile_size=tile, render_mode="RGB+ED",
+        rasterize_mode="classic", camera_model=model)
+    radii, visible, means2d = _screen(meta)
+    return {"rgb": _background(background, out[..., :3], alpha), "alpha": alpha, "depth": out[..., 3:4],
+            "radii": radii, "visible": visible, "means2d": means2d}
+
+
+def render_gsplat_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
+                       cams: Cameras, *, background: Tensor | None = None, tile: int = 16, near: float = 0.01,
+                       dist_depth: tuple[float, float, float] = (0.0, 1.0, 0.0), lowpass_sigma: float = 2**-0.5,
+                       **_: object) -> dict[str, Tensor]:
+    """:func:`arcsem.backbones.gs2d.render.render_2dgs` on ``gsplat.rasterization_2dgs`` (pinhole cameras).
+
+    gsplat draws two extra channels after the colours, the centre depth ``z`` and its normalised depth
+    ``m = c0 + c1 z + c2 / z`` (``dist_depth``; gsplat's distortion and median read the last channel), so the
+    distortion is in our normalisation and the median depth is ``z`` of the median ``m`` (``m`` is monotonic).
+    Outputs as render_2dgs: rgb, alpha, depth, median_depth, distortion, normal (world, ``sum w n``), radii,
+    visible, means2d.
+    """
+    from gsplat import rasterization_2dgs
+
+    require_lowpass(lowpass_sigma)
+    C, N = len(cams), means.shape[0]
+    viewmats, Ks, _ = gsplat_cameras(cams.to(dtype=means.dtype), two_d=True)
+    c0, c1, c2 = dist_depth
+    z = torch.einsum("cj,nj->cn", viewmats[:, 2, :3], means) + viewmats[:, 2, 3:4]  # [C, N] centre depth
+    m = c0 + c1 * z + c2 / z.clamp_min(near)
+    feats = torch.cat([_colors(colors, C, N), z[..., None], m[..., None]], -1)  # [C, N, 5]
+    scales3 = torch.cat([scales, torch.ones_like(scales[:, :1])], -1)  # the third is not read (module doc)
+    out, alpha, normal, _, dist, med, meta = rasterization_2dgs(
+        means, quats, scales3, opacities, feats, viewmats, Ks, cams.width, cams.height, near_plane=near,
+        packed=False, tile_size=tile, render_mode="RGB", distloss=True)
+    depth = torch.where(alpha > 0, out[..., 3:4] / alpha.clamp_min(1e-10), torch.zeros_like(alpha))
+    median = torch.where(med != 0, _z_of_m(med, dist_depth), torch.zeros_like(med))
+    radii, visible, means2d = _screen(meta)
+    return {"rgb": _background(background, out[..., :3], alpha), "alpha": alpha, "depth": depth,
+            "median_depth": median, "distortion": dist, "normal": normal, "radii": radii, "visible": visible,
+            "means2d": means2d}
+
+
+def _z_of_m(m: Tensor, dist_depth: tuple[float, float, float]) -> Tensor:
+    """Inverse of ``m = c0 + c1 z + c2 / z`` for the two mappings used (linear: ``c2 = 0``; ndc: ``c1 = 0``)."""
+    c0, c1, c2 = dist_depth
+    if c2 == 0:
+        return (m - c0) / c1
+    if c1 == 0:
+        return c2 / (m - c0)
+    raise ValueError(f"dist_depth {dist_depth}: no closed-form inverse")

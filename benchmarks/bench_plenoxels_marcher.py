@@ -98,7 +98,8 @@ def calls(old, index, dens, sh, o, d, bounds, step):
         cell, block = new.live(index, coords, dens, fused.SKIP_SHIFT)
         args = (o, d, index, cell, block, fused.SKIP_SHIFT, dens, sh, empty, empty, bounds, *common)
         out = new.forward(*args)
-        return new.backward(*args, *out, *g, fused.slots(dens.shape[0]))[:3], out  # sparse: rows, density, SH
+        g_mom = torch.zeros(o.shape[0], 2)  # the distortion's moments (an output since 2026-11-25): unused here
+        return new.backward(*args, *out, *g, g_mom, fused.slots(dens.shape[0]))[:3], out[:3]  # sparse: rows, d, SH
 
     return run_old, run_new
 

@@ -33,10 +33,11 @@ def test_fused_kernel_matches_torch_reference_values_and_gradients():
         out = render_grid(GridData(idx, dens, sh, BOX.double()), o, d, act=act, image_ids=ids, impl=impl,
                           background=torch.tensor([0.2, 0.3, 0.4]), stop_thresh=1e-3)
         loss = (out["rgb"] * torch.tensor([0.3, -1.0, 2.0], dtype=torch.float64)).sum() + out["alpha"].sum() \
-            + 0.1 * out["depth"].sum()
+            + 0.1 * out["depth"].sum() + 3.0 * out["distortion"].sum()
         res[impl] = (out, torch.autograd.grad(loss, (dens, sh, act.weight, act.bias)))
     assert (res["torch"][0]["alpha"] > 0.999).any() and (res["torch"][0]["alpha"] < 0.5).any()
-    for k in ("rgb", "alpha", "depth"):
+    assert (res["torch"][0]["distortion"] > 1e-3).any()  # rays with spread-out weights
+    for k in ("rgb", "alpha", "depth", "distortion"):
         torch.testing.assert_close(res["cpp"][0][k], res["torch"][0][k], atol=1e-12, rtol=0)
     for gc, gt in zip(res["cpp"][1], res["torch"][1]):
         assert gt.abs().sum() > 0
@@ -55,7 +56,7 @@ def test_fused_kernel_gradcheck():
 
     def f(dens, sh):
         out = render_grid(GridData(idx, dens, sh, BOX.double()), o, d, impl="cpp", sparse_grad=False)
-        return torch.cat([out["rgb"], out["alpha"], out["depth"]], 1)
+        return torch.cat([out["rgb"], out["alpha"], out["depth"], out["distortion"]], 1)
 
     assert torch.autograd.gradcheck(f, (dens0, sh0), eps=1e-6, atol=1e-6, fast_mode=True)
 
@@ -128,12 +129,12 @@ def test_skipping_marcher_matches_reference_on_a_sparse_grid(degree):
         out = render_grid(GridData(idx, dens, sh, BOX.double()), o, d, sh_degree=degree, act=act, image_ids=ids,
                           impl=impl)
         loss = (out["rgb"] * torch.tensor([0.5, -1.0, 2.0], dtype=torch.float64)).sum() + out["alpha"].sum() \
-            + 0.1 * out["depth"].sum()
+            + 0.1 * out["depth"].sum() + 3.0 * out["distortion"].sum()
         grads = torch.autograd.grad(loss, (dens, sh, act.weight, act.bias))
         res[impl] = (out, [g.to_dense() if g.is_sparse else g for g in grads])
     hit = res["torch"][0]["alpha"][:, 0] > 1e-3
     assert 0.2 < hit.float().mean() < 0.9  # rays both through blobs and through nothing
-    for key in ("rgb", "alpha", "depth"):
+    for key in ("rgb", "alpha", "depth", "distortion"):
         torch.testing.assert_close(res["cpp"][0][key], res["torch"][0][key], atol=1e-12, rtol=0)
     for gc, gt in zip(res["cpp"][1], res["torch"][1]):
         assert gt.abs().sum() > 0
@@ -181,3 +182,21 @@ def test_fused_max_weights_match_reference():
     got = max_weights(dens, idx, occupied_coords(idx), BOX.double(), o, d, step=step, scale=1.0, stop=1e-4)
     assert want.max() > 0.3
     torch.testing.assert_close(got, want, atol=1e-6, rtol=0)  # the reference reduces in float32
+
+
+def test_distortion_is_the_pairwise_spread_of_the_weights():
+    """``distortion(alpha, moments)`` = sum over sample pairs of ``w_i w_j (m_i - m_j)^2`` (``m = t / scale``),
+    whatever the moments' origin; brute force over random rays of 1-40 samples."""
+    from arcsem.backbones.plenoxels.render import distortion
+
+    gen = torch.Generator().manual_seed(8)
+    scale, rows = 0.7, []
+    for n in (1, 2, 5, 40):
+        w = torch.rand(n, generator=gen, dtype=torch.float64) / n
+        t = 50 + torch.rand(n, generator=gen, dtype=torch.float64).sort().values  # far from the origin
+        pairs = sum(w[i] * w[j] * ((t[i] - t[j]) / scale) ** 2 for i in range(n) for j in range(i + 1, n))
+        u = t - 49.5  # an entry point in front of the samples
+        rows.append((w.sum(), torch.stack([(w * u).sum(), (w * u * u).sum()]), torch.as_tensor(pairs).double()))
+    alpha, mom, truth = (torch.stack(c) for c in zip(*rows))
+    torch.testing.assert_close(distortion(alpha, mom, scale)[:, 0], truth, atol=1e-13, rtol=1e-10)
+    assert truth[0] == 0 and (truth[1:] > 0).all()

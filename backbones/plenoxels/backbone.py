@@ -50,7 +50,7 @@ def initial_density(cfg: Any, bounds: Tensor, reso: list[int], points: Tensor | 
 class Plenoxels(Backbone):
     """Sparse voxel grid of density ``[M]`` and SH ``[M, K, 3]`` with an index volume ``[X, Y, Z]``."""
 
-    provides = frozenset({"rgb", "alpha", "depth", "tv"})
+    provides = frozenset({"rgb", "alpha", "depth", "tv", "distortion"})
     batch_mode = "rays"
 
     Config = PlenoxelsConfig

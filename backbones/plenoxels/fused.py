@@ -72,21 +72,21 @@ class _March(torch.autograd.Function):
         shift, step, scale, stop, degree, has_act, _ = consts
         grid = (index, cell_live, block_dist, shift, density, sh, act_w, act_b, bounds, step, scale, stop, degree,
                 has_act)
-        rgb, alpha, wt = load_extension().forward(rays_o, rays_d, *grid)
+        rgb, alpha, wt, mom = load_extension().forward(rays_o, rays_d, *grid)
         ctx.save_for_backward(density, sh, act_w, act_b, rays_o, rays_d, index, cell_live, block_dist, bounds, rgb,
-                              alpha, wt)
+                              alpha, wt, mom)
         ctx.consts = consts
-        return rgb, alpha, wt
+        return rgb, alpha, wt, mom
 
     @staticmethod
-    def backward(ctx, g_rgb, g_alpha, g_wt):
-        density, sh, act_w, act_b, rays_o, rays_d, index, cell_live, block_dist, bounds, rgb, alpha, wt = \
+    def backward(ctx, g_rgb, g_alpha, g_wt, g_mom):
+        density, sh, act_w, act_b, rays_o, rays_d, index, cell_live, block_dist, bounds, rgb, alpha, wt, mom = \
             ctx.saved_tensors
         shift, step, scale, stop, degree, has_act, sparse = ctx.consts
         rows, gd, gsh, gw, gb = load_extension().backward(
             rays_o, rays_d, index, cell_live, block_dist, shift, density, sh, act_w, act_b, bounds, step, scale, stop,
-            degree, has_act, rgb, alpha, wt, g_rgb.contiguous(), g_alpha.contiguous(), g_wt.contiguous(),
-            slots(density.shape[0]),
+            degree, has_act, rgb, alpha, wt, mom, g_rgb.contiguous(), g_alpha.contiguous(), g_wt.contiguous(),
+            g_mom.contiguous(), slots(density.shape[0]),
         )
         gd, gsh = _sparse(rows, gd, density), _sparse(rows, gsh, sh)
         if not sparse:
@@ -96,8 +96,10 @@ class _March(torch.autograd.Function):
 
 def march(density: Tensor, sh: Tensor, index: Tensor, live: tuple[Tensor, Tensor], bounds: Tensor, rays_o: Tensor,
           rays_d: Tensor, *, step: float, scale: float, stop: float, degree: int, act_w: Tensor | None = None,
-          act_b: Tensor | None = None, shift: int = SKIP_SHIFT, sparse_grad: bool = True) -> tuple[Tensor, Tensor, Tensor]:
-    """Fused march -> ``rgb [R, 3]`` (no background), ``alpha [R]``, ``wt [R]`` (= sum w t).
+          act_b: Tensor | None = None, shift: int = SKIP_SHIFT, sparse_grad: bool = True
+          ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Fused march -> ``rgb [R, 3]`` (no background), ``alpha [R]``, ``wt [R]`` (= sum w t), ``mom [R, 2]`` (=
+    sum w u, sum w u^2 with ``u = t - t_near``: the moments of :func:`~.render.distortion`).
 
     The gradients of density and SH are sparse COO tensors over the rows the rays touched (svox2 updates
     only those: :class:`~arcsem.backbones.plenoxels.optim.SparseRMSprop`); dense with ``sparse_grad=False``.

@@ -11,6 +11,11 @@ world length ``l`` is ``sigma * l / scale`` (svox2 likewise measures density in 
 world). Colour is ``max(SH . basis(d) + 0.5, 0)``, optionally transformed per sample by ACT before
 compositing. Front-to-back compositing: ``w_i = T_i (1 - exp(-tau_i))``; samples whose transmittance
 ``T_i`` is below ``stop_thresh`` are masked out (early stop).
+
+Distortion (the ``distortion`` loss; 2DGS's term, Mip-NeRF 360's with squared distances): ``sum_{i<j} w_i w_j
+(m_i - m_j)^2`` over a ray's samples, ``m = t / scale`` in the normalised length. It equals ``(A M2 - M1^2) /
+scale^2`` with ``A = sum w``, ``M1 = sum w u``, ``M2 = sum w u^2`` for any shift of ``u = t - t0``: here
+``t0 = t_near``, so the moments stay small (no cancellation of large ``t^2`` terms in float32).
 """
 from __future__ import annotations
 
@@ -22,7 +27,7 @@ from torch import Tensor
 from ..gaussians.sh import sh_basis
 from .grid import cell_occupancy, corners, occupied_coords, trilinear, voxel_size
 
-__all__ = ["GridData", "box_scale", "composite", "ray_aabb", "render_grid", "sample_segments"]
+__all__ = ["GridData", "box_scale", "composite", "distortion", "ray_aabb", "render_grid", "sample_segments"]
 
 
 @dataclass
@@ -135,7 +140,7 @@ def render_grid(
             touched); False: dense, as the PyTorch path's.
     Returns:
         ``rgb [R, 3]``, ``alpha [R, 1]`` (= sum of weights), ``depth [R, 1]`` (expected z-depth
-        ``sum(w t) / alpha``, 0 where alpha = 0).
+        ``sum(w t) / alpha``, 0 where alpha = 0), ``distortion [R, 1]`` (module docstring).
     """
     R, dev, dt_ = rays_o.shape[0], rays_o.device, grid.density.dtype
     bg = torch.zeros(3, dtype=dt_, device=dev) if background is None else torch.as_tensor(background, dtype=dt_, device=dev)
@@ -167,9 +172,13 @@ def render_grid(
     alpha = zeros.index_add(0, ray_a, w)
     rgb = torch.zeros(R, 3, dtype=w.dtype, device=dev).index_add(0, ray_a, w[:, None] * col)
     rgb = rgb + (1 - alpha)[:, None] * bg
-    wt = zeros.index_add(0, ray_a, w * t_mid.reshape(-1)[sel[active]])
+    t_a = t_mid.reshape(-1)[sel[active]]
+    wt = zeros.index_add(0, ray_a, w * t_a)
+    u = t_a - t_near[ray_a]
+    mom = torch.stack([zeros.index_add(0, ray_a, w * u), zeros.index_add(0, ray_a, w * u * u)], -1)
     depth = torch.where(alpha > 0, wt / alpha.clamp_min(1e-10), zeros)
-    out = {"rgb": rgb, "alpha": alpha[:, None], "depth": depth[:, None]}
+    out = {"rgb": rgb, "alpha": alpha[:, None], "depth": depth[:, None],
+           "distortion": distortion(alpha, mom, box_scale(grid.bounds))}
     if return_samples:
         out["samples"] = (rows[active], wtri[active], w.detach())
     return out
@@ -187,11 +196,18 @@ def _render_fused(grid: GridData, rays_o, rays_d, step, sh_degree, stop_thresh, 
     if grid.coords is None:
         grid.coords = occupied_coords(grid.index)
     live = live_masks(grid.index, grid.coords, grid.density)
-    rgb, alpha, wt = march(grid.density, grid.sh, grid.index, live, grid.bounds, rays_o, rays_d,
+    rgb, alpha, wt, mom = march(grid.density, grid.sh, grid.index, live, grid.bounds, rays_o, rays_d,
                            step=step, scale=box_scale(grid.bounds), stop=stop_thresh, degree=sh_degree,
                            act_w=act_w, act_b=act_b, sparse_grad=sparse_grad)
     depth = torch.where(alpha > 0, wt / alpha.clamp_min(1e-10), torch.zeros_like(wt))
-    return {"rgb": rgb + (1 - alpha)[:, None] * bg, "alpha": alpha[:, None], "depth": depth[:, None]}
+    return {"rgb": rgb + (1 - alpha)[:, None] * bg, "alpha": alpha[:, None], "depth": depth[:, None],
+            "distortion": distortion(alpha, mom, box_scale(grid.bounds))}
+
+
+def distortion(alpha: Tensor, mom: Tensor, scale: float) -> Tensor:
+    """``[R, 1]`` distortion ``(A M2 - M1^2) / scale^2`` of rays with weight sums ``alpha [R]`` and moments ``mom [R, 2]``
+    (``sum w u``, ``sum w u^2``, ``u`` in world length; module docstring)."""
+    return ((alpha * mom[:, 1] - mom[:, 0] ** 2) / scale**2)[:, None]
 
 
 def composite(rgb: Tensor, alpha: Tensor, front: Tensor | None, back: Tensor, act=None,

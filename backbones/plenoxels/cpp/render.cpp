@@ -5,8 +5,9 @@
 // Only samples in live cells are visited (empty-space skipping on the block distances of live()); a cell's
 // corners are read and their SH evaluated once per cell, not per sample (cell.h); the SH degree is a
 // template parameter, so those sums are fixed-length loops.
-// Outputs per ray: rgb (no background), alpha = sum w, wt = sum w t. The backward marches again and
-// uses Q = g . outputs for the suffix sums, so nothing per sample is stored.
+// Outputs per ray: rgb (no background), alpha = sum w, wt = sum w t, and the moments about the ray's entry
+// mom = (sum w u, sum w u^2), u = t - t_near (the distortion, alpha mom1 - mom0^2, is formed in Python). The
+// backward marches again and uses Q = g . outputs for the suffix sums, so nothing per sample is stored.
 #include <omp.h>
 #include <torch/extension.h>
 
@@ -56,7 +57,7 @@ inline bool shade(const Params& P, const Cell<T, DEG>& cell, const Sample<T>& sm
 
 template <typename T, int DEG>
 void forward_impl(const Params& P, const Grid& G, const T* ro, const T* rd, const T* dens, const T* sh,
-                  const T* actW, const T* actB, int64_t nrays, T* rgb, T* alpha, T* wt) {
+                  const T* actW, const T* actB, int64_t nrays, T* rgb, T* alpha, T* wt, T* mom) {
 #pragma omp parallel for schedule(dynamic, 64)
   for (int64_t r = 0; r < nrays; ++r) {
     Ray<T, DEG> ray;
@@ -64,7 +65,7 @@ void forward_impl(const Params& P, const Grid& G, const T* ro, const T* rd, cons
     const T kscale = ray.dn / T(P.scale);
     const T* aw = P.has_act ? actW + 3 * r : nullptr;
     const T* ab = P.has_act ? actB + 3 * r : nullptr;
-    T Tr = 1, acc[3] = {0, 0, 0}, a_sum = 0, wt_sum = 0;
+    T Tr = 1, acc[3] = {0, 0, 0}, a_sum = 0, wt_sum = 0, m0 = 0, m1 = 0;
     Cell<T, DEG> cell;
     Shade<T> o;
     plx::march<T, DEG>(G, ray, [&](const Sample<T>& smp) {
@@ -73,26 +74,33 @@ void forward_impl(const Params& P, const Grid& G, const T* ro, const T* rd, cons
       for (int ch = 0; ch < 3; ++ch) acc[ch] += o.ws * o.v[ch];
       a_sum += o.ws;
       wt_sum += o.ws * smp.tm;
+      const T u = smp.tm - ray.tn;
+      m0 += o.ws * u;
+      m1 += o.ws * u * u;
       Tr *= o.e;
       return Tr >= T(P.stop);
     });
     for (int ch = 0; ch < 3; ++ch) rgb[3 * r + ch] = acc[ch];
     alpha[r] = a_sum;
     wt[r] = wt_sum;
+    mom[2 * r] = m0;
+    mom[2 * r + 1] = m1;
   }
 }
 
 template <typename T, int DEG>
 void backward_impl(const Params& P, const Grid& G, const T* ro, const T* rd, const T* dens, const T* sh,
                    const T* actW, const T* actB, int64_t nrays, const T* rgb, const T* alpha, const T* wt,
-                   const T* g_rgb, const T* g_alpha, const T* g_wt, std::vector<Sink<T>>& sinks, T* gW, T* gB) {
+                   const T* mom, const T* g_rgb, const T* g_alpha, const T* g_wt, const T* g_mom,
+                   std::vector<Sink<T>>& sinks, T* gW, T* gB) {
   // static schedule: a fixed ray -> thread map, so the per-thread sums are bitwise reproducible
 #pragma omp parallel for schedule(static)
   for (int64_t r = 0; r < nrays; ++r) {
     Sink<T>& sink = sinks[omp_get_thread_num()];
     const T* gr = g_rgb + 3 * r;
+    const T* gm = g_mom + 2 * r;
     const T Q = gr[0] * rgb[3 * r] + gr[1] * rgb[3 * r + 1] + gr[2] * rgb[3 * r + 2] + g_alpha[r] * alpha[r] +
-                g_wt[r] * wt[r];
+                g_wt[r] * wt[r] + gm[0] * mom[2 * r] + gm[1] * mom[2 * r + 1];
     Ray<T, DEG> ray;
     plx::setup_ray<T, DEG>(G, P.hi, P.step, ro + 3 * r, rd + 3 * r, ray);
     const T kscale = ray.dn / T(P.scale);
@@ -108,7 +116,8 @@ void backward_impl(const Params& P, const Grid& G, const T* ro, const T* rd, con
         cell.load(G, dens, sh, P.stride, ray.basis, smp.lin);
       }
       if (!shade<T, DEG>(P, cell, smp, kscale, Tr, aw, ab, o)) return true;
-      T qs = g_alpha[r] + g_wt[r] * smp.tm, dpre[3];
+      const T u = smp.tm - ray.tn;
+      T qs = g_alpha[r] + g_wt[r] * smp.tm + (gm[0] + gm[1] * u) * u, dpre[3];
       for (int ch = 0; ch < 3; ++ch) {
         T dv = o.ws * gr[ch];  // dL / d colour
         qs += gr[ch] * o.v[ch];
@@ -288,15 +297,16 @@ std::vector<torch::Tensor> plx_forward(torch::Tensor ro, torch::Tensor rd, torch
   auto rgb = torch::zeros({R, 3}, ro.options());
   auto alpha = torch::zeros({R}, ro.options());
   auto wt = torch::zeros({R}, ro.options());
+  auto mom = torch::zeros({R, 2}, ro.options());
   AT_DISPATCH_FLOATING_TYPES(ro.scalar_type(), "plx_forward", [&] {
     with_degree(degree, [&](auto deg) {
       forward_impl<scalar_t, decltype(deg)::value>(
           P, G, ro.data_ptr<scalar_t>(), rd.data_ptr<scalar_t>(), dens.data_ptr<scalar_t>(), sh.data_ptr<scalar_t>(),
           has_act ? actW.data_ptr<scalar_t>() : nullptr, has_act ? actB.data_ptr<scalar_t>() : nullptr, R,
-          rgb.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(), wt.data_ptr<scalar_t>());
+          rgb.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(), wt.data_ptr<scalar_t>(), mom.data_ptr<scalar_t>());
     });
   });
-  return {rgb, alpha, wt};
+  return {rgb, alpha, wt, mom};
 }
 
 // Gradients of density and SH as (rows [n] long, sorted; gd [n]; gsh [n, Kstore, 3]) over the n rows the rays
@@ -307,8 +317,8 @@ std::vector<torch::Tensor> plx_backward(torch::Tensor ro, torch::Tensor rd, torc
                                         torch::Tensor dens, torch::Tensor sh, torch::Tensor actW, torch::Tensor actB,
                                         torch::Tensor bounds, double step, double scale, double stop, int64_t degree,
                                         bool has_act, torch::Tensor rgb, torch::Tensor alpha, torch::Tensor wt,
-                                        torch::Tensor g_rgb, torch::Tensor g_alpha, torch::Tensor g_wt,
-                                        torch::Tensor slots) {
+                                        torch::Tensor mom, torch::Tensor g_rgb, torch::Tensor g_alpha,
+                                        torch::Tensor g_wt, torch::Tensor g_mom, torch::Tensor slots) {
   Params P = make_params(bounds, step, scale, stop, sh, has_act);
   Grid G = make_grid(index, cell_live, block_dist, bounds, shift);
   const int64_t R = ro.size(0), M = dens.numel();
@@ -328,9 +338,9 @@ std::vector<torch::Tensor> plx_backward(torch::Tensor ro, torch::Tensor rd, torc
       backward_impl<scalar_t, decltype(deg)::value>(
           P, G, ro.data_ptr<scalar_t>(), rd.data_ptr<scalar_t>(), dens.data_ptr<scalar_t>(), sh.data_ptr<scalar_t>(),
           has_act ? actW.data_ptr<scalar_t>() : nullptr, has_act ? actB.data_ptr<scalar_t>() : nullptr, R,
-          rgb.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(), wt.data_ptr<scalar_t>(), g_rgb.data_ptr<scalar_t>(),
-          g_alpha.data_ptr<scalar_t>(), g_wt.data_ptr<scalar_t>(), sinks, gW.data_ptr<scalar_t>(),
-          gB.data_ptr<scalar_t>());
+          rgb.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(), wt.data_ptr<scalar_t>(), mom.data_ptr<scalar_t>(),
+          g_rgb.data_ptr<scalar_t>(), g_alpha.data_ptr<scalar_t>(), g_wt.data_ptr<scalar_t>(),
+          g_mom.data_ptr<scalar_t>(), sinks, gW.data_ptr<scalar_t>(), gB.data_ptr<scalar_t>());
     });
     std::vector<int64_t> rows = touched_rows(sinks, M);
     const int64_t n = int64_t(rows.size());

@@ -177,3 +177,32 @@ def test_gsplat_renders_equal_ours_on_cuda(kind, model):
     tol = 1e-3 if kind == "gs3d" else 1e-2  # float32, other summation orders; 2DGS: its low-pass centre differs
     for name, a, b in zip(outs + ("means", "quats", "scales", "opacities", "colors"), res[1], res[0]):
         _assert_close(a, b, name, tol=tol)
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device (torch.cuda.is_available())")
+def test_gsplat_2dgs_depth_outputs_equal_ours_for_splats_facing_the_camera():
+    """Splats parallel to the image plane: the depth where a ray meets one is its centre depth, so gsplat's depth
+    channels (bridge) equal ours: expected and median depth, distortion (linear ``m``), values and gradients."""
+    from arcsem.backbones.gaussians.gsplat_bridge import render_gsplat_2dgs
+    from arcsem.backbones.gs2d.render import render_2dgs
+
+    from arcsem.rotations import rotmat_to_quat
+
+    params, cams = _scene("gs2d", "pinhole", seed=6)
+    cams = cams[0:1].scaled(2 / 3)
+    params[1] = rotmat_to_quat(cams.world_to_cam[0, :3, :3].T).expand(params[0].shape[0], 4).clone()
+    params[3] = params[3] * 0.35
+    params[4] = params[4][:1]
+    params = [t.float().cuda() for t in params]
+    cams = cams.to(device="cuda", dtype=torch.float32)
+    outs, res = ("depth", "median_depth", "distortion"), []
+    for fn in (render_2dgs, render_gsplat_2dgs):
+        p = [t.clone().requires_grad_() for t in params]
+        kw = {"impl": "torch"} if fn is render_2dgs else {}
+        out = fn(*p, cams, tile=32, dist_depth=(0.0, 0.25, 0.0), **kw)
+        g = torch.Generator().manual_seed(2)
+        loss = sum((out[k] * torch.rand(out[k].shape, generator=g).cuda()).sum() for k in outs)
+        res.append([out[k].detach().cpu() for k in outs] + [x.cpu() for x in torch.autograd.grad(loss, p[:3])])
+    for name, a, b in zip(outs + ("means", "quats", "scales"), res[1], res[0]):
+        _assert_close(a, b, name, tol=1e-2)

@@ -105,9 +105,11 @@ def render_gsplat_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
                        **_: object) -> dict[str, Tensor]:
     """:func:`arcsem.backbones.gs2d.render.render_2dgs` on ``gsplat.rasterization_2dgs`` (pinhole cameras).
 
-    gsplat draws two extra channels after the colours, the centre depth ``z`` and its normalised depth
-    ``m = c0 + c1 z + c2 / z`` (``dist_depth``; gsplat's distortion and median read the last channel), so the
-    distortion is in our normalisation and the median depth is ``z`` of the median ``m`` (``m`` is monotonic).
+    The depth outputs come from extra channels, not gsplat's own distortion (an L1 spread, where 2DGS's is
+    squared): gsplat composites ``m' = m - m_c`` and ``m'^2`` after the colours and appends the centre depth
+    ``z`` (``render_mode="RGB+D"``; its median reads that last channel), with ``m = c0 + c1 z + c2 / z``
+    (``dist_depth``) and ``m_c`` each camera's median ``m`` (the distortion does not depend on it; it keeps the
+    moments small in float32). Distortion = ``alpha M2 - M1^2`` = 2DGS's ``sum_{i<j} w_i w_j (m_i - m_j)^2``.
     Outputs as render_2dgs: rgb, alpha, depth, median_depth, distortion, normal (world, ``sum w n``), radii,
     visible, means2d.
     """
@@ -119,24 +121,15 @@ def render_gsplat_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
     c0, c1, c2 = dist_depth
     z = torch.einsum("cj,nj->cn", viewmats[:, 2, :3], means) + viewmats[:, 2, 3:4]  # [C, N] centre depth
     m = c0 + c1 * z + c2 / z.clamp_min(near)
-    feats = torch.cat([_colors(colors, C, N), z[..., None], m[..., None]], -1)  # [C, N, 5]
+    m = m - m.detach().median(-1, keepdim=True).values
+    feats = torch.cat([_colors(colors, C, N), m[..., None], m[..., None] ** 2], -1)  # [C, N, 5]
     scales3 = torch.cat([scales, torch.ones_like(scales[:, :1])], -1)  # the third is not read (module doc)
-    out, alpha, normal, _, dist, med, meta = rasterization_2dgs(
+    out, alpha, normal, _, _, median, meta = rasterization_2dgs(
         means, quats, scales3, opacities, feats, viewmats, Ks, cams.width, cams.height, near_plane=near,
-        packed=False, tile_size=tile, render_mode="RGB", distloss=True)
-    depth = torch.where(alpha > 0, out[..., 3:4] / alpha.clamp_min(1e-10), torch.zeros_like(alpha))
-    median = torch.where(med != 0, _z_of_m(med, dist_depth), torch.zeros_like(med))
+        packed=False, tile_size=tile, render_mode="RGB+D")
+    depth = torch.where(alpha > 0, out[..., 5:6] / alpha.clamp_min(1e-10), torch.zeros_like(alpha))
+    dist = (alpha * out[..., 4:5] - out[..., 3:4] ** 2).clamp_min(0)
     radii, visible, means2d = _screen(meta)
     return {"rgb": _background(background, out[..., :3], alpha), "alpha": alpha, "depth": depth,
             "median_depth": median, "distortion": dist, "normal": normal, "radii": radii, "visible": visible,
             "means2d": means2d}
-
-
-def _z_of_m(m: Tensor, dist_depth: tuple[float, float, float]) -> Tensor:
-    """Inverse of ``m = c0 + c1 z + c2 / z`` for the two mappings used (linear: ``c2 = 0``; ndc: ``c1 = 0``)."""
-    c0, c1, c2 = dist_depth
-    if c2 == 0:
-        return (m - c0) / c1
-    if c1 == 0:
-        return c2 / (m - c0)
-    raise ValueError(f"dist_depth {dist_depth}: no closed-form inverse")

@@ -69,8 +69,8 @@ def test_presets_validate_against_trainer_and_backbone_configs(preset, backbone)
     terms = stage1_losses(cfg, tc, act=True).terms
     off = {k for k, v in cfg.train.losses.items() if v is None or v.weight == 0}
     assert set(cfg.train.losses) - off == set(terms)
-    if backbone == "plenoxels":  # svox2: MSE + TV; the quick preset adds the opacity prior (svox2's lambda_beta)
-        assert set(terms) == ({"l2", "tv", "opacity_beta"} if preset == "quick" else {"l2", "tv"})
+    if backbone == "plenoxels":  # svox2: MSE + TV; the quick preset adds the distortion (docs/plenoxels.md)
+        assert set(terms) == ({"l2", "tv", "distortion"} if preset == "quick" else {"l2", "tv"})
     else:
         assert {"l1", "dssim"} <= set(terms)  # (1-0.2) L1 + 0.2 D-SSIM
     if preset == "paper":

@@ -6,7 +6,8 @@ the colours (SH + ACT, the PyTorch path) and gsplat gets them decoded (``sh_degr
 densification statistics (read from the 3-D means' gradient) and every loss are unchanged.
 
 How our conventions map (checked on the CPU against gsplat's own PyTorch projection in
-tests/test_gsplat_bridge.py; the rendered images in tests/test_cuda.py on a GPU):
+tests/test_gsplat_bridge.py; the rendered images and their gradients there too, CUDA-marked, and whole runs in
+tests/test_cuda.py, both on a GPU only):
 
 * cameras: ``world_to_cam`` -> ``viewmats`` (both OpenCV axes), ``K`` -> ``Ks``; pinhole -> ``pinhole``,
   orthographic -> ``ortho`` (3DGS only: gsplat's 2DGS is pinhole only). gsplat's Jacobian has no skew term,
@@ -20,7 +21,7 @@ Where gsplat differs from our rasterisers (not mapped; the CUDA test keeps its s
 alpha is clamped at 0.999 (ours 0.99, the official value); the 3DGS Jacobian is evaluated at the centre
 clamped to 1.3x the view frustum (as the official code); footprints are 3.33 sigma per axis (ours 3 sigma);
 the 2DGS depth channels (expected and median depth, distortion) use each splat's centre depth, not the depth
-where the ray meets the splat, and its low-pass filter is fixed at ours ``lowpass_sigma=1/sqrt(2)``.
+where the ray meets the splat, and its low-pass filter is fixed at our default ``lowpass_sigma=1/sqrt(2)``.
 """
 from __future__ import annotations
 

@@ -121,7 +121,7 @@ class Plenoxels(Backbone):
         return out
 
     def render(self, cams, chunk: int | None = None, **kw: Any) -> dict:
-        """Render cameras in chunks of rays -> ``rgb [C,H,W,3]``, ``alpha [C,H,W,1]``, ``depth [C,H,W,1]``, ``tv []``."""
+        """Render cameras in chunks of rays -> ``rgb [C,H,W,3]``, ``alpha``, ``depth``, ``distortion [C,H,W,1]``, ``tv []``."""
         cams = cams.to(self.bounds.device)
         o, d = cams.rays()
         C, H, W = len(cams), cams.height, cams.width
@@ -129,7 +129,7 @@ class Plenoxels(Backbone):
         o, d = o.reshape(-1, 3), d.reshape(-1, 3)
         n = chunk or self.cfg.chunk
         parts = [self._render(o[i : i + n], d[i : i + n], ids[i : i + n]) for i in range(0, o.shape[0], n)]
-        out = {k: torch.cat([p[k] for p in parts]).reshape(C, H, W, -1) for k in ("rgb", "alpha", "depth")}
+        out = {k: torch.cat([p[k] for p in parts]).reshape(C, H, W, -1) for k in ("rgb", "alpha", "depth", "distortion")}
         out.update(self.tv_terms())
         return out
 

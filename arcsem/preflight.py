@@ -80,7 +80,9 @@ def _check_gsplat_scene(bcfg: dict, scene: Any) -> None:
     from .backbones.gaussians.gsplat_bridge import gsplat_cameras, require_lowpass
 
     two_d = bcfg.get("name") == "gs2d"
-    gsplat_cameras(scene.cameras, two_d=two_d)
+    for split in (scene.train, scene.test):
+        if len(split):
+            gsplat_cameras(split.cameras, two_d=two_d)
     if two_d:
         require_lowpass(float(bcfg.get("lowpass_sigma", 2**-0.5)))
 

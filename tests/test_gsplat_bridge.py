@@ -112,12 +112,15 @@ def test_gsplat_refused_where_it_cannot_run():
 
 def test_preflight_refuses_scenes_gsplat_cannot_draw():
     """Once the scene is read (before training): an orthographic 2DGS camera, another low-pass sigma."""
-    from types import SimpleNamespace
-
     from arcsem.preflight import _check_gsplat_scene
+    from arcsem.scene import Scene, Split
 
-    ortho = SimpleNamespace(cameras=_scene("gs2d", "orthographic", seed=0)[1])
-    pinhole = SimpleNamespace(cameras=_scene("gs2d", "pinhole", seed=0)[1])
+    def scene(model):
+        cams = _scene("gs2d", model, seed=0)[1]
+        imgs = torch.zeros(len(cams), cams.height, cams.width, 3)
+        return Scene("s", Split(["a", "b"], cams, imgs), Split([], cams[[]], imgs[:0]), torch.tensor([[-1.0] * 3, [1.0] * 3]))
+
+    ortho, pinhole = scene("orthographic"), scene("pinhole")
     with pytest.raises(ConfigError, match="no orthographic camera"):
         _check_gsplat_scene({"name": "gs2d", "rasterizer": "gsplat"}, ortho)
     with pytest.raises(ConfigError, match=r"lowpass_sigma=0.7071 \(got 1.0\)"):

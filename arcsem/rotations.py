@@ -18,18 +18,20 @@ def quat_to_rotmat(q: Tensor) -> Tensor:
 
 
 def rotmat_to_quat(R: Tensor) -> Tensor:
-    """Rotation matrices ``[N, 3, 3]`` -> unit quaternions ``[N, 4]`` (w, x, y, z) with ``w >= 0`` (float64).
+    """Rotation matrices ``[..., 3, 3]`` (one ``[3, 3]`` too) -> unit quaternions ``[..., 4]`` (w, x, y, z) with
+    ``w >= 0`` (float64).
 
     Of the four algebraically equal candidates, the one built on the largest diagonal term is used (stable)."""
-    R = R.double()
-    m = [[R[:, i, j] for j in range(3)] for i in range(3)]
+    if R.shape[-2:] != (3, 3):
+        raise ValueError(f"rotmat_to_quat: expected rotation matrices [..., 3, 3], got shape {tuple(R.shape)}")
+    m = [[R[..., i, j].double() for j in range(3)] for i in range(3)]
     cands = torch.stack([
         torch.stack([1 + m[0][0] + m[1][1] + m[2][2], m[2][1] - m[1][2], m[0][2] - m[2][0], m[1][0] - m[0][1]], -1),
         torch.stack([m[2][1] - m[1][2], 1 + m[0][0] - m[1][1] - m[2][2], m[0][1] + m[1][0], m[0][2] + m[2][0]], -1),
         torch.stack([m[0][2] - m[2][0], m[0][1] + m[1][0], 1 - m[0][0] + m[1][1] - m[2][2], m[1][2] + m[2][1]], -1),
         torch.stack([m[1][0] - m[0][1], m[0][2] + m[2][0], m[1][2] + m[2][1], 1 - m[0][0] - m[1][1] + m[2][2]], -1),
-    ], 1)  # [N, 4 candidates, 4]; candidate k is 4 * q_k * q
-    best = torch.stack([cands[:, k, k] for k in range(4)], -1).argmax(-1)
-    q = cands[torch.arange(R.shape[0]), best]
+    ], -2)  # [..., 4 candidates, 4]; candidate k is 4 * q_k * q
+    best = cands.diagonal(dim1=-2, dim2=-1).argmax(-1)  # [...]
+    q = torch.take_along_dim(cands, best[..., None, None].expand(*best.shape, 1, 4), -2)[..., 0, :]
     q = q / q.norm(dim=-1, keepdim=True)
-    return torch.where(q[:, :1] < 0, -q, q)
+    return torch.where(q[..., :1] < 0, -q, q)

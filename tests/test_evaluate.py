@@ -115,6 +115,19 @@ def test_quaternions_round_trip():
     torch.testing.assert_close(rotmat_to_quat(quat_to_rotmat(q)), q)
 
 
+def test_rotmat_to_quat_takes_any_batch_shape():
+    """One matrix ``[3, 3]`` -> ``[4]``; ``[2, 5, 3, 3]`` -> ``[2, 5, 4]``, each equal to the flat batch's (the gsplat
+    CUDA test passed one matrix and met 'too many indices')."""
+    g = torch.Generator().manual_seed(1)
+    q = torch.randn(10, 4, generator=g, dtype=torch.float64)
+    q = torch.where(q[:, :1] < 0, -q, q) / q.norm(dim=-1, keepdim=True)
+    R = quat_to_rotmat(q)
+    torch.testing.assert_close(rotmat_to_quat(R[3]), q[3])
+    torch.testing.assert_close(rotmat_to_quat(R.reshape(2, 5, 3, 3)), q.reshape(2, 5, 4))
+    with pytest.raises(ValueError, match=r"\[\.\.\., 3, 3\]"):
+        rotmat_to_quat(torch.eye(4))
+
+
 def test_arc_path_passes_through_training_cameras_and_stays_on_the_arc():
     scene = tiny_scene(n=4)
     cams = scene.train.cameras

@@ -74,10 +74,11 @@ def _check_rasterizer(bcfg: dict, cfg: Any) -> None:
 
 
 def _check_gsplat_scene(bcfg: dict, scene: Any) -> None:
-    """``backbone.rasterizer=gsplat``: the scene's cameras and the 2DGS low-pass filter must be ones gsplat draws."""
+    """``backbone.rasterizer=gsplat``: the scene's cameras, the 2DGS low-pass filter and tile size must be ones
+    gsplat draws."""
     if bcfg.get("rasterizer") != "gsplat":
         return
-    from .backbones.gaussians.gsplat_bridge import gsplat_cameras, require_lowpass
+    from .backbones.gaussians.gsplat_bridge import gsplat_cameras, require_2dgs_tile, require_lowpass
 
     two_d = bcfg.get("name") == "gs2d"
     for split in (scene.train, scene.test):
@@ -85,6 +86,7 @@ def _check_gsplat_scene(bcfg: dict, scene: Any) -> None:
             gsplat_cameras(split.cameras, two_d=two_d)
     if two_d:
         require_lowpass(float(bcfg.get("lowpass_sigma", 2**-0.5)))
+        require_2dgs_tile(int(bcfg.get("tile", 16)))
 
 
 def _check_color(cfg: Any) -> None:

@@ -11,6 +11,9 @@
   registered with Hydra directly, so it works for editable installs too (Hydra's scan of the
   ``hydra_plugins`` namespace does not see packages installed with ``pip install -e``).
 
+* **Resolvers.** ``${gs2d_lowpass:<rasterizer>,<sigma>}``: a preset's 2DGS low-pass sigma, or gsplat's fixed one
+  where ``backbone.rasterizer=gsplat`` (:func:`arcsem.backbones.gs2d.config.lowpass_for`).
+
 :func:`setup` is idempotent; the ``arcsem`` CLI and ``arcsem.conf`` (read by ``compose``) call it.
 """
 from __future__ import annotations
@@ -65,4 +68,9 @@ def setup() -> None:
             continue
         cs.store(group="backbone", name=f"{ep.name}_schema", node=backbone_schema(ep.name, config))
     Plugins.instance().register(EntryPointSearchPath)
+    from omegaconf import OmegaConf
+
+    from .backbones.gs2d.config import lowpass_for
+
+    OmegaConf.register_new_resolver("gs2d_lowpass", lowpass_for, replace=True)
     _done = True

@@ -21,7 +21,9 @@ Where gsplat differs from our rasterisers (not mapped; the CUDA test keeps its s
 alpha is clamped at 0.999 (ours 0.99, the official value); the 3DGS Jacobian is evaluated at the centre
 clamped to 1.3x the view frustum (as the official code); footprints are 3.33 sigma per axis (ours 3 sigma);
 the 2DGS depth channels (expected and median depth, distortion) use each splat's centre depth, not the depth
-where the ray meets the splat, and its low-pass filter is fixed at our default ``lowpass_sigma=1/sqrt(2)``.
+where the ray meets the splat; its low-pass filter is compiled in at the official ``lowpass_sigma=1/sqrt(2)`` (the
+quick preset's 2DGS value, 1/sqrt(8), composes to it on gsplat: conf/tuning/quick_gs2d.yaml); its 2DGS backward
+launches on tiles of at most 16 px (:func:`require_2dgs_tile`).
 """
 from __future__ import annotations
 
@@ -31,7 +33,8 @@ from torch import Tensor
 from arcsem.cameras import Cameras
 from arcsem.errors import ConfigError
 
-__all__ = ["gsplat_cameras", "render_gsplat_2dgs", "render_gsplat_3dgs", "require_gsplat", "require_lowpass"]
+__all__ = ["gsplat_cameras", "render_gsplat_2dgs", "render_gsplat_3dgs", "require_2dgs_tile", "require_gsplat",
+           "require_lowpass"]
 
 KEY = "backbone.rasterizer"
 
@@ -54,9 +57,22 @@ def require_lowpass(lowpass_sigma: float) -> None:
                           f"(got {lowpass_sigma}); use {KEY}=auto")
 
 
+def require_2dgs_tile(tile: int) -> None:
+    """ConfigError unless gsplat's 2DGS can launch on ``tile``-px tiles: a tile is one CUDA block of ``tile^2``
+    threads, a block holds at most 65,536 registers, and gsplat's 2DGS backward kernel needs more than the 64 per
+    thread that 1024 threads (32-px tiles) would leave: it fails with "too many resources requested for launch"
+    (seen on an H200, benchmarks/gpu/gsplat_launch.py; its 3DGS kernels launch at 32 px)."""
+    if tile * tile > 256:
+        raise ConfigError(f"{KEY}=gsplat: gsplat's 2DGS cannot draw backbone.tile={tile} px tiles (its backward "
+                          f"kernel does not launch on blocks of {tile * tile} threads); use backbone.tile=16 or less")
+
+
 def gsplat_cameras(cams: Cameras, two_d: bool = False) -> tuple[Tensor, Tensor, str]:
-    """Our cameras as gsplat's: ``viewmats [C, 4, 4]``, ``Ks [C, 3, 3]`` and its ``camera_model`` name."""
-    if bool((cams.K[:, 0, 1] != 0).any()):
+    """Our cameras as gsplat's: ``viewmats [C, 4, 4]``, ``Ks [C, 3, 3]`` and its ``camera_model`` name.
+
+    The skew check reads ``K``: it runs where ``K`` is a host tensor (the preflight checks the scene's cameras
+    there); on the GPU it would wait for the device at every render."""
+    if cams.K.device.type == "cpu" and bool((cams.K[:, 0, 1] != 0).any()):
         raise ConfigError(f"{KEY}=gsplat: the cameras have a skewed K (K[0, 1] != 0), which gsplat's projection "
                           f"ignores; use {KEY}=auto")
     if cams.is_ortho and two_d:
@@ -117,6 +133,7 @@ def render_gsplat_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
     from gsplat import rasterization_2dgs
 
     require_lowpass(lowpass_sigma)
+    require_2dgs_tile(tile)
     C, N = len(cams), means.shape[0]
     viewmats, Ks, _ = gsplat_cameras(cams.to(dtype=means.dtype), two_d=True)
     c0, c1, c2 = dist_depth

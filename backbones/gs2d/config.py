@@ -7,7 +7,18 @@ from arcsem.registry import checked
 
 from ..gaussians.config import GaussianConfig
 
-__all__ = ["GS2DConfig"]
+__all__ = ["GSPLAT_LOWPASS_SIGMA", "GS2DConfig", "lowpass_for"]
+
+# gsplat's 2DGS kernels compile their screen-space filter in (FILTER_INV_SQUARE = 2: sigma = 1/sqrt(2) px, the
+# official value); no argument changes it
+GSPLAT_LOWPASS_SIGMA = 2**-0.5
+
+
+def lowpass_for(rasterizer: str, ours: float) -> float:
+    """A preset's ``lowpass_sigma`` for ``rasterizer``: ``ours`` for arcsem's rasterisers, gsplat's fixed sigma for
+    ``gsplat`` (the resolver ``${gs2d_lowpass:${backbone.rasterizer},<ours>}`` of conf/tuning/quick_gs2d.yaml, so the
+    run's config.yaml records the filter the run drew with)."""
+    return GSPLAT_LOWPASS_SIGMA if rasterizer == "gsplat" else float(ours)
 
 
 @dataclass

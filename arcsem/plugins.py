@@ -63,7 +63,9 @@ class Batch:
     """What a loss sees besides the render.
 
     Image batches: ``images [C,H,W,3]``, ``masks [C,H,W,1]`` or None, ``indices [C]`` view indices in
-    the split. Ray batches (``rays_o``/``rays_d`` set): ``images [R,3]`` target colours per ray.
+    the split (on the model's device) and ``views`` the same as Python ints (read without a device transfer; empty
+    where a batch was made without them). Ray batches (``rays_o``/``rays_d`` set): ``images [R,3]`` target colours
+    per ray.
     ``color``: the colourisation targets (stage 2 only; a loss that reads them declares ``needs = {"color"}``).
     """
 
@@ -75,6 +77,7 @@ class Batch:
     rays_d: Tensor | None = None
     ray_image_ids: Tensor | None = None
     color: ColorTargets | None = None
+    views: tuple[int, ...] = ()
 
 
 class Backbone(nn.Module):

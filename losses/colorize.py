@@ -21,27 +21,26 @@ __all__ = ["CCM", "TCM", "PseudoColor", "ReferenceL1", "ccm_distance", "masked_l
 
 
 def masked_l1(pred: Tensor, target: Tensor, valid: Tensor) -> Tensor:
-    """Mean ``|pred - target|`` over channels and the pixels where ``valid [..]`` (pred ``[..., 3]``)."""
-    n = valid.sum()
-    if n == 0:
-        return pred.sum() * 0.0
-    return ((pred - target).abs() * valid[..., None]).sum() / (n * pred.shape[-1])
+    """Mean ``|pred - target|`` over channels and the pixels where ``valid [..]`` (pred ``[..., 3]``); 0 (keeping the
+    graph) where no pixel is valid. Computed without reading anything back from the device."""
+    n = valid.sum() * pred.shape[-1]
+    return ((pred - target).abs() * valid[..., None]).sum() / n.clamp_min(1)
 
 
-def tcm_distance(feats: list[Tensor], guidance: list[Tensor]) -> Tensor:
-    """``sum_blocks mean_locations (1 - cos(F, G))`` for per-block features ``[C, D, h, w]``."""
+def tcm_distance(feats: list[Tensor], guidance: list[Tensor], views: Tensor | None = None) -> Tensor:
+    """``sum_blocks mean_locations (1 - cos(F, G))`` for per-block features ``[C, D, h, w]``, over the views where
+    ``views [C]`` (bool; default all; none: 0, keeping the graph)."""
+    keep = torch.ones(feats[0].shape[0], dtype=torch.bool, device=feats[0].device) if views is None else views
     total = feats[0].new_zeros(())
     for f, g in zip(feats, guidance):
-        total = total + (1.0 - torch.nn.functional.cosine_similarity(f, g, dim=1, eps=1e-8)).mean()
+        per_view = (1.0 - torch.nn.functional.cosine_similarity(f, g, dim=1, eps=1e-8)).flatten(1).mean(1)  # [C]
+        total = total + (per_view * keep).sum() / keep.sum().clamp_min(1)
     return total
 
 
 def ccm_distance(render_means: Tensor, target: Tensor, valid: Tensor) -> Tensor:
-    """``mean over valid cells of ||mean(render patch) - target||^2``; means ``[C, hc, wc, 3]``."""
-    n = valid.sum()
-    if n == 0:
-        return render_means.sum() * 0.0
-    return (((render_means - target) ** 2).sum(-1) * valid).sum() / n
+    """``mean over valid cells of ||mean(render patch) - target||^2``; means ``[C, hc, wc, 3]`` (none valid: 0)."""
+    return (((render_means - target) ** 2).sum(-1) * valid).sum() / valid.sum().clamp_min(1)
 
 
 def _targets(batch: Batch, who: str, *fields: str) -> ColorTargets:
@@ -105,11 +104,8 @@ class TCM(Loss):
 
     def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
         t = _targets(batch, self.name, "tcm_guidance", "tcm_space")
-        keep = ~t.is_reference
-        if not bool(keep.any()):
-            return out["rgb"].sum() * 0.0
-        img = downscale(out["rgb"][keep], int(t.tcm_downscale))
-        return tcm_distance(t.tcm_space(img), [g[keep] for g in t.tcm_guidance])
+        img = downscale(out["rgb"], int(t.tcm_downscale))  # reference views too: skipping them would need a host read
+        return tcm_distance(t.tcm_space(img), t.tcm_guidance, ~t.is_reference)
 
 
 @LOSSES.register("ccm")

@@ -110,6 +110,19 @@ class Guidance:
                              self.ref_indices, ref_colors, tcm_downscale, ccm_downscale, ccm_max_dist, ccm_white)
         self._memory: dict[int, dict[str, Tensor]] = {}
 
+    def to(self, device) -> Guidance:
+        """Move everything held to ``device``: the reference colours and the matches computed so far, which
+        :meth:`targets` gathers from during training (compute every view's matches first), the grey views and the
+        extractor (a module)."""
+        self.ref_color = [t.to(device) for t in self.ref_color]
+        self.ref_means, self.gray = self.ref_means.to(device), self.gray.to(device)
+        if self._ref_gray is not None:
+            self._ref_gray = [t.to(device) for t in self._ref_gray]
+        self._memory = {v: {k: t.to(device) for k, t in m.items()} for v, m in self._memory.items()}
+        if isinstance(self.extractor, torch.nn.Module):
+            self.extractor.to(device)
+        return self
+
     def features(self, images: Tensor) -> list[Tensor]:
         """Extractor block features of images ``[C, H, W, 3]`` after the TCM downscale (no gradient)."""
         from .features.base import no_grad_features

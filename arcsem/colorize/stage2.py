@@ -22,6 +22,7 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
+from ..devices import run_device
 from ..errors import DataError
 from ..plugins import Batch, ColorTargets
 from ..registry import plain, validate_config
@@ -110,30 +111,46 @@ def render_depths(backbone, split, alpha_min: float = 0.5) -> torch.Tensor:
 
 
 class ColorTargetHook:
-    """The stage-2 ``batch_hook``: gives each batch its :class:`~arcsem.plugins.ColorTargets` from the cached
-    pseudo-colours and guidance."""
+    """The stage-2 ``batch_hook``: gives each batch its :class:`~arcsem.plugins.ColorTargets` from the pseudo-colours
+    and the guidance. :meth:`to` puts everything it holds (the loss space's extractor too) on the run's device, so
+    a step gathers its targets there, without host transfers.
+
+    Args: refs (``R`` references); pseudo ``[N, H, W, 3]`` and valid ``[N, H, W]`` of every training view; guidance
+    (None without TCM/CCM); space: the TCM loss space (the extractor, or a colour space).
+    """
 
     def __init__(self, refs: References, pseudo: torch.Tensor, valid: torch.Tensor, guidance: Guidance | None,
                  space=None, tcm_downscale: int = 4, ccm_downscale: int = 16):
-        self.ref_pos = {int(v): k for k, v in enumerate(refs.indices.tolist())}
-        self.refs, self.pseudo, self.valid, self.guidance = refs, pseudo, valid, guidance
-        self.space, self.tcm_downscale, self.ccm_downscale = space, tcm_downscale, ccm_downscale
+        n = pseudo.shape[0]
+        slot = torch.full((n,), len(refs), dtype=torch.long)  # reference position of each view; R: none
+        slot[refs.indices] = torch.arange(len(refs))
+        self.slot, self.is_ref = slot, slot < len(refs)
+        self.references = torch.cat([refs.images.float(), torch.zeros_like(refs.images[:1]).float()])  # [R + 1, ...]
+        self.pseudo, self.valid, self.guidance, self.space = pseudo, valid, guidance, space
+        self.tcm_downscale, self.ccm_downscale = tcm_downscale, ccm_downscale
+
+    def to(self, device) -> ColorTargetHook:
+        """Move every tensor, the guidance and the loss space (a module: the VGG) to ``device``; returns self."""
+        for name in ("slot", "is_ref", "references", "pseudo", "valid"):
+            setattr(self, name, getattr(self, name).to(device))
+        if self.guidance is not None:
+            self.guidance.to(device)
+        if isinstance(self.space, torch.nn.Module):
+            self.space.to(device)
+        return self
 
     def __call__(self, batch: Batch) -> Batch:
-        idx = batch.indices.cpu().tolist()
-        dev = batch.images.device
-        is_ref = torch.tensor([i in self.ref_pos for i in idx], device=dev)
-        ref = torch.stack([self.refs.images[self.ref_pos[i]] if i in self.ref_pos
-                           else torch.zeros_like(self.refs.images[0]) for i in idx])
-        targets = ColorTargets(is_reference=is_ref, reference=ref.to(dev), pseudo=self.pseudo[idx].to(dev),
-                               pseudo_valid=self.valid[idx].to(dev), tcm_space=self.space,
+        views = list(batch.views) if batch.views else batch.indices.tolist()
+        idx = batch.indices.to(self.pseudo.device)
+        targets = ColorTargets(is_reference=self.is_ref[idx], reference=self.references[self.slot[idx]],
+                               pseudo=self.pseudo[idx], pseudo_valid=self.valid[idx], tcm_space=self.space,
                                tcm_downscale=self.tcm_downscale, ccm_downscale=self.ccm_downscale)
         if self.guidance is not None:
-            t = [self.guidance.targets(i) for i in idx]
-            targets.tcm_guidance = [torch.stack([x["tcm_guidance"][b] for x in t]).to(dev)
-                                    for b in range(len(t[0]["tcm_guidance"]))]
-            targets.ccm_target = torch.stack([x["ccm_target"] for x in t]).to(dev)
-            targets.ccm_valid = torch.stack([x["ccm_valid"] for x in t]).to(dev)
+            t = [self.guidance.targets(v) for v in views]
+            stack = (lambda xs: xs[0][None]) if len(views) == 1 else torch.stack  # one view: a view, no copy
+            targets.tcm_guidance = [stack([x["tcm_guidance"][b] for x in t]) for b in range(len(t[0]["tcm_guidance"]))]
+            targets.ccm_target = stack([x["ccm_target"] for x in t])
+            targets.ccm_valid = stack([x["ccm_valid"] for x in t])
         return dataclasses.replace(batch, color=targets)
 
 
@@ -226,6 +243,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     if any(n in losses.terms for n in ("tcm", "ccm")):
         guidance, space, finfo = _guidance(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir)
     hook = ColorTargetHook(refs, pseudo, valid, guidance, space, cc.tcm_downscale, cc.ccm_downscale)
+    hook.to(run_device(cfg))  # the targets, the guidance and the loss space's extractor follow the model
     loop = LoopConfig(steps=cc.steps, stage="color", batch_views=cc.batch_views, log_every=cc.log_every,
                       checkpoint_every=cc.checkpoint_every, resume=cc.resume, seed=int(cfg.get("seed", 0)),
                       progress=cc.progress, desc=f"stage 2 ({backbone.name})")

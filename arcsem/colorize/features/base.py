@@ -142,9 +142,11 @@ def build_extractor(name: str, ctx: SceneContext | None = None) -> Extractor:
 
     name = resolve_features(name)
     if name in ("vgg16", "vgg19"):
+        import copy
+
         from ..vgg import get_vgg
 
-        return get_vgg(name)
+        return copy.deepcopy(get_vgg(name))  # the run's own, free to move to its device; the weights load once
     if name == "daisy":
         from .daisy import DaisyFeatures
 

@@ -57,7 +57,9 @@ class ACT(nn.Module):
     def transforms(self, image_ids: Tensor) -> tuple[Tensor, Tensor]:
         """``W, b`` of shape ``[*image_ids.shape, k]``; id ``-1`` gives the mean over training images."""
         ids = image_ids.long().to(self.weight.device)
-        if (ids >= self.num_images).any() or (ids < -1).any():
+        # checked where the ids are host tensors; on a GPU the check would wait for the device every step (a
+        # training step's ids are its split's, made by the dataset reader)
+        if ids.device.type == "cpu" and ((ids >= self.num_images).any() or (ids < -1).any()):
             raise IndexError(f"ACT: image ids {ids.unique().tolist()} outside -1..{self.num_images - 1}")
         novel = (ids < 0)[..., None]
         safe = ids.clamp_min(0)

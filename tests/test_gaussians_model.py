@@ -87,7 +87,7 @@ def test_colors_use_view_directions(model):
     with torch.no_grad():
         m.sh_rest.normal_()
     cams = scene.train.cameras
-    m.active_sh_degree.fill_(3)
+    m.set_active_sh_degree(3)
     col = m.colors(cams)
     if model == "pinhole":
         dirs = m.means[None] - cams.centers[:, None]
@@ -95,7 +95,7 @@ def test_colors_use_view_directions(model):
         dirs = cams.forward[:, None].expand(-1, len(m), -1)
     ref = (eval_sh(3, m.sh[None], dirs) + 0.5).clamp_min(0)
     torch.testing.assert_close(col, ref)
-    m.active_sh_degree.fill_(0)
+    m.set_active_sh_degree(0)
     torch.testing.assert_close(m.colors(cams), (m.sh_dc[None, :, 0] * C0 + 0.5).clamp_min(0).expand(3, -1, -1))
 
 
@@ -182,7 +182,7 @@ def test_state_dict_survives_a_different_number_of_gaussians(tmp_path):
     a = build("gs2d", scene)
     with torch.no_grad():
         a.model.set_params({k: torch.cat([v, v[:5]]) for k, v in a.model.params().items()})
-    a.model.active_sh_degree.fill_(2)
+    a.model.set_active_sh_degree(2)
     b = build("gs2d", scene_of(points=10), act=None)
     b.load_state_dict(a.state_dict())
     assert b.num_primitives() == 45 and int(b.model.active_sh_degree) == 2

@@ -165,6 +165,12 @@ def test_view_sampler_visits_every_view_once_per_epoch():
     assert sorted(epoch) == [0, 1, 2, 3, 4]
     b = ViewSampler(scene.train, batch_views=2, seed=3).next()
     assert b.images.shape == (2, 16, 24, 3) and b.masks.shape == (2, 16, 24, 1) and len(b.cameras) == 2
+    # the batch is the split's rows `views` (taken by slicing on the device, no index tensor from the host)
+    v = list(b.views)
+    assert b.indices.tolist() == v and torch.equal(b.images, scene.train.images[v])
+    assert torch.equal(b.masks[..., 0], scene.train.masks[v].float())
+    assert torch.equal(b.cameras.world_to_cam, scene.train.cameras.world_to_cam[v])
+    assert torch.equal(b.cameras.image_ids, scene.train.cameras.image_ids[v])
 
 
 def test_batch_hook_fills_colour_targets_and_color_stage_uses_its_groups():

@@ -3,10 +3,11 @@
 One step: set the scheduled learning rates, draw a batch (whole views or random rays), let the
 stage's ``batch_hook`` add its targets (stage 2: ``batch.color``), render, sum the active loss terms, call
 ``backbone.pre_backward``, backpropagate, call ``backbone.post_backward`` (densify, prune, upsample: it
-may replace tensors in ``optimizers[group]``), step every optimiser and check the parameters (and, when
-one is not finite, the gradients: the usual cause). Any non-finite loss term, gradient or parameter stops
-the run with a :class:`TrainingError` that names the step, the term or group, and the checkpoint actually on disk
-(or that there is none); nothing is written after the failure.
+may replace tensors in ``optimizers[group]``), step every optimiser and note whether the loss terms and
+parameters are finite. The notes stay on the model's device and are read every step on the CPU, every
+``log_every`` steps on a GPU (a read is a host synchronisation), and before anything is written: any non-finite
+loss term, gradient or parameter stops the run with a :class:`TrainingError` that names the first step, the term
+or group, and the checkpoint actually on disk (or that there is none); nothing is written after the failure.
 
 Checkpoints go to ``ckpt_dir/last.pt`` every ``checkpoint_every`` steps and at the end. With
 ``resume="auto"`` an existing checkpoint whose config matches is continued (announced on the console
@@ -23,7 +24,6 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import torch
 from torch import nn
@@ -42,7 +42,7 @@ from .sampling import make_sampler
 
 log = logging.getLogger(__name__)
 
-__all__ = ["LoopConfig", "TrainResult", "batch_psnr", "loss_trend_warning", "render_batch", "train"]
+__all__ = ["LoopConfig", "TrainResult", "loss_trend_warning", "render_batch", "train"]
 
 
 @dataclass
@@ -56,6 +56,8 @@ class LoopConfig:
     log_every: int = checked(100, ge=1)  # progress-bar / history interval (steps)
     eval_every: int = checked(0, ge=0)  # evaluation interval (0: only at the end, done by the caller)
     checkpoint_every: int = checked(1000, ge=0)  # checkpoint interval (0: only at the end)
+    # finiteness read back every this many steps (0: every step on the CPU, log_every on a GPU; see _Health)
+    check_every: int = checked(0, ge=0)
     resume: str = checked("auto", choices=("auto", "never", "must"))
     seed: int = 0
     progress: bool = True  # show a tqdm bar
@@ -83,12 +85,6 @@ def render_batch(backbone: nn.Module, batch: Batch) -> RenderOutput:
     return backbone.render(batch.cameras)
 
 
-def batch_psnr(rgb: torch.Tensor, target: torch.Tensor) -> float:
-    """PSNR (dB) of a training batch, for the progress bar (not an evaluation metric)."""
-    mse = float(((rgb.detach() - target) ** 2).mean())
-    return -10.0 * math.log10(mse) if mse > 0 else float("inf")
-
-
 def _groups(backbone: nn.Module, act: nn.Module | None, stage: str) -> dict[str, list[nn.Parameter]]:
     groups = {g: list(ps) for g, ps in backbone.param_groups(stage).items() if len(list(ps))}
     if act is not None:
@@ -101,24 +97,54 @@ def _groups(backbone: nn.Module, act: nn.Module | None, stage: str) -> dict[str,
     return groups
 
 
-def _finite(t: torch.Tensor | None) -> bool:
-    """Whether every element of ``t`` is finite (None: yes; sparse: its stored values). One pass when the sum is
-    finite; element-wise only when it is not (a sum can overflow)."""
-    if t is None:
-        return True
-    t = t._values() if t.is_sparse else t
-    return bool(torch.isfinite(t.sum())) or bool(torch.isfinite(t).all())
+class _Health:
+    """Whether every loss term and parameter of each step is finite, computed on the model's device and read back
+    every ``every`` steps: 1 on the CPU, where a read costs nothing; ``log_every`` on a GPU, where each read is a
+    host synchronisation. Also read before every checkpoint and evaluation, and at the end, so nothing is written
+    after a failure. A non-finite gradient makes its parameters non-finite in the optimiser step (Adam: m, v and
+    the update), so parameters are checked every step and gradients, the usual cause, are named when a parameter
+    fails in the step just taken (they are gone by the next one)."""
 
+    def __init__(self, every: int):
+        self.every, self.names, self.first = every, (), None  # first: [K] long, first bad step of each slot (-1: none)
+        self.step, self.grads = -1, {}
 
-def _check_finite(run: _Run, step: int, what: str, named: Mapping[str, Any], kind: str) -> None:
-    """Stop on a non-finite tensor of ``named``; ``step`` is 0-based, messages count steps from 1 (as the history,
-    the progress bar and checkpoints do)."""
-    for name, value in named.items():
-        tensors = value if isinstance(value, (list, tuple)) else [value]
-        for t in tensors:
-            if not _finite(t):
-                raise TrainingError(f"step {step + 1}: {kind} '{name}' is not finite ({what}); training stopped, "
-                                    f"{run.on_disk()}")
+    def record(self, run: _Run, step: int, terms: Mapping[str, torch.Tensor], params: Mapping[str, list],
+               grads: Mapping[str, list]) -> None:
+        """Note the finiteness of ``terms`` (scalars) and ``params`` (per group) after 0-based ``step``; no host read."""
+        names = tuple(("loss term", n, "loss") for n in terms) + tuple(
+            ("parameter group", g, "after the optimiser step") for g, ps in params.items() for _ in ps)
+        if names != self.names:  # the active terms or the groups changed: read what the old layout holds first
+            self.read(run)
+            self.names, self.first = names, None
+        flat = [p.detach() for ps in params.values() for p in ps]
+        values = [v.detach().float().reshape(1) for v in terms.values()]
+        values += [n.float().reshape(1) for n in torch._foreach_norm(flat, math.inf)]  # max |x|: NaN and inf stay
+        bad = ~torch.isfinite(torch.cat(values))
+        start = torch.full_like(bad, -1, dtype=torch.long) if self.first is None else self.first
+        self.first = torch.where((start < 0) & bad, step, start)
+        self.step, self.grads = step, grads
+
+    def due(self, step: int) -> bool:
+        return (step + 1) % self.every == 0
+
+    def read(self, run: _Run) -> None:
+        """Raise :class:`TrainingError` naming the first step, term or group that was not finite (one host read)."""
+        if self.first is None:
+            return
+        first = self.first.tolist()
+        bad = [(s, i) for i, s in enumerate(first) if s >= 0]
+        if not bad:
+            return
+        step, i = min(bad)
+        kind, name, what = self.names[i]
+        if kind == "parameter group" and step == self.step:
+            for g, gs in self.grads.items():
+                if not all(t is None or bool(torch.isfinite(t._values() if t.is_sparse else t).all()) for t in gs):
+                    kind, name, what = "gradient of group", g, "gradient"
+                    break
+        raise TrainingError(f"step {step + 1}: {kind} '{name}' is not finite ({what}); training stopped, "
+                            f"{run.on_disk()}")
 
 
 class _Run:
@@ -133,6 +159,7 @@ class _Run:
         self.step, self.time_s, self.history, self.evals, self.resumed_from = 0, 0.0, [], [], None
         self.saved_step: int | None = None  # step of the checkpoint on disk (None: none written or loaded)
         self.act_separate = act is not None and not any(m is act for m in backbone.modules())
+        self.health = _Health(loop.check_every or (1 if _device(backbone).type == "cpu" else loop.log_every))
 
     def build_optimizers(self, act_lr: float | None) -> None:
         groups = _groups(self.backbone, self.act, self.loop.stage)
@@ -148,6 +175,7 @@ class _Run:
                 "evals": self.evals, "num_primitives": int(self.backbone.num_primitives())}
 
     def save(self) -> None:
+        self.health.read(self)  # never a checkpoint of a model that is not finite
         if self.path is not None:
             with region("arcsem::checkpoint"):
                 ckpt.save_checkpoint(self.path, self.state())
@@ -195,9 +223,11 @@ def _device(backbone: nn.Module) -> torch.device:
     return p.device if p is not None else torch.device("cpu")
 
 
-def _step(run: _Run, losses: LossSet, batch_hook, step: int) -> tuple[float, float, dict]:
-    """One optimisation step; returns (loss, batch PSNR, {term: value}).
+def _step(run: _Run, losses: LossSet, batch_hook, step: int, record: bool) -> dict | None:
+    """One optimisation step; with ``record``, returns ``{loss, psnr, <term>: value}`` (one host read), else None.
 
+    Nothing in a step waits for the device (the finiteness checks stay there: :class:`_Health`), except what a
+    rasteriser must know of its data (tile lists) and densification's row counts.
     The parts run in named profiler regions (``arcsem::sample``, ``arcsem::render``, ...; free when no profiler
     runs): benchmarks/profile_step.py attributes time, backward passes included, to them."""
     bb = run.backbone
@@ -209,28 +239,30 @@ def _step(run: _Run, losses: LossSet, batch_hook, step: int) -> tuple[float, flo
     with region("arcsem::render"):
         out = render_batch(bb, batch)
     total, terms = losses(out, batch, step)
-    with region("arcsem::checks"):
-        _check_finite(run, step, "loss", terms, "loss term")
     bb.pre_backward(step, out)
     with region("arcsem::backward"):
         bb.zero_grad(set_to_none=True)
         for o in run.optimizers.values():
             o.zero_grad(set_to_none=True)
         total.backward()
-    grads = {g: [p.grad for pg in o.param_groups for p in pg["params"]] for g, o in run.optimizers.items()}
+    params = {g: [p for pg in o.param_groups for p in pg["params"]] for g, o in run.optimizers.items()}
+    grads = {g: [p.grad for p in ps] for g, ps in params.items()}
     bb.post_backward(step, out, run.optimizers)
     with region("arcsem::optimizer"):
         for o in run.optimizers.values():
             o.step()
     with region("arcsem::checks"):
-        # a non-finite gradient makes its parameters non-finite in the step (Adam: m, v and the update NaN or inf),
-        # so the parameters are checked every step and the gradients (the usual cause, named first) only then: one
-        # pass over the model a step, not two
         params = {g: [p for pg in o.param_groups for p in pg["params"]] for g, o in run.optimizers.items()}
-        if not all(_finite(p) for group in params.values() for p in group):
-            _check_finite(run, step, "gradient", grads, "gradient of group")
-            _check_finite(run, step, "after the optimiser step", params, "parameter group")
-    return float(total.detach()), batch_psnr(out["rgb"], batch.images), {k: float(v.detach()) for k, v in terms.items()}
+        run.health.record(run, step, terms, params, grads)
+        if run.health.due(step):
+            run.health.read(run)
+    if not record:
+        return None
+    mse = ((out["rgb"].detach() - batch.images) ** 2).mean()
+    values = torch.stack([total.detach().float(), mse.float(), *(v.detach().float() for v in terms.values())]).tolist()
+    loss, mse, rest = values[0], values[1], values[2:]
+    psnr = -10.0 * math.log10(mse) if mse > 0 else float("inf")
+    return {"loss": loss, "psnr": psnr, **dict(zip(terms, rest))}
 
 
 def train(backbone: nn.Module, split: Split, losses: LossSet, loop: LoopConfig | Mapping, *,
@@ -276,14 +308,18 @@ def _loop(run: _Run, losses: LossSet, batch_hook, evaluate, on_step, bar, stop: 
     try:
         while run.step < loop.steps:
             t0 = time.perf_counter()
-            loss, psnr, terms = _step(run, losses, batch_hook, run.step)
+            done = run.step + 1
+            logged = done % max(loop.log_every, 1) == 0 or done in (1, loop.steps)
+            values = _step(run, losses, batch_hook, run.step, record=logged or on_step is not None)
+            if done == loop.steps:
+                run.health.read(run)  # the last step's check belongs to the training time
             run.time_s += time.perf_counter() - t0
-            run.step += 1
-            record = {"step": run.step, "loss": loss, "psnr": psnr, **terms}
+            run.step = done
             bar.update(1)
-            if run.step % max(loop.log_every, 1) == 0 or run.step in (1, loop.steps):
+            record = None if values is None else {"step": run.step, **values}
+            if logged:
                 run.history.append(record)
-                bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{psnr:.2f}")
+                bar.set_postfix(loss=f"{record['loss']:.4f}", psnr=f"{record['psnr']:.2f}")
             if on_step is not None:
                 on_step(run.step, record)
             _periodic(run, evaluate, bar)
@@ -312,8 +348,13 @@ def loss_trend_warning(history: list[dict], desc: str) -> str | None:
 
 def _periodic(run: _Run, evaluate, bar) -> None:
     loop, s = run.loop, run.step
+    evaluating = evaluate is not None and loop.eval_every and s % loop.eval_every == 0 and s < loop.steps
+    saving = loop.checkpoint_every and s % loop.checkpoint_every == 0 and s < loop.steps
+    if not (evaluating or saving):
+        return
+    run.health.read(run)
     with torch.random.fork_rng(devices=[]):
-        if evaluate is not None and loop.eval_every and s % loop.eval_every == 0 and s < loop.steps:
+        if evaluating:
             run.backbone.eval()
             with torch.no_grad():
                 metrics = evaluate(s)
@@ -321,5 +362,5 @@ def _periodic(run: _Run, evaluate, bar) -> None:
             run.evals.append({"step": s, **metrics})
             bar.write(f"[{loop.desc}] step {s}: " + ", ".join(f"{k}={v:.4g}" for k, v in metrics.items()
                                                               if isinstance(v, (int, float))))
-        if loop.checkpoint_every and s % loop.checkpoint_every == 0 and s < loop.steps:
+        if saving:
             run.save()

@@ -15,13 +15,20 @@ from ..scene import Split
 __all__ = ["RaySampler", "ViewSampler", "make_sampler", "resize_scene", "resize_split"]
 
 
-def _masks4(split: Split, idx: Tensor) -> Tensor | None:
-    """``[C,H,W,1]`` float masks of views ``idx`` (None without masks)."""
-    return None if split.masks is None else split.masks[idx].to(split.images.dtype)[..., None]
+def _rows(t, idx: list[int]):
+    """Rows ``idx`` of a tensor or :class:`~arcsem.cameras.Cameras` without an index tensor (which a GPU would have
+    to receive from the host, a synchronisation): one row is a view, several a concatenation of views."""
+    if len(idx) == 1:
+        return t[idx[0]:idx[0] + 1]
+    parts = [t[i:i + 1] for i in idx]
+    return type(t).cat(parts) if hasattr(type(t), "cat") else torch.cat(parts)
 
 
 class ViewSampler:
-    """``batch_views`` views per step, a fresh random permutation of all views every epoch."""
+    """``batch_views`` views per step, a fresh random permutation of all views every epoch.
+
+    The split's images, masks and cameras are moved to ``device`` once; a step takes its views there by slicing
+    (the order is drawn on the host from the sampler's own generator, so it is the same on every device)."""
 
     def __init__(self, split: Split, batch_views: int = 1, seed: int = 0, device: str | torch.device = "cpu"):
         if len(split) == 0:
@@ -29,15 +36,17 @@ class ViewSampler:
         self.split, self.batch_views, self.device = split, min(batch_views, len(split)), torch.device(device)
         self.gen = torch.Generator().manual_seed(seed)
         self.order: list[int] = []
+        dev = self.device
+        self.cameras, self.images = split.cameras.to(dev), split.images.to(dev)
+        self.masks = None if split.masks is None else split.masks.to(dev, split.images.dtype)[..., None]  # [N,H,W,1]
+        self.ids = torch.arange(len(split), device=dev)
 
     def next(self) -> Batch:
         if len(self.order) < self.batch_views:
             self.order += torch.randperm(len(self.split), generator=self.gen).tolist()
         idx, self.order = self.order[: self.batch_views], self.order[self.batch_views:]
-        i = torch.tensor(idx, dtype=torch.long)
-        masks = _masks4(self.split, i)
-        return Batch(cameras=self.split.cameras[i].to(self.device), images=self.split.images[i].to(self.device),
-                     indices=i.to(self.device), masks=None if masks is None else masks.to(self.device))
+        return Batch(cameras=_rows(self.cameras, idx), images=_rows(self.images, idx), indices=_rows(self.ids, idx),
+                     masks=None if self.masks is None else _rows(self.masks, idx), views=tuple(idx))
 
     def state_dict(self) -> dict:
         return {"gen": self.gen.get_state(), "order": list(self.order)}

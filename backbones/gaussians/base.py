@@ -46,6 +46,8 @@ class GaussianBackbone(Backbone):
         self.model = GaussianModel(self._initial_params(scene), cfg.sh_degree)
         extent = float(scene.extent) if scene is not None else 1.0
         self.register_buffer("extent", torch.tensor(extent, dtype=torch.float64))
+        self.extent_value = extent  # host copy of the buffer (read without waiting for a device)
+        self._background: Tensor | None = None  # cfg.background on the model's device, made once
         self.act = act  # ACT or None; its parameters are optimised by the trainer (group "act")
         self.stage = "geometry"
         self.stats = DensifyStats.zeros(len(self.model))
@@ -77,13 +79,21 @@ class GaussianBackbone(Backbone):
         with region("arcsem::render/sh"):  # SH colours and ACT; profiler regions: benchmarks/profile_step.py
             colors = m.colors(cams, impl="torch" if impl == "gsplat" else impl, act=self.act)  # [C, N, 3]
         if background is None:
-            background = torch.tensor(self.cfg.background, dtype=m.means.dtype, device=m.means.device)
+            background = self._default_background(m.means)
         means, quats, scales, opacities = self.splat_params()
         out = self._rasterize(means, quats, scales, opacities, colors, cams, background=background,
                               tile=self.cfg.tile, chunk_tiles=self.cfg.chunk_tiles, impl=impl)
         if torch.is_grad_enabled():
             self._last_cams = cams  # the cameras whose gradient post_backward reads
         return out
+
+    def _default_background(self, like: Tensor) -> Tensor:
+        """``cfg.background`` ``[3]`` on ``like``'s device and dtype, made on the first render there (not each step:
+        a tensor from Python values is a transfer to the device)."""
+        bg = self._background
+        if bg is None or bg.device != like.device or bg.dtype != like.dtype:
+            bg = self._background = torch.tensor(self.cfg.background, dtype=like.dtype).to(like.device)
+        return bg
 
     def _impl(self, device) -> str:
         """The ``rasterizer`` choice resolved for ``device``: ``cpp`` (fused kernels: SH colours and the rasteriser),
@@ -123,7 +133,7 @@ class GaussianBackbone(Backbone):
     def learning_rates(self, stage: str) -> dict[str, GroupSchedule]:
         """The official rates of the groups of ``stage``; position: log-linear from init to final x extent over
         ``lr_position_max_steps``, the others constant."""
-        c, ext = self.cfg, float(self.extent)
+        c, ext = self.cfg, self.extent_value
         rates = {"xyz": GroupSchedule(c.lr_position_init * ext, c.lr_position_final * ext, c.lr_position_max_steps),
                  "f_dc": GroupSchedule(c.lr_feature), "f_rest": GroupSchedule(c.lr_feature_rest),
                  "opacity": GroupSchedule(c.lr_opacity), "scaling": GroupSchedule(c.lr_scaling),
@@ -145,7 +155,7 @@ class GaussianBackbone(Backbone):
         if self.stage != "geometry":
             return
         c, it = self.cfg, step + 1  # official 1-based iteration
-        self.model.active_sh_degree.fill_(active_sh_degree_at(it, c.sh_degree, c.sh_increase_every))
+        self.model.set_active_sh_degree(active_sh_degree_at(it, c.sh_degree, c.sh_increase_every))
         if not c.densify or it >= c.densify_until:
             return
         with torch.no_grad():
@@ -178,7 +188,7 @@ class GaussianBackbone(Backbone):
         c = self.cfg
         info = clone_split_prune(
             self.model, self.stats, optimizers, grad_threshold=c.densify_grad_threshold,
-            percent_dense=c.percent_dense, extent=float(self.extent), min_opacity=c.prune_opacity,
+            percent_dense=c.percent_dense, extent=self.extent_value, min_opacity=c.prune_opacity,
             max_screen_size=c.max_screen_size if screen else None, max_world_scale=c.max_world_scale,
         )
         self.stats = DensifyStats.zeros(len(self.model), device=self.model.means.device)
@@ -205,7 +215,7 @@ class GaussianBackbone(Backbone):
         if params["log_scales"].shape[1] != self.num_scales:
             raise ValueError(f"{path}: {params['log_scales'].shape[1]} scales, {self.name} needs {self.num_scales}")
         self.model.set_params(params)
-        self.model.active_sh_degree.fill_(min(self.cfg.sh_degree, math.isqrt(params["sh_rest"].shape[1] + 1) - 1))
+        self.model.set_active_sh_degree(min(self.cfg.sh_degree, math.isqrt(params["sh_rest"].shape[1] + 1) - 1))
         self.stats = DensifyStats.zeros(len(self.model), device=self.model.means.device)
 
     def get_extra_state(self) -> dict[str, Tensor]:
@@ -229,6 +239,7 @@ class GaussianBackbone(Backbone):
             n = len(sd.get("model.means", self.model.means))
             sd["_extra_state"] = DensifyStats.zeros(n).__dict__
         result = super().load_state_dict(sd, strict=strict, assign=assign)
+        self.extent_value = float(self.extent)
         if len(self.stats) != len(self.model):  # the model was edited outside densification: start afresh
             self.stats = DensifyStats.zeros(len(self.model), device=self.model.means.device)
         return result

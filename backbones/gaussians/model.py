@@ -13,7 +13,7 @@ parameter         shape                  activation
 ``sh_rest``       ``[N, K-1, 3]``        (K = (sh_degree + 1)^2)
 ================  =====================  ==========================================
 
-``active_sh_degree`` is a buffer (saved in checkpoints); it grows by one every
+``active_sh_degree`` is a buffer (saved in checkpoints; set it with ``set_active_sh_degree``); it grows by one every
 ``sh_increase_every`` steps in stage 1 (:func:`active_sh_degree_at`).
 """
 from __future__ import annotations
@@ -59,6 +59,17 @@ class GaussianModel(nn.Module):
         if self.log_scales.shape[0] != n or self.log_scales.shape[1] not in (2, 3):
             raise ValueError(f"GaussianModel: 'log_scales' has shape {tuple(self.log_scales.shape)}, expected [{n}, 2|3]")
         self.register_buffer("active_sh_degree", torch.zeros((), dtype=torch.long))
+        self._sh_active = 0  # host copy of the buffer: colors() reads it without waiting for a device
+
+    def set_active_sh_degree(self, degree: int) -> None:
+        """Set :attr:`active_sh_degree` (the buffer and its host copy; the buffer is written only on a change)."""
+        if degree != self._sh_active:
+            self.active_sh_degree.fill_(degree)
+            self._sh_active = int(degree)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        self._sh_active = int(self.active_sh_degree)  # one read, when a checkpoint is loaded
 
     # ------------------------------------------------------------------ activations
     def __len__(self) -> int:
@@ -100,7 +111,7 @@ class GaussianModel(nn.Module):
         ``degree`` defaults to :attr:`active_sh_degree`; ``impl``: ``torch`` (:func:`eval_sh` and :meth:`ACT.apply`,
         the reference) or ``cpp`` (one fused kernel, :func:`arcsem.backbones.gaussians.fused.sh_colors`; CPU tensors).
         """
-        deg = int(self.active_sh_degree) if degree is None else degree
+        deg = self._sh_active if degree is None else degree
         deg = min(deg, self.sh_degree)
         if impl == "cpp":
             from .fused import sh_colors

@@ -34,7 +34,7 @@ class GS2DBackbone(GaussianBackbone):
         from .render import distortion_depth
 
         try:
-            return distortion_depth(self.cfg.distortion_depth, float(self.extent))
+            return distortion_depth(self.cfg.distortion_depth, self.extent_value)
         except ValueError as e:
             raise ConfigError(f"backbone.{e}") from None
 

@@ -9,6 +9,7 @@ from trainer_util import L1_DSSIM, loop, tiny_scene
 from arcsem.errors import TrainingError
 from arcsem.train import loop as loop_module
 from arcsem.train.loop import loss_trend_warning, train
+from arcsem.train.checkpoint import load_checkpoint
 from arcsem.train.losses import build_losses
 
 
@@ -93,3 +94,31 @@ def test_a_learning_rate_that_wrecks_training_is_warned_about():
     assert loss_trend_warning(sane.history, "stage 1") is None
     warning = loss_trend_warning(bad.history, "stage 1")
     assert warning is not None and "the model got worse while training" in warning and "train.optim" in warning
+
+
+@pytest.mark.parametrize("check_every", [1, 4])
+def test_a_parameter_whose_sum_overflows_is_finite(check_every):
+    """The step notes a parameter's finiteness by its sum: two elements of 3e38 (finite float32) sum to inf, which
+    the read tells apart element by element, every step (CPU) or every few (as on a GPU); training goes on."""
+    scene = tiny_scene()
+    bb = build(scene)
+    with torch.no_grad():
+        bb.logits.view(-1)[:2] = 3e38  # sigmoid saturates: no gradient, Adam leaves them
+    res = train(bb, scene.train, build_losses(L1_DSSIM, bb.provides), loop(8, check_every=check_every))
+    assert res.steps == 8 and torch.isinf(bb.logits.detach().sum()) and torch.isfinite(bb.logits).all()
+
+
+def test_deferred_checks_name_the_first_bad_step_and_write_nothing_after_it(tmp_path):
+    """As on a GPU (checks read every 5 steps): a gradient NaN from step 3 is found at the checkpoint of step 4
+    (read before writing), named by its first step; the checkpoint of step 2 stays the one on disk."""
+    scene = tiny_scene()
+    bb = build(scene)
+    _nan_gradient_from(bb, 3)
+    ckpt = tmp_path / "ckpt" / "last.pt"
+    with pytest.raises(TrainingError) as info:
+        train(bb, scene.train, build_losses(L1_DSSIM, bb.provides), loop(20, checkpoint_every=2, check_every=5),
+              ckpt_dir=tmp_path / "ckpt")
+    msg = str(info.value)
+    assert msg.startswith("step 3: parameter group 'image' is not finite (after the optimiser step)"), msg
+    assert msg.endswith(f"the checkpoint on disk is from step 2 ({ckpt})"), msg
+    assert load_checkpoint(ckpt)["step"] == 2

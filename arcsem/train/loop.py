@@ -101,13 +101,14 @@ class _Health:
     """Whether every loss term and parameter of each step is finite, computed on the model's device and read back
     every ``every`` steps: 1 on the CPU, where a read costs nothing; ``log_every`` on a GPU, where each read is a
     host synchronisation. Also read before every checkpoint and evaluation, and at the end, so nothing is written
-    after a failure. A non-finite gradient makes its parameters non-finite in the optimiser step (Adam: m, v and
-    the update), so parameters are checked every step and gradients, the usual cause, are named when a parameter
-    fails in the step just taken (they are gone by the next one)."""
+    after a failure. A parameter is checked by its sum (one pass; a non-finite element makes it non-finite); a sum
+    that overflowed is told apart when read, element by element. A non-finite gradient makes its parameters
+    non-finite in the optimiser step (Adam: m, v and the update), so gradients, the usual cause, are named when a
+    parameter fails in the step just taken (they are gone by the next one)."""
 
     def __init__(self, every: int):
         self.every, self.names, self.first = every, (), None  # first: [K] long, first bad step of each slot (-1: none)
-        self.step, self.grads = -1, {}
+        self.step, self.params, self.grads = -1, [], {}
 
     def record(self, run: _Run, step: int, terms: Mapping[str, torch.Tensor], params: Mapping[str, list],
                grads: Mapping[str, list]) -> None:
@@ -117,9 +118,9 @@ class _Health:
         if names != self.names:  # the active terms or the groups changed: read what the old layout holds first
             self.read(run)
             self.names, self.first = names, None
-        flat = [p.detach() for ps in params.values() for p in ps]
+        self.params = [p.detach() for ps in params.values() for p in ps]
         values = [v.detach().float().reshape(1) for v in terms.values()]
-        values += [n.float().reshape(1) for n in torch._foreach_norm(flat, math.inf)]  # max |x|: NaN and inf stay
+        values += [p.sum().float().reshape(1) for p in self.params]
         bad = ~torch.isfinite(torch.cat(values))
         start = torch.full_like(bad, -1, dtype=torch.long) if self.first is None else self.first
         self.first = torch.where((start < 0) & bad, step, start)
@@ -132,8 +133,12 @@ class _Health:
         """Raise :class:`TrainingError` naming the first step, term or group that was not finite (one host read)."""
         if self.first is None:
             return
-        first = self.first.tolist()
+        first, n_terms = self.first.tolist(), len(self.names) - len(self.params)
         bad = [(s, i) for i, s in enumerate(first) if s >= 0]
+        for s, i in list(bad):  # a parameter whose sum overflowed while every element is finite
+            if i >= n_terms and bool(torch.isfinite(self.params[i - n_terms]).all()):
+                bad.remove((s, i))
+                self.first[i] = -1
         if not bad:
             return
         step, i = min(bad)

@@ -182,12 +182,18 @@ def test_state_dict_survives_a_different_number_of_gaussians(tmp_path):
     a = build("gs2d", scene)
     with torch.no_grad():
         a.model.set_params({k: torch.cat([v, v[:5]]) for k, v in a.model.params().items()})
+        a.model.set_params({"sh_rest": 0.3 * torch.randn_like(a.model.sh_rest)})  # colours that vary with the degree
     a.model.set_active_sh_degree(2)
     b = build("gs2d", scene_of(points=10), act=None)
     b.load_state_dict(a.state_dict())
     assert b.num_primitives() == 45 and int(b.model.active_sh_degree) == 2
     for k, v in a.model.params().items():
         torch.testing.assert_close(getattr(b.model, k), v)
+    # the loaded model colours with the loaded degree (its host copy follows the buffer: a stage-2 model drew with
+    # degree 0 once, 1 dB of colour lost)
+    cams = scene.train.cameras
+    torch.testing.assert_close(b.model.colors(cams), a.model.colors(cams))
+    assert not torch.allclose(b.model.colors(cams), b.model.colors(cams, degree=0))
     with_act = build("gs2d", scene, act=ACT(3))
     b.load_state_dict(with_act.state_dict())  # stage 2 (no ACT) loads a stage-1 checkpoint
     with pytest.raises(RuntimeError):

@@ -67,10 +67,6 @@ class GaussianModel(nn.Module):
             self.active_sh_degree.fill_(degree)
             self._sh_active = int(degree)
 
-    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
-        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
-        self._sh_active = int(self.active_sh_degree)  # one read, when a checkpoint is loaded
-
     # ------------------------------------------------------------------ activations
     def __len__(self) -> int:
         return self.means.shape[0]
@@ -144,3 +140,4 @@ class GaussianModel(nn.Module):
                 p.data = torch.empty(state_dict[key].shape, dtype=p.dtype, device=p.device)
                 p.grad = None
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        self._sh_active = int(self.active_sh_degree)  # the host copy: one read, when a checkpoint is loaded

@@ -1,29 +1,82 @@
 #!/usr/bin/env bash
-# The GPU checks of issue 21 on a machine with CUDA and its own PyTorch (no network there): install the
-# wheels arcsem needs beside that PyTorch (downloaded beforehand into .whl/ on a machine with network, see
-# below), arcsem itself, run the CUDA-marked tests and time the demo with device=cuda. Writes into ${OUT:-/tmp/gpu_check}.
+# Every GPU check in one call, on a bare CUDA machine with its own PyTorch and no network (docs/gpu.md):
+#   setup    install the carried wheels (.whl/), arcsem itself, gsplat's CUDA library (.gpu/gsplat_csrc.so when
+#            carried, else built once, ~minutes, and left in $OUT for the next machine) and the built-in scene
+#            (.gpu/scene.tar.xz, made on the CPU machine: the scene generator needs pycolmap, 38 MB)
+#   tests    pytest -m cuda
+#   launch   gsplat's 2DGS backward at 8/16/32-px tiles and its kernels' register counts
+#   profile  stage 1 of the demo: steps/s, SM utilisation, host syncs, kernels (benchmarks/gpu/stage1_profile.py)
+#   demo     the whole `make demo` job with device=cuda, both rasterisers, nvidia-smi dmon sampling
+# then writes $OUT/gpu_check.json (device, cuda_tests_failed, stage1_steps_per_s, sm_util_pct, stage2_complete,
+# demo_wall_s, ...). Parts: GPU_CHECK_PARTS (default all).
 #
-#   # on a machine with network, from the repository root (cp312 wheels for the GPU machine's Python 3.12):
-#   pip download --no-deps --only-binary=:all: --python-version 3.12 --platform manylinux_2_28_x86_64 -d .whl \
-#     hydra-core==1.3.8 omegaconf==2.3.1 hydra-joblib-launcher==1.2.0 lpips==0.1.4 pycolmap==4.2.1 trimesh==5.2.0 plyfile==1.1.5
-#   pip wheel --no-deps -w .whl antlr4-python3-runtime==4.9.3
+#   # on the CPU machine, from the repository root (cp312 wheels for the GPU machine's Python 3.12):
+#   benchmarks/gpu/prepare.sh          # .whl/ and .gpu/scene.tar.xz (both git-ignored; 25 MB together)
 #   # on the GPU machine, from the repository root:
-#   benchmarks/gpu_check.sh
+#   benchmarks/gpu_check.sh            # results in ${OUT:-/tmp/gpu_check}
 set -uo pipefail
 OUT=${OUT:-/tmp/gpu_check}
+PARTS=${GPU_CHECK_PARTS:-setup,tests,profile,demo,launch}
 mkdir -p "$OUT"
-export PYTHONUNBUFFERED=1 TQDM_DISABLE=1
-python3 -m pip install -q --no-deps --no-index .whl/*.whl
-python3 -m pip install -q --no-deps --no-build-isolation -e .
-python3 -c "import torch; print('torch', torch.__version__, torch.cuda.get_device_name())"
-python3 -m pytest -v -m cuda tests/test_cuda.py -p no:cacheprovider -o addopts="" 2>&1 | tee "$OUT/cuda_tests.log"
-/usr/bin/time -v arcsem experiment=demo device=cuda hydra.run.dir="$OUT/demo" > "$OUT/demo_stdout.log" 2> "$OUT/demo_stderr.log"
-echo "demo exit status $?"
-grep -E "Elapsed|Maximum resident" "$OUT/demo_stderr.log"
-python3 - "$OUT/demo/metrics.json" <<'PY'
-import json, sys
-m = json.load(open(sys.argv[1]))
-print("timings s:", {k: round(v, 1) for k, v in m["timings"].items()})
-print("stage 1 held-out PSNR %.2f SSIM %.3f; %.1f steps/s" % (m["stage1"]["test"]["psnr"], m["stage1"]["test"]["ssim"], m["stage1"]["steps_per_s"]))
-print("stage 2 held-out PSNR %.2f SSIM %.3f" % (m["stage2"]["test"]["psnr"], m["stage2"]["test"]["ssim"]))
-PY
+export PYTHONUNBUFFERED=1 TQDM_DISABLE=1 ARCSEM_CACHE=/tmp/arcsem_cache PYTHONWARNINGS=ignore::DeprecationWarning
+has() { [[ ",$PARTS," == *",$1,"* ]]; }
+T0=$(date +%s)
+stamp() { echo "== $1 ($(( $(date +%s) - T0 )) s)"; }
+
+if has setup; then
+  stamp setup
+  python3 -m pip install -q --no-index --no-deps --no-compile .whl/*.whl 2>&1 | grep -v -i warning
+  python3 -m pip install -q --no-index --no-deps --no-build-isolation -e . 2>&1 | grep -v -i warning
+  mkdir -p "$ARCSEM_CACHE" && tar -xJf .gpu/scene.tar.xz -C "$ARCSEM_CACHE"
+  if [ -f .gpu/gsplat_csrc.so ]; then
+    python3 benchmarks/gpu/gsplat_build.py --install .gpu/gsplat_csrc.so
+  else
+    python3 benchmarks/gpu/gsplat_build.py --out "$OUT/gsplat_csrc.so"
+  fi
+  python3 -c "import torch, gsplat; print('torch', torch.__version__, 'CUDA', torch.version.cuda, torch.cuda.get_device_name(), 'gsplat', gsplat.__version__)"
+fi
+
+if has tests; then
+  stamp tests
+  timeout "${TESTS_TIMEOUT:-420}" python3 -m pytest -q -m cuda tests/test_cuda.py tests/test_gsplat_bridge.py -p no:cacheprovider \
+    -o addopts="" -W ignore::DeprecationWarning 2>&1 | tee "$OUT/cuda_tests.log" | tail -25
+fi
+
+if has profile; then
+  stamp profile
+  declare -A VARIANT=([gs2d]="backbone.rasterizer=auto" [gs2d_gsplat]="backbone.rasterizer=gsplat"
+    [gs3d]="backbone=gs3d backbone.rasterizer=auto" [gs3d_gsplat]="backbone=gs3d backbone.rasterizer=gsplat")
+  for name in ${PROFILE_VARIANTS:-gs2d gs2d_gsplat gs3d gs3d_gsplat}; do
+    ov=${VARIANT[$name]}
+    echo "=== $name" >> "$OUT/profile.log"
+    # shellcheck disable=SC2086
+    timeout 150 python3 benchmarks/gpu/stage1_profile.py --name "$name" --steps "${PROFILE_STEPS:-300}" \
+      --json "$OUT/gpu_profile.json" -- $ov >> "$OUT/profile.log" 2>&1 || echo "profile $name failed (exit $?)"
+    python3 benchmarks/gpu/summary.py --profile "$OUT/gpu_profile.json" "$name"
+  done
+fi
+
+if has demo; then
+  stamp demo
+  for r in auto gsplat; do
+    nvidia-smi dmon -s u -d 1 -o T > "/tmp/dmon_$r.txt" 2>&1 & DMON=$!
+    s=$(date +%s.%N)
+    timeout "${DEMO_TIMEOUT:-300}" arcsem experiment=demo device=cuda backbone.rasterizer=$r hydra.run.dir="/tmp/demo_$r" \
+      > "/tmp/demo_$r.log" 2>&1
+    rc=$?
+    wall=$(python3 -c "print(round($(date +%s.%N) - $s, 1))")
+    kill $DMON 2>/dev/null
+    echo "demo $r: exit $rc in $wall s"
+    { echo "=== demo $r: exit $rc, $wall s"; tail -40 "/tmp/demo_$r.log"; echo "--- dmon"; cat "/tmp/dmon_$r.txt"; } >> "$OUT/demo.log"
+    python3 benchmarks/gpu/summary.py --demo "/tmp/demo_$r" "$r" "$rc" "$wall" "/tmp/dmon_$r.txt" "$OUT/demo_metrics.json"
+    python3 benchmarks/gpu/summary.py --check "$OUT" > /dev/null
+  done
+fi
+
+if has launch; then
+  stamp launch
+  timeout 120 python3 benchmarks/gpu/gsplat_launch.py 2>&1 | tail -30
+fi
+
+stamp summary
+python3 benchmarks/gpu/summary.py --check "$OUT"

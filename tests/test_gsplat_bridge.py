@@ -32,6 +32,15 @@ def _assert_close(a, b, what, tol=1e-11):
     assert err < tol, f"{what}: relative error {err:.2e} (gsplat against ours)"
 
 
+def _assert_all_close(named: dict, tol: float) -> None:
+    """Every ``name: (gsplat, ours)`` pair within ``tol`` (relative, as :func:`_assert_close`); all errors are listed
+    at once (a GPU is rare here: one run should show every figure)."""
+    errs = {n: ((a - b).abs().max() / b.abs().max().clamp_min(1e-12)).item() for n, (a, b) in named.items()}
+    bad = {n: f"{e:.2e}" for n, e in errs.items() if not e < tol}
+    assert not bad, f"relative errors above {tol:g} (gsplat against ours): {bad}; all: " + \
+        ", ".join(f"{n} {e:.2e}" for n, e in errs.items())
+
+
 def _inside_clamp(means, cams):
     """gsplat (as the official 3DGS) evaluates the Jacobian at the centre clamped to 1.3x the frustum: the
     scenes must lie inside it for the two projections to agree (ours does not clamp)."""
@@ -207,15 +216,18 @@ def test_gsplat_renders_equal_ours_on_cuda(kind, model):
         loss = sum((out[k] * torch.rand(out[k].shape, generator=g).cuda()).sum() for k in outs)
         res.append([out[k].detach().cpu() for k in outs] + [x.cpu() for x in torch.autograd.grad(loss, p)])
     tol = 1e-3 if kind == "gs3d" else 1e-2  # float32, other summation orders; 2DGS: its low-pass centre differs
-    for name, a, b in zip(outs + ("means", "quats", "scales", "opacities", "colors"), res[1], res[0]):
-        _assert_close(a, b, name, tol=tol)
+    names = outs + ("means", "quats", "scales", "opacities", "colors")
+    _assert_all_close({n: (a, b) for n, a, b in zip(names, res[1], res[0])}, tol)
 
 
 @pytest.mark.cuda
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device (torch.cuda.is_available())")
 def test_gsplat_2dgs_depth_outputs_equal_ours_for_splats_facing_the_camera():
     """Splats parallel to the image plane: the depth where a ray meets one is its centre depth, so gsplat's depth
-    channels (bridge) equal ours: expected and median depth, distortion (linear ``m``), values and gradients."""
+    channels (bridge) equal ours: expected and median depth, distortion (linear ``m``), values and their gradients
+    w.r.t. means and scales. Not w.r.t. rotations: tilting a splat moves the depth where a ray meets it (ours) but
+    not its centre depth (gsplat's), so the two agree in value and differ in that derivative (an H200 run found
+    1.15 relative, the values and the means' gradient within 1e-2)."""
     from arcsem.backbones.gaussians.gsplat_bridge import render_gsplat_2dgs
     from arcsem.backbones.gs2d.render import render_2dgs
 
@@ -235,6 +247,5 @@ def test_gsplat_2dgs_depth_outputs_equal_ours_for_splats_facing_the_camera():
         out = fn(*p, cams, tile=16, dist_depth=(0.0, 0.25, 0.0), **kw)
         g = torch.Generator().manual_seed(2)
         loss = sum((out[k] * torch.rand(out[k].shape, generator=g).cuda()).sum() for k in outs)
-        res.append([out[k].detach().cpu() for k in outs] + [x.cpu() for x in torch.autograd.grad(loss, p[:3])])
-    for name, a, b in zip(outs + ("means", "quats", "scales"), res[1], res[0]):
-        _assert_close(a, b, name, tol=1e-2)
+        res.append([out[k].detach().cpu() for k in outs] + [x.cpu() for x in torch.autograd.grad(loss, [p[0], p[2]])])
+    _assert_all_close({n: (a, b) for n, a, b in zip(outs + ("means", "scales"), res[1], res[0])}, 1e-2)

@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 
+from arcsem.errors import DataError
 from arcsem.sem.image import read_sem_image
 from arcsem.sem.metadata import parse_fei, parse_hitachi, parse_jeol, parse_tescan, parse_zeiss
 
@@ -105,3 +106,85 @@ def test_sidecars(tmp_path):
     cv2.imwrite(str(tmp_path / "none.png"), img)
     m = read_sem_image(tmp_path / "none.png").meta
     assert m.vendor == "none" and m.missing == ["tilt_deg", "rotation_deg", "pixel_size_m"]
+
+
+LOSSLESS = ("lzw", "adobe_deflate", "packbits", "zstd", "lzma")
+
+
+@pytest.mark.parametrize("compression", [*LOSSLESS, "jpeg"])
+def test_every_tiff_compression_reads_in_both_readers(tmp_path, compression):
+    """SEM software writes LZW (Zeiss, by default), Deflate, PackBits, JPEG-in-TIFF, ZSTD: the calibration reader and
+    the dataset reader both read each (tifffile with imagecodecs; OpenCV's own TIFF support lacks ZSTD and LZMA)."""
+    import tifffile
+
+    from arcsem.data.io import read_image
+
+    rng = np.random.default_rng(1)
+    img = rng.integers(0, 256, size=(48, 64), dtype=np.uint8) if compression == "jpeg" else \
+        rng.integers(0, 65536, size=(48, 64), dtype=np.uint16)
+    path = tmp_path / f"{compression}.tif"
+    tifffile.imwrite(path, img, compression=compression, metadata=None,
+                     extratags=[(34118, 2, 0, ZEISS.encode("latin-1"), True)])
+    im = read_sem_image(path)
+    got, _ = read_image(path)
+    assert im.meta.vendor == "zeiss" and im.meta.tilt_deg == -9.0
+    scale = 255.0 if img.dtype == np.uint8 else 65535.0
+    if compression in LOSSLESS:
+        np.testing.assert_array_equal(im.pixels, img)
+        np.testing.assert_array_equal(got, np.repeat((img / scale).astype(np.float32)[..., None], 3, -1))
+    else:  # lossy: within the codec's error of the original, alike in both readers
+        assert np.abs(im.pixels.astype(int) - img).mean() < 20
+        np.testing.assert_allclose(got[..., 0], im.pixels / scale, atol=1e-6)
+
+
+def test_tiled_and_multi_page_tiffs(tmp_path):
+    import tifffile
+
+    from arcsem.data.io import read_image
+
+    img = (np.arange(40 * 56).reshape(40, 56) % 251).astype(np.uint8)
+    tifffile.imwrite(tmp_path / "tiled.tif", img, tile=(16, 16), compression="lzw", metadata=None)
+    np.testing.assert_array_equal(read_sem_image(tmp_path / "tiled.tif").pixels, img)
+    with tifffile.TiffWriter(tmp_path / "pages.tif") as w:
+        w.write(img, metadata=None)
+        w.write(255 - img, metadata=None)
+    im = read_sem_image(tmp_path / "pages.tif")
+    np.testing.assert_array_equal(im.pixels, img)
+    assert "2 pages: the first is used" in im.notes
+    np.testing.assert_array_equal(read_image(tmp_path / "pages.tif")[0][..., 0], img / np.float32(255))
+
+
+def test_a_tiff_codec_missing_says_what_to_install(tmp_path, monkeypatch):
+    import tifffile
+
+    tifffile.imwrite(tmp_path / "z.tif", np.zeros((8, 8), np.uint8), compression="zstd", metadata=None)
+    real = tifffile.TiffPage.asarray
+
+    def no_codec(self, *a, **k):
+        raise ValueError("<COMPRESSION.ZSTD: 50000> requires the 'imagecodecs' package")
+    monkeypatch.setattr(tifffile.TiffPage, "asarray", no_codec)
+    with pytest.raises(DataError, match=r"z\.tif: cannot read TIFF .*requires the 'imagecodecs' package; install "
+                                        r"it with pip install imagecodecs"):
+        read_sem_image(tmp_path / "z.tif")
+    monkeypatch.setattr(tifffile.TiffPage, "asarray", real)
+
+
+@pytest.mark.parametrize("stored,expect_nm,note", [
+    ((1024, 768), 5.825, None),                    # as scanned
+    ((768, 1024), 5.825, "stored turned by 90 degrees"),  # stored upright: turned, not resized
+    ((512, 384), 11.65, "resized after acquisition"),     # half the scan: pixels twice as large
+])
+def test_pixel_size_of_a_turned_or_resized_image(tmp_path, stored, expect_nm, note):
+    """Zeiss records the scan (Store resolution 1024 x 768, 5.825 nm): an image stored a quarter turn from it keeps
+    its pixel size (read before as resized, 1.33x too large), one stored at half size has twice it."""
+    from arcsem.sem.series import read_series
+
+    w, h = stored
+    rng = np.random.default_rng(0)
+    for i, tilt in enumerate((-3.0, 0.0, 3.0)):
+        text = ZEISS.replace("Stage at T =  -9.0", f"Stage at T =  {tilt}")
+        _tif(tmp_path / f"v{i}.tif", rng.integers(20, 230, size=(h, w), dtype=np.uint8), 34118, text)
+    s = read_series(tmp_path)
+    assert s.pixel_sizes == pytest.approx([expect_nm * 1e-9] * 3, rel=1e-3)
+    notes = " ".join(s.images[0].notes)
+    assert (note in notes) if note else ("turned" not in notes and "resized" not in notes)

@@ -45,15 +45,26 @@ def _cv2():
     return cv2
 
 
+def _read_pixels(path: Path) -> tuple[np.ndarray, bool]:
+    """The stored array of an image and whether its channels are BGR (OpenCV) rather than RGB (TIFF)."""
+    if Path(path).suffix.lower() in (".tif", ".tiff"):  # every compression, the Orientation tag applied
+        from ..sem.image import orient, read_tiff
+
+        arr, orientation, _ = read_tiff(Path(path), [])
+        return orient(arr, orientation), False
+    img = _cv2().imread(str(path), _cv2().IMREAD_UNCHANGED)
+    if img is None:
+        raise DataError(f"{path}: cannot read image (missing, corrupt or unsupported format)")
+    return img, True
+
+
 def read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     """8/16-bit or float PNG/TIFF/JPEG -> ``[H, W, 3]`` float32 in [0, 1] and alpha ``[H, W]`` or None.
 
-    Grey images become three equal channels; colour images are returned as RGB.
+    Grey images become three equal channels; colour images are returned as RGB. TIFFs are read with tifffile
+    (:func:`arcsem.sem.image.read_tiff`: any compression, first page), the rest with OpenCV.
     """
-    cv2 = _cv2()
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise DataError(f"{path}: cannot read image (missing, corrupt or unsupported format)")
+    img, bgr = _read_pixels(path)
     if img.dtype == np.uint8:
         img = img.astype(np.float32) / 255.0
     elif img.dtype == np.uint16:
@@ -72,10 +83,10 @@ def read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
         img, alpha = img[..., :-1], img[..., -1]
     if img.shape[-1] == 1:
         img = np.repeat(img, 3, axis=-1)
-    elif img.shape[-1] == 3:
-        img = img[..., ::-1]  # BGR -> RGB
-    else:
+    elif img.shape[-1] != 3:
         raise DataError(f"{path}: unsupported channel count {img.shape[-1]}")
+    elif bgr:
+        img = img[..., ::-1]  # BGR -> RGB
     return np.ascontiguousarray(img), alpha
 
 

@@ -1,6 +1,7 @@
 """One SEM image from disk: grey pixels at their bit depth, upright, and its vendor metadata.
 
-TIFF files are read with ``tifffile`` (first page; palette images through their colour map; the TIFF
+TIFF files are read with ``tifffile`` and ``imagecodecs`` (every compression: LZW, Deflate, PackBits, JPEG,
+ZSTD, LZMA, JPEG 2000; first page; tiled or in strips; palette images through their colour map; the TIFF
 ``Orientation`` tag applied); PNG, JPEG and BMP with OpenCV (JPEG: EXIF orientation applied by OpenCV).
 Metadata: TIFF tags 34118 (Zeiss), 34682 (FEI/Thermo Fisher), 50431 (TESCAN), else a sidecar next to
 the image: ``<stem>.hdr`` (TESCAN), ``<stem>.txt`` (Hitachi ``[SemImageFile]`` or JEOL ``$CM_FORMAT``).
@@ -16,7 +17,7 @@ import numpy as np
 from ..errors import DataError
 from .metadata import SemMeta, parse_fei, parse_hitachi, parse_jeol, parse_tescan, parse_zeiss
 
-__all__ = ["IMAGE_SUFFIXES", "SemImage", "read_sem_image", "to_unit"]
+__all__ = ["IMAGE_SUFFIXES", "SemImage", "orient", "read_sem_image", "read_tiff", "to_unit"]
 
 IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".jpg", ".jpeg", ".bmp")
 _TAGS = {34118: parse_zeiss, 34682: parse_fei, 50431: parse_tescan}
@@ -81,7 +82,8 @@ def _grey(arr: np.ndarray, path: Path, notes: list[str]) -> np.ndarray:
     raise DataError(f"{path}: unsupported pixel type {arr.dtype}")
 
 
-def _orient(arr: np.ndarray, code: int) -> np.ndarray:
+def orient(arr: np.ndarray, code: int) -> np.ndarray:
+    """``arr [H, W, ...]`` as stored -> upright, by the TIFF/EXIF orientation ``code`` (1..8)."""
     for op in _ORIENT.get(code, ()):
         arr = {"fliplr": np.fliplr, "flipud": np.flipud, "transpose": np.transpose,
                "rot90": np.rot90, "rot180": lambda a: np.rot90(a, 2), "rot270": lambda a: np.rot90(a, 3)}[op](arr)
@@ -96,7 +98,9 @@ def _tag_text(tif, tag) -> str:
     return raw.replace(b"\x00", b"").decode("latin-1")
 
 
-def _read_tiff(path: Path, notes: list[str]) -> tuple[np.ndarray, int, SemMeta | None]:
+def read_tiff(path: Path, notes: list[str]) -> tuple[np.ndarray, int, SemMeta | None]:
+    """The first page of a TIFF as stored (any compression: tifffile with imagecodecs), its Orientation tag and its
+    vendor metadata. The one TIFF reader of arcsem (datasets too: :func:`arcsem.data.io.read_image`)."""
     import tifffile
 
     try:
@@ -117,7 +121,10 @@ def _read_tiff(path: Path, notes: list[str]) -> tuple[np.ndarray, int, SemMeta |
                     meta = parse(_tag_text(tif, page.tags[code]))
                     break
     except (tifffile.TiffFileError, ValueError, OSError, IndexError) as exc:
-        raise DataError(f"{path}: cannot read TIFF ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if "imagecodecs" in why:  # a codec this installation lacks: say what to install
+            why += "; install it with pip install imagecodecs (a dependency of arcsem: reinstall with make setup)"
+        raise DataError(f"{path}: cannot read TIFF ({why})") from None
     return arr, orientation, meta
 
 
@@ -167,8 +174,8 @@ def read_sem_image(path: str | Path) -> SemImage:
     notes: list[str] = []
     meta, orientation = None, 1
     if path.suffix.lower() in (".tif", ".tiff"):
-        arr, orientation, meta = _read_tiff(path, notes)
-        arr = _orient(arr, orientation)
+        arr, orientation, meta = read_tiff(path, notes)
+        arr = orient(arr, orientation)
     else:
         arr = _read_other(path)
     pixels = _grey(arr, path, notes)

@@ -117,14 +117,20 @@ def parse_tilts(spec: str, files: list[Path]) -> tuple[list[float], list[float |
 
 
 def _pixel_size(im: SemImage) -> float | None:
-    """The image's pixel size in metres, scaled when it was stored at another resolution than it has."""
-    p = im.meta.pixel_size_m
+    """The image's pixel size in metres, scaled when it was stored at another resolution than it has; an image
+    stored a quarter turn from the scan (the metadata's width and height swapped) keeps it: it was turned, not
+    resized (a Zeiss series stored upright, 1536 x 2048 from a 2048 x 1536 scan)."""
+    p, (w, h), store = im.meta.pixel_size_m, im.size, im.meta.store_size
+    turned = store is not None and store != (w, h) and store == (h, w)
+    if turned:
+        im.notes.append(f"stored turned by 90 degrees from the scan ({store[0]} x {store[1]} scanned, {w} x {h} "
+                        "stored): pixel size kept")
     if p is None and im.meta.field_width_m:
-        p = im.meta.field_width_m / im.size[0]
-        im.notes.append("pixel size = field width / image width")
-    elif p and im.meta.store_size and im.meta.store_size[0] != im.size[0]:
-        p = p * im.meta.store_size[0] / im.size[0]
-        im.notes.append(f"resized after acquisition ({im.meta.store_size[0]} -> {im.size[0]} px wide): pixel size scaled")
+        p = im.meta.field_width_m / (h if turned else w)  # the field width runs along the scan lines
+        im.notes.append(f"pixel size = field width / the scan lines' {'height' if turned else 'width'} in pixels")
+    elif p and store and not turned and store[0] != w:
+        p = p * store[0] / w
+        im.notes.append(f"resized after acquisition ({store[0]} -> {w} px wide): pixel size scaled")
     return p
 
 

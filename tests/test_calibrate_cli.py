@@ -184,3 +184,13 @@ def test_tiny_far_pinhole_scene_calibrates_as_a_pinhole(tmp_path_factory, tmp_pa
     img = next(im for im in rec.images.values() if im.name == "h_00.png")
     w2c = scene.train.cameras.world_to_cam[scene.train.names.index("h_00")].double().numpy()
     np.testing.assert_allclose(img.cam_from_world().matrix(), w2c[:3], atol=1e-6)
+
+
+def test_negative_tilts_as_the_readme_writes_them(tmp_path, capsys):
+    """``--tilts -9,0,9`` (a value that starts with '-'): argparse read it as an option and stopped with a usage
+    message; it is the list of tilts (here one too few, so the run stops at the count, past argparse)."""
+    folder = write_series(tmp_path / "in", n=3)
+    code, err = run(capsys, folder, "--out", tmp_path / "out", "--tilts", "-9,0")
+    assert code == 2 and "--tilts has 2 value(s)" in err
+    code, err = run(capsys, folder, "--out", tmp_path / "out", "--tilts", "-9,-0.5,9", "--inspect")
+    assert code == 0

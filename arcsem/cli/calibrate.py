@@ -13,6 +13,7 @@ the input folder is never written.
 from __future__ import annotations
 
 import argparse
+import re
 import shlex
 import shutil
 import sys
@@ -157,8 +158,22 @@ def _write(out: Path, series, cal, args, opts) -> None:
         write_report(out, series, cal, {k: v for k, v in vars(opts).items()}, command)
 
 
+def _join_negative_values(argv: list[str]) -> list[str]:
+    """``--tilts -15,-9,0`` as written: argparse takes a value that starts with '-' for an option unless it is one
+    number, so a list of numbers is joined to its option (``--tilts=-15,-9,0``)."""
+    out, i = [], 0
+    while i < len(argv):
+        if argv[i] == "--tilts" and i + 1 < len(argv) and re.fullmatch(r"-[\d.,eE+\s-]*", argv[i + 1]):
+            out.append(f"--tilts={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(argv[i])
+        i += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = build_parser().parse_args(_join_negative_values(list(sys.argv[1:] if argv is None else argv)))
     from .errors import call_reporting_errors
 
     def run() -> int:

@@ -93,3 +93,27 @@ def test_optimiser_state_survives_a_round_trip(tmp_path):
         (mm.points**2 - 1).sum().backward()
         oo.step()
     assert torch.equal(m.points, m2.points)
+
+
+def test_resume_removes_what_a_killed_checkpoint_write_left(tmp_path):
+    """A SIGKILL during a checkpoint write leaves ``.last.pt.<random>.tmp``; the next run of the same command
+    removes it (untouched for 30 s: a write in progress keeps its file) and resumes from the checkpoint."""
+    import os
+    import time
+
+    from test_trainer import build
+    from trainer_util import L1_DSSIM, loop, tiny_scene
+
+    from arcsem.train.loop import train
+    from arcsem.train.losses import build_losses
+
+    scene = tiny_scene()
+    ck = tmp_path / "ck"
+    bb = build(scene)
+    train(bb, scene.train, build_losses(L1_DSSIM, bb.provides), loop(4), ckpt_dir=ck)
+    stale, fresh = ck / ".last.pt.k1ll3d.tmp", ck / ".last.pt.wr1t1ng.tmp"
+    stale.write_bytes(b"x" * 1000)
+    fresh.write_bytes(b"y")
+    os.utime(stale, (time.time() - 120, time.time() - 120))
+    res = train(build(scene), scene.train, build_losses(L1_DSSIM, bb.provides), loop(6), ckpt_dir=ck)
+    assert res.resumed_from == 4 and not stale.exists() and fresh.exists()

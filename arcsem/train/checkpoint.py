@@ -18,6 +18,7 @@ import io
 import json
 import pickle
 import random
+import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -115,6 +116,23 @@ def save_checkpoint(path: str | Path, state: dict) -> Path:
         kept = "the previous checkpoint is intact" if path.is_file() else "no checkpoint is on disk"
         raise OutputError(f"cannot write checkpoint {path}: {exc.strerror or exc} ({kept})") from None
     return path
+
+
+def remove_stale_temporaries(path: str | Path, older_than_s: float = 30.0) -> list[Path]:
+    """Delete the temporaries a killed write of ``path`` left (``.<name>.*.tmp`` beside it, untouched for
+    ``older_than_s``: a write in progress elsewhere keeps its own); returns what was removed."""
+    path = Path(path)
+    if not path.parent.is_dir():
+        return []
+    now, removed = time.time(), []
+    for tmp in path.parent.glob(f".{path.name}.*.tmp"):
+        try:
+            if now - tmp.stat().st_mtime > older_than_s:
+                tmp.unlink()
+                removed.append(tmp)
+        except OSError:  # gone meanwhile, or not ours to remove: leave it
+            continue
+    return removed
 
 
 def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict:

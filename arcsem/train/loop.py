@@ -197,6 +197,9 @@ class _Run:
     def restore(self, act_lr: float | None) -> None:
         """Load ``last.pt`` per ``loop.resume``; always leaves optimisers built."""
         mode = self.loop.resume
+        if self.path is not None:
+            for tmp in ckpt.remove_stale_temporaries(self.path):
+                log.info("%s: removed %s, left by a checkpoint write that did not finish", self.loop.desc, tmp.name)
         if mode not in ("auto", "never", "must"):
             raise ConfigError(f"train.resume: '{mode}' is not one of auto, never, must")
         exists = self.path is not None and self.path.is_file()

@@ -230,9 +230,14 @@ def run(cfg: DictConfig, run_dir: str | Path | None = None, overrides: list[str]
                                 if isinstance(part, dict) for w in part.get("warnings") or []]
         metrics["status"] = "complete"
         _write_metrics(run_dir, metrics, t_start)
+        page = None
         if cfg.get("report", False):  # the demo: tables, grids and the HTML page of this run
             from .report import build_report
 
             page = build_report([run_dir], out=run_dir / "report")
             print(f"report: {page}")
+        if stage in ("gray", "color", "all"):
+            from .run_summary import summary_lines
+
+            print("\n".join(summary_lines(metrics, run_dir, page)), flush=True)
     return metrics

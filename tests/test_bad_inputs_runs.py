@@ -54,6 +54,9 @@ def test_nerf_synthetic_layout_writes_renders_and_metrics(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["status"] == "complete" and math_finite(metrics["stage1"]["test"]["psnr"])
+    # the run ends with its result and where it is (run_summary), the figures metrics.json's
+    assert f"stage 1 (gs2d): held-out PSNR {metrics['stage1']['test']['psnr']:.2f} dB" in proc.stdout
+    assert f"outputs: {run} (metrics.json)" in proc.stdout
     assert (run / "renders" / "test" / "test" / "r_0.png").is_file()
     assert (run / "renders" / "train" / "train" / "r_0.png").is_file()
 

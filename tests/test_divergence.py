@@ -8,8 +8,8 @@ from trainer_util import L1_DSSIM, loop, tiny_scene
 
 from arcsem.errors import TrainingError
 from arcsem.train import loop as loop_module
-from arcsem.train.loop import loss_trend_warning, train
 from arcsem.train.checkpoint import load_checkpoint
+from arcsem.train.loop import loss_trend_warning, train
 from arcsem.train.losses import build_losses
 
 

@@ -17,8 +17,8 @@ METRICS = {
 def test_both_stages_outputs_and_report():
     lines = summary_lines(METRICS, "/runs/demo", "/runs/demo/report/index.html")
     assert lines == [
-        "stage 1 (gs2d): held-out PSNR 31.23 dB, SSIM 0.949; 1500 steps at 8.0 steps/s, 227 s in all; "
-        "mesh Chamfer 0.88 % of the specimen",
+        ("stage 1 (gs2d): held-out PSNR 31.23 dB, SSIM 0.949; 1500 steps at 8.0 steps/s, 227 s in all; "
+         "mesh Chamfer 0.88 % of the specimen"),
         "stage 2 (5 references): held-out colour PSNR 27.93 dB, SSIM 0.921; 600 steps at 7.5 steps/s, 115 s in all",
         "outputs: /runs/demo (metrics.json, report/index.html); 344 s in all",
     ]

@@ -197,6 +197,21 @@ def _check_color_inputs(cc: Any, scene: Any) -> None:
         raise DataError("colorize.depth=dataset but the dataset has no depth maps; use depth=model")
 
 
+def late_reset_warning(cfg: Any) -> str | None:
+    """A warning when a Gaussian schedule resets the opacities (to 0.01) in the last tenth of stage 1: the run ends
+    before they grow back (``train.steps=300`` with the 1500-step schedule reset on its last step: 10 dB)."""
+    b, steps = cfg.get("backbone") or {}, int((cfg.get("train") or {}).get("steps") or 0)
+    every, until = b.get("opacity_reset_every"), b.get("densify_until")
+    if not (b.get("densify", True) and isinstance(every, int) and every > 0 and isinstance(until, int) and steps):
+        return None
+    last = min(until - 1, steps) // every * every  # resets at iterations k * every < densify_until, <= steps
+    if last < every or steps - last >= 0.1 * steps:
+        return None
+    return (f"backbone.opacity_reset_every={every}: the last opacity reset is at step {last} of {steps}, and the run "
+            f"ends before the opacities recover (held-out renders nearly empty); make it fall before step "
+            f"{int(0.9 * steps)} (backbone.opacity_reset_every, backbone.densify_until or train.steps)")
+
+
 def check_scene(cfg: Any, scene: Any, stage: str, run_dir: Path) -> list[str]:
     """Checks that need the loaded scene; returns warnings. ``stage=color`` also checks the stage-1 model."""
     stages = STAGE_PLAN[stage]
@@ -204,6 +219,8 @@ def check_scene(cfg: Any, scene: Any, stage: str, run_dir: Path) -> list[str]:
         raise DataError(f"{scene.root}: {len(scene.train)} training view(s); a 3-D scene needs at least 2 "
                         "(check dataset.split and dataset.max_views)")
     warnings = _check_sizes(cfg, scene, stages)
+    if "gray" in stages and late_reset_warning(cfg):
+        warnings.append(late_reset_warning(cfg))
     _check_gsplat_scene(dict(cfg.backbone), scene)
     if "color" in stages:
         from .colorize.references import load_references

@@ -12,7 +12,8 @@
   ``hydra_plugins`` namespace does not see packages installed with ``pip install -e``).
 
 * **Resolvers.** ``${gs2d_lowpass:<rasterizer>,<sigma>}``: a preset's 2DGS low-pass sigma, or gsplat's fixed one
-  where ``backbone.rasterizer=gsplat`` (:func:`arcsem.backbones.gs2d.config.lowpass_for`).
+  where ``backbone.rasterizer=gsplat`` (:func:`arcsem.backbones.gs2d.config.lowpass_for`);
+  ``${of_steps:${train.steps},<fraction>}``: a schedule's step as a fraction of the run (:func:`of_steps`).
 
 :func:`setup` is idempotent; the ``arcsem`` CLI and ``arcsem.conf`` (read by ``compose``) call it.
 """
@@ -24,7 +25,7 @@ from importlib import metadata
 from hydra.core.config_search_path import ConfigSearchPath
 from hydra.plugins.search_path_plugin import SearchPathPlugin
 
-__all__ = ["CONFIG_GROUP", "CONF_GROUP", "EntryPointSearchPath", "backbone_schema", "setup"]
+__all__ = ["CONFIG_GROUP", "CONF_GROUP", "EntryPointSearchPath", "backbone_schema", "of_steps", "setup"]
 
 CONFIG_GROUP = "arcsem.backbone_configs"  # backbone name -> "module:ConfigClass"
 CONF_GROUP = "arcsem.conf"  # plugin name -> "package.conf" (a package of config groups)
@@ -43,6 +44,12 @@ def backbone_schema(name: str, config: type) -> type:
     """``config`` with a leading ``name: str = <name>`` field: the schema of ``conf/backbone/<name>.yaml``."""
     return dataclasses.make_dataclass(f"{config.__name__}Schema", [("name", str, dataclasses.field(default=name))],
                                       bases=(config,))
+
+
+def of_steps(steps: int, fraction: float) -> int:
+    """``${of_steps:${train.steps},<fraction>}``: a step of a preset's schedule as a fraction of the run (rounded,
+    at least 1), so the schedule keeps its shape when ``train.steps`` changes (conf/tuning/quick_*.yaml)."""
+    return max(1, round(int(steps) * float(fraction)))
 
 
 def setup() -> None:
@@ -73,4 +80,5 @@ def setup() -> None:
     from .backbones.gs2d.config import lowpass_for
 
     OmegaConf.register_new_resolver("gs2d_lowpass", lowpass_for, replace=True)
+    OmegaConf.register_new_resolver("of_steps", of_steps, replace=True)
     _done = True

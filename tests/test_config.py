@@ -169,3 +169,28 @@ def test_loss_keys_override_without_plus():
     cfg = compose_with(*loss_overrides(["train.losses.dssim.impl=torch", "train.losses.l1.masked=true"]))
     assert cfg.train.losses.dssim.impl == "torch" and cfg.train.losses.dssim.weight == 0.2
     assert cfg.train.losses.l1.masked is True and cfg.train.losses.l1.weight == 0.8
+
+
+def test_quick_gaussian_schedule_scales_with_train_steps():
+    """The quick preset's schedule is a fraction of the run: 1500 steps give the tuned values, 300 steps the same
+    shape (the opacity resets at 60 and 120, not on the last step, which left 10 dB held-out); a schedule written
+    by hand that resets in the run's last tenth is warned about."""
+    from arcsem.preflight import late_reset_warning
+    from arcsem.registry import plain
+
+    keys = ("sh_increase_every", "densify_from", "densify_until", "densify_every", "opacity_reset_every",
+            "lr_position_max_steps")
+    for steps, want, starts in ((1500, (75, 30, 750, 25, 300, 1500), (360, 150)),
+                                (300, (15, 30, 150, 25, 60, 300), (72, 30))):  # the cadence stays
+        cfg = compose_with("experiment=demo", f"train.steps={steps}")
+        assert tuple(cfg.backbone[k] for k in keys) == want
+        losses = plain(cfg.train.losses)
+        assert (losses["normal_consistency"]["start_step"], losses["distortion"]["start_step"]) == starts
+        assert late_reset_warning(cfg) is None
+    assert compose_with("experiment=demo", "backbone=gs3d", "train.steps=300").backbone.opacity_reset_every == 60
+    by_hand = compose_with("experiment=demo", "train.steps=300", "backbone.densify_until=1000",
+                           "backbone.opacity_reset_every=100")
+    assert "last opacity reset is at step 300 of 300" in late_reset_warning(by_hand)
+    fine = compose_with("experiment=demo", "train.steps=300", "backbone.densify_until=1000",
+                        "backbone.opacity_reset_every=130")
+    assert late_reset_warning(fine) is None  # resets at 130 and 260: 40 steps to recover

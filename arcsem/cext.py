@@ -9,18 +9,22 @@ PyTorch JIT extension the first time (about a minute with gcc; cached under ``$T
 The build folder's name carries a hash of the sources, the headers beside them, the flags and the source
 folder: every change (and every checkout) builds into its own folder, so a stale build is never loaded and a
 running job's library is never overwritten. ``ARCSEM_NO_CPP=1`` disables every extension (the PyTorch path
-is used); ``ARCSEM_CPP_BUILD_NAME`` fixes the name (incremental builds while editing a kernel).
+is used); ``ARCSEM_CPP_BUILD_NAME`` fixes the name (incremental builds while editing a kernel). Builds are
+serialised by an OS file lock (a killed build cannot leave a lock behind that makes every later run wait), and a
+build says so on stderr while it runs.
 """
 from __future__ import annotations
 
 import hashlib
 import os
+import sys
 import warnings
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
 
-__all__ = ["CHOICES", "NATIVE_CFLAGS", "Extension", "build_name", "cpu_fingerprint", "load", "resolve_impl"]
+__all__ = ["CHOICES", "NATIVE_CFLAGS", "Extension", "build_dir", "build_name", "cpu_fingerprint", "load",
+           "resolve_impl"]
 
 CHOICES = ("auto", "torch", "cpp")
 NATIVE_CFLAGS = ("-O3", "-fopenmp", "-march=native")
@@ -66,6 +70,39 @@ def build_name(ext: Extension) -> str:
     return f"{ext.prefix}_{h.hexdigest()[:12]}"
 
 
+def build_dir(name: str) -> Path:
+    """Where PyTorch's JIT builds the extension ``name`` (``$TORCH_EXTENSIONS_DIR`` or ``~/.cache/torch_extensions``)."""
+    from torch.utils.cpp_extension import _get_build_directory
+
+    return Path(_get_build_directory(name, verbose=False))
+
+
+def _prepared(name: str, what: str) -> Path:
+    """The build folder, with PyTorch's ``lock`` removed when it is stale, and a word when a build is due.
+
+    PyTorch marks a build in progress with a ``lock`` file that a killed build leaves behind; every later load then
+    waits for it forever, saying nothing. Callers hold :func:`_build_lock` (an OS lock, released when its process
+    dies), so no other arcsem process is building here and a ``lock`` found is stale."""
+    folder = build_dir(name)
+    stale = folder / "lock"
+    if stale.exists():
+        stale.unlink(missing_ok=True)
+        warnings.warn(f"arcsem: removed a stale build lock of {what} ({stale}: a build killed before it finished)",
+                      RuntimeWarning, stacklevel=3)
+    if not (folder / f"{name}.so").exists():
+        print(f"arcsem: building {what} (once for these sources, about a minute)...", file=sys.stderr, flush=True)
+    return folder
+
+
+def _build_lock(name: str):
+    """An OS file lock per build (released by the kernel when its holder dies, unlike PyTorch's ``lock`` file)."""
+    from filelock import FileLock
+
+    root = build_dir(name).parent
+    root.mkdir(parents=True, exist_ok=True)
+    return FileLock(str(root / f".{name}.arcsem-lock"))
+
+
 @cache
 def load(ext: Extension, verbose: bool = False):
     """The compiled module, or None (with one warning naming ``ext.what``) when it cannot be built or loaded."""
@@ -74,13 +111,16 @@ def load(ext: Extension, verbose: bool = False):
     try:
         from torch.utils.cpp_extension import load as jit_load
 
-        return jit_load(
-            name=os.environ.get("ARCSEM_CPP_BUILD_NAME") or build_name(ext),
-            sources=[str(s) for s in ext.sources],
-            extra_cflags=list(ext.cflags),
-            extra_ldflags=list(ext.ldflags),
-            verbose=verbose,
-        )
+        name = os.environ.get("ARCSEM_CPP_BUILD_NAME") or build_name(ext)
+        with _build_lock(name):
+            _prepared(name, ext.what)
+            return jit_load(
+                name=name,
+                sources=[str(s) for s in ext.sources],
+                extra_cflags=list(ext.cflags),
+                extra_ldflags=list(ext.ldflags),
+                verbose=verbose,
+            )
     except Exception as exc:  # noqa: BLE001 - no compiler, no headers, ...: fall back, say it once
         warnings.warn(f"arcsem: {ext.what} unavailable ({type(exc).__name__}: {str(exc)[:200]}); "
                       f"using the PyTorch path ({', '.join(k + '=torch' for k in ext.keys)})", RuntimeWarning,

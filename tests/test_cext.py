@@ -8,9 +8,9 @@ import subprocess
 import sys
 
 import pytest
+from arcsem.backbones.gaussians.fused import EXTENSION
 
 from arcsem import cext
-from arcsem.backbones.gaussians.fused import EXTENSION
 
 
 def test_a_stale_build_lock_does_not_hang_the_next_load(tmp_path):

@@ -239,6 +239,7 @@ def _step(run: _Run, losses: LossSet, batch_hook, step: int, record: bool) -> di
     The parts run in named profiler regions (``arcsem::sample``, ``arcsem::render``, ...; free when no profiler
     runs): benchmarks/profile_step.py attributes time, backward passes included, to them."""
     bb = run.backbone
+    run.health.grads = {}  # the last step's gradients: not kept alive through this one
     apply_schedules(run.optimizers, run.schedules, step, run.loop.steps, run.optim.lr_scale)
     with region("arcsem::sample"):
         batch = run.sampler.next()

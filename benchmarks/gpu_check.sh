@@ -4,6 +4,7 @@
 #            carried, else built once, ~minutes, and left in $OUT for the next machine) and the built-in scene
 #            (.gpu/scene.tar.xz, made on the CPU machine: the scene generator needs pycolmap, 38 MB)
 #   tests    pytest -m cuda
+#   probe    where a non-finite value first appears, if the gsplat 2DGS run of the tests failed (nan_probe.py)
 #   launch   gsplat's 2DGS backward at 8/16/32-px tiles and its kernels' register counts
 #   profile  stage 1 of the demo: steps/s, SM utilisation, host syncs, kernels (benchmarks/gpu/stage1_profile.py)
 #   demo     the whole `make demo` job with device=cuda, both rasterisers, nvidia-smi dmon sampling
@@ -16,7 +17,7 @@
 #   benchmarks/gpu_check.sh            # results in ${OUT:-/tmp/gpu_check}
 set -uo pipefail
 OUT=${OUT:-/tmp/gpu_check}
-PARTS=${GPU_CHECK_PARTS:-setup,tests,profile,demo,launch}
+PARTS=${GPU_CHECK_PARTS:-setup,tests,probe,profile,demo,launch}
 mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1 TQDM_DISABLE=1 ARCSEM_CACHE=/tmp/arcsem_cache PYTHONWARNINGS=ignore::DeprecationWarning
 has() { [[ ",$PARTS," == *",$1,"* ]]; }
@@ -42,6 +43,11 @@ if has tests; then
     -o addopts="" -W ignore::DeprecationWarning 2>&1 | tee "$OUT/cuda_tests.log" | tail -25
 fi
 
+if has probe && grep -q "FAILED tests/test_cuda.py::test_stages_end_to_end_on_cuda\[gs2d-stages3" "$OUT/cuda_tests.log" 2>/dev/null; then
+  stamp probe
+  timeout 120 python3 benchmarks/gpu/nan_probe.py 2>&1 | tee "$OUT/nan_probe.log" | tail -40
+fi
+
 if has profile; then
   stamp profile
   declare -A VARIANT=([gs2d]="backbone.rasterizer=auto" [gs2d_gsplat]="backbone.rasterizer=gsplat"
@@ -58,7 +64,7 @@ fi
 
 if has demo; then
   stamp demo
-  for r in auto gsplat; do
+  for r in ${DEMO_RASTERIZERS:-auto gsplat}; do
     nvidia-smi dmon -s u -d 1 -o T > "/tmp/dmon_$r.txt" 2>&1 & DMON=$!
     s=$(date +%s.%N)
     timeout "${DEMO_TIMEOUT:-300}" arcsem experiment=demo device=cuda backbone.rasterizer=$r hydra.run.dir="/tmp/demo_$r" \

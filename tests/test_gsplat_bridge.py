@@ -19,7 +19,7 @@ from test_fused import _scene
 
 from arcsem.cameras import Cameras
 from arcsem.errors import ConfigError
-from arcsem.rotations import quat_to_rotmat
+from arcsem.rotations import quat_to_rotmat, rotmat_to_quat
 
 
 def _weighted(outs, seed=1):
@@ -185,6 +185,94 @@ def test_quaternions_are_read_alike():
     _assert_close(_quat_to_rotmat(q), quat_to_rotmat(q), "rotation", tol=1e-13)
 
 
+def _scene_2dgs_resolved(seed: int):
+    """The 2DGS parity scene: one 16 x 13 px camera (one 16-px tile), 20 splats tilted at most 35 degrees from
+    facing it, 1-3 px wide (sigma) along both axes, opacities below 0.35.
+
+    gsplat, as the official 2DGS, centres its low-pass filter on the centre of the splat's projected 1-sigma
+    ellipse (its bounding box); ours centres it on the projected splat centre (docs/method.md). Under perspective
+    the two differ for a tilted splat, so values and gradients differ wherever the low-pass branch wins. For a
+    splat at least ``1/sqrt(2)`` px wide (sigma) in every image direction the ray-splat distance never exceeds
+    the low-pass one, so the low-pass branch never wins and the two rasterisers must agree.
+    """
+    params, cams = _scene("gs2d", "pinhole", seed=seed)
+    cams = cams[0:1].scaled(1 / 3)
+    g = torch.Generator().manual_seed(seed)
+    n = 20
+    facing = cams.world_to_cam[0, :3, :3].T  # splat axes = camera axes: the splat faces the camera
+    axis = torch.nn.functional.normalize(torch.randn(n, 3, generator=g, dtype=torch.float64), dim=-1)
+    angle = torch.rand(n, generator=g, dtype=torch.float64) * (35 * torch.pi / 180)
+    qt = torch.cat([torch.cos(angle / 2)[:, None], torch.sin(angle / 2)[:, None] * axis], -1)
+    spin = torch.rand(n, generator=g, dtype=torch.float64) * torch.pi  # in-plane rotation
+    qs = torch.stack([torch.cos(spin / 2), 0 * spin, 0 * spin, torch.sin(spin / 2)], -1)
+    R = quat_to_rotmat(qt) @ facing @ quat_to_rotmat(qs)
+    means, _, _, opac, colors = params
+    scales = torch.rand(n, 2, generator=g, dtype=torch.float64) * 0.3 + 0.3
+    return [means[:n], rotmat_to_quat(R), scales, opac[:n] * 0.35, colors[:1, :n]], cams
+
+
+def _image_jacobian_singular_values(means, quats, scales, cams):
+    """``[N, 2]`` singular values (px per sigma) of d(pixel)/d(u, v) at each splat's centre, camera 0."""
+    Hm, _ = splat_homographies(means, quats, scales, cams)
+    Tu, Tv, Tw = Hm[0, :, 0], Hm[0, :, 1], Hm[0, :, 2]
+    x, y = Tu[:, 2] / Tw[:, 2], Tv[:, 2] / Tw[:, 2]
+    J = torch.stack([torch.stack([(Tu[:, k] - x * Tw[:, k]) / Tw[:, 2] for k in (0, 1)], -1),
+                     torch.stack([(Tv[:, k] - y * Tw[:, k]) / Tw[:, 2] for k in (0, 1)], -1)], -2)
+    return torch.linalg.svdvals(J)
+
+
+def _gsplat_2dgs_dense(means, quats, scales, opacities, colors, cams):
+    """gsplat's 2DGS pixel rule, dense, from its PyTorch projection (``_fully_fused_projection_2dgs``) and the
+    per-pixel weight of its rasteriser (``min(rho3d, 2 |pixel - means2d|^2)``, alpha clamped at 0.999, kept at
+    >= 1/255, front to back in centre depth): rgb ``[H, W, 3]`` and alpha ``[H, W, 1]`` of camera 0."""
+    viewmats, Ks, _ = gsplat_cameras(cams, two_d=True)
+    scales3 = torch.cat([scales, torch.ones_like(scales[:, :1])], -1)
+    _, centre, depth, M, _ = _fully_fused_projection_2dgs(means, quats, scales3, viewmats, Ks, cams.width,
+                                                          cams.height)
+    order = depth[0].argsort()
+    M, centre, op, col = M[0, order], centre[0, order], opacities[order], colors[0, order]  # [N, ...]
+    px = cams.pixel_grid(means.dtype).reshape(-1, 1, 2)  # [P, 1, 2]
+    h_u = -M[:, 0] + M[:, 2] * px[..., :1]  # [P, N, 3]
+    h_v = -M[:, 1] + M[:, 2] * px[..., 1:]
+    cr = torch.cross(h_u, h_v, dim=-1)
+    rho3d = (cr[..., 0] / cr[..., 2]) ** 2 + (cr[..., 1] / cr[..., 2]) ** 2
+    rho2d = 2 * ((px - centre) ** 2).sum(-1)
+    alpha = (op * torch.exp(-0.5 * torch.minimum(rho3d, rho2d))).clamp_max(0.999)
+    alpha = torch.where(alpha >= 1 / 255, alpha, torch.zeros_like(alpha))
+    T = torch.cumprod(torch.cat([torch.ones_like(alpha[:, :1]), 1 - alpha[:, :-1]], 1), 1)
+    w = alpha * T
+    shape = (cams.height, cams.width)
+    return (w @ col).reshape(*shape, 3), w.sum(1).reshape(*shape, 1), rho3d <= rho2d
+
+
+def test_2dgs_parity_scene_draws_alike_with_gsplats_pixel_rule():
+    """The scene of the CUDA parity test below, checked here: every splat is wider than the low-pass filter in
+    every image direction, so gsplat's rule never takes its low-pass branch, and its rule (dense, from its own
+    PyTorch projection) gives our image and gradients in float64. The usual test scene, with sub-pixel splats,
+    does take it, and the two then differ (the centre of the filter, :func:`_scene_2dgs_resolved`)."""
+    from arcsem.backbones.gs2d.render import render_2dgs
+
+    params, cams = _scene_2dgs_resolved(seed=3)
+    assert cams.width <= 16 and cams.height <= 16
+    sv = _image_jacobian_singular_values(*params[:3], cams)
+    assert bool((sv > 0.85).all()), f"a splat narrower than the low-pass filter: {sv.min():.3f} px"
+    res = []
+    for fn in ("ours", "gsplat"):
+        p = [t.clone().requires_grad_() for t in params]
+        if fn == "ours":
+            out = render_2dgs(*p, cams, impl="torch", tile=16)
+            rgb, alpha = out["rgb"][0], out["alpha"][0]
+        else:
+            rgb, alpha, use3d = _gsplat_2dgs_dense(*p, cams)
+            assert bool(use3d.all())
+        res.append([rgb.detach(), alpha.detach(), *torch.autograd.grad(_weighted((rgb, alpha)), p)])
+    names = ("rgb", "alpha", "means", "quats", "scales", "opacities", "colors")
+    _assert_all_close({n: (a, b) for n, a, b in zip(names, res[1], res[0])}, 1e-9)
+    (means, quats, scales, opac, colors), cams = _scene("gs2d", "pinhole", seed=3)
+    *_, use3d = _gsplat_2dgs_dense(means, quats, scales, opac * 0.35, colors[:1], cams[0:1].scaled(1 / 3))
+    assert not bool(use3d.all())  # sub-pixel splats: the low-pass branch is taken somewhere
+
+
 @pytest.mark.cuda
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device (torch.cuda.is_available())")
 @pytest.mark.parametrize("kind,model", [("gs3d", "pinhole"), ("gs3d", "orthographic"), ("gs2d", "pinhole")])
@@ -193,16 +281,21 @@ def test_gsplat_renders_equal_ours_on_cuda(kind, model):
     float32. The scene avoids what the two draw differently (gsplat_bridge's module doc): opacities below 0.35
     (no alpha clamp; alpha >= 1/255 only inside 3 sigma, where both bin), one tile (no tile-border footprint
     differences): 32 px for 3DGS, 16 px for 2DGS, whose backward gsplat cannot launch on 1024-thread blocks
-    (benchmarks/gpu/gsplat_launch.py). 2DGS: colour, alpha and normals (its depth channels use centre depths)."""
+    (benchmarks/gpu/gsplat_launch.py). 2DGS: splats wider than the low-pass filter, whose centre differs
+    (:func:`_scene_2dgs_resolved`); colour, alpha and normals (its depth channels use centre depths)."""
     from arcsem.backbones.gaussians.gsplat_bridge import render_gsplat_2dgs, render_gsplat_3dgs
     from arcsem.backbones.gs2d.render import render_2dgs
     from arcsem.backbones.gs3d.render import render_3dgs
 
-    params, cams = _scene(kind, model, seed=3)
-    params[3] = params[3] * 0.35
-    params = [t.float().cuda() for t in params]
     tile = 32 if kind == "gs3d" else 16
-    cams = cams.scaled(tile / 48).to(device="cuda", dtype=torch.float32)  # 32 x 27 or 16 x 13 px: one tile
+    if kind == "gs3d":
+        params, cams = _scene(kind, model, seed=3)
+        params[3] = params[3] * 0.35
+        cams = cams.scaled(tile / 48)  # 32 x 27 px: one tile
+    else:
+        params, cams = _scene_2dgs_resolved(seed=3)
+    params = [t.float().cuda() for t in params]
+    cams = cams.to(device="cuda", dtype=torch.float32)
     assert cams.width <= tile and cams.height <= tile
     outs = ("rgb", "alpha", "depth") if kind == "gs3d" else ("rgb", "alpha", "normal")
     fns = {"gs3d": (render_3dgs, render_gsplat_3dgs), "gs2d": (render_2dgs, render_gsplat_2dgs)}[kind]
@@ -215,9 +308,8 @@ def test_gsplat_renders_equal_ours_on_cuda(kind, model):
         g = torch.Generator().manual_seed(1)
         loss = sum((out[k] * torch.rand(out[k].shape, generator=g).cuda()).sum() for k in outs)
         res.append([out[k].detach().cpu() for k in outs] + [x.cpu() for x in torch.autograd.grad(loss, p)])
-    tol = 1e-3 if kind == "gs3d" else 1e-2  # float32, other summation orders; 2DGS: its low-pass centre differs
     names = outs + ("means", "quats", "scales", "opacities", "colors")
-    _assert_all_close({n: (a, b) for n, a, b in zip(names, res[1], res[0])}, tol)
+    _assert_all_close({n: (a, b) for n, a, b in zip(names, res[1], res[0])}, 1e-3)  # float32, summation orders
 
 
 @pytest.mark.cuda
@@ -249,3 +341,22 @@ def test_gsplat_2dgs_depth_outputs_equal_ours_for_splats_facing_the_camera():
         loss = sum((out[k] * torch.rand(out[k].shape, generator=g).cuda()).sum() for k in outs)
         res.append([out[k].detach().cpu() for k in outs] + [x.cpu() for x in torch.autograd.grad(loss, [p[0], p[2]])])
     _assert_all_close({n: (a, b) for n, a, b in zip(outs + ("means", "scales"), res[1], res[0])}, 1e-2)
+
+
+def test_gsplat_2dgs_draws_the_splats_ours_draws():
+    """The bridge hands gsplat only the splats our rasteriser draws (:func:`drawn_2dgs`, the same test as
+    ``footprint_2dgs``): splats whose 3-sigma disk crosses the camera plane, or whose centre is behind ``near``,
+    get opacity 0 and are not visible. gsplat would draw them, and its screen-centre gradient divides by a
+    quantity that goes to zero there (an H200 run: positions not finite after 10 steps of a 32 x 24 scene)."""
+    from arcsem.backbones.gaussians.gsplat_bridge import drawn_2dgs
+    from arcsem.backbones.gs2d.render import footprint_2dgs
+
+    (means, quats, scales, opac, _), cams = _scene("gs2d", "pinhole", seed=7)
+    means, scales = means.clone(), scales.clone()
+    means[:8, 2] = torch.linspace(-4.2, -3.6, 8, dtype=means.dtype)  # near the first camera's plane (z = -4)
+    scales[:8] = torch.linspace(0.05, 0.6, 8, dtype=scales.dtype)[:, None]
+    Hm, _ = splat_homographies(means, quats, scales, cams)
+    radius, *_ = footprint_2dgs(Hm, opac, cams, 16, 0.01)
+    drawn = drawn_2dgs(means, quats, scales, cams.world_to_cam, 0.01)
+    assert drawn.shape == radius.shape and 0 < int((~drawn).sum()) < drawn.numel()
+    assert torch.equal(drawn, radius > 0)

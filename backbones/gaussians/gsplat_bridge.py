@@ -32,8 +32,9 @@ from torch import Tensor
 
 from arcsem.cameras import Cameras
 from arcsem.errors import ConfigError
+from arcsem.rotations import quat_to_rotmat
 
-__all__ = ["gsplat_cameras", "render_gsplat_2dgs", "render_gsplat_3dgs", "require_2dgs_tile", "require_gsplat",
+__all__ = ["drawn_2dgs", "gsplat_cameras", "render_gsplat_2dgs", "render_gsplat_3dgs", "require_2dgs_tile", "require_gsplat",
            "require_lowpass"]
 
 KEY = "backbone.rasterizer"
@@ -130,10 +131,32 @@ def render_gsplat_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
     Outputs as render_2dgs: rgb, alpha, depth, median_depth, distortion, normal (world, ``sum w n``), radii,
     visible, means2d.
     """
-    from gsplat import rasterization_2dgs
-
     require_lowpass(lowpass_sigma)
     require_2dgs_tile(tile)
+    if len(cams) > 1:  # per camera: the culled splats differ between cameras (gsplat takes one opacity per splat)
+        outs = [render_gsplat_2dgs(means, quats, scales, opacities, colors if colors.ndim == 2 else colors[i:i + 1],
+                                   cams[i:i + 1], background=background, tile=tile, near=near,
+                                   dist_depth=dist_depth, lowpass_sigma=lowpass_sigma) for i in range(len(cams))]
+        return {k: torch.cat([o[k] for o in outs]) for k in outs[0]}
+    return _render_gsplat_2dgs_one(means, quats, scales, opacities, colors, cams, background, tile, near, dist_depth)
+
+
+def drawn_2dgs(means: Tensor, quats: Tensor, scales: Tensor, world_to_cam: Tensor, near: float) -> Tensor:
+    """``[C, N]`` bool: the splats our 2DGS rasteriser draws (:func:`footprint_2dgs`): centre depth above ``near``
+    and the 3-sigma disk wholly in front of the camera plane (``9 (z_u^2 s_0^2 + z_v^2 s_1^2) < z_c^2``, its image an
+    ellipse). gsplat draws a splat whose disk crosses that plane too; there its screen centre divides by a
+    quantity near zero, and its gradient blows up the splat's position."""
+    R = quat_to_rotmat(quats.detach())  # [N, 3, 3]
+    zrow = world_to_cam[:, 2, :3].to(R)  # [C, 3]
+    zu, zv = zrow @ R[:, :, 0].T, zrow @ R[:, :, 1].T  # [C, N]
+    zc = zrow @ means.detach().T + world_to_cam[:, 2, 3:4].to(R)
+    s = scales.detach()
+    return (zc > near) & (9 * ((zu * s[:, 0]) ** 2 + (zv * s[:, 1]) ** 2) < zc ** 2)
+
+
+def _render_gsplat_2dgs_one(means, quats, scales, opacities, colors, cams, background, tile, near, dist_depth):
+    from gsplat import rasterization_2dgs
+
     C, N = len(cams), means.shape[0]
     viewmats, Ks, _ = gsplat_cameras(cams.to(dtype=means.dtype), two_d=True)
     c0, c1, c2 = dist_depth
@@ -142,12 +165,14 @@ def render_gsplat_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
     m = m - m.detach().median(-1, keepdim=True).values
     feats = torch.cat([_colors(colors, C, N), m[..., None], m[..., None] ** 2], -1)  # [C, N, 5]
     scales3 = torch.cat([scales, torch.ones_like(scales[:, :1])], -1)  # the third is not read (module doc)
+    drawn = drawn_2dgs(means, quats, scales, cams.world_to_cam, near)  # [1, N]
     out, alpha, normal, _, _, median, meta = rasterization_2dgs(
-        means, quats, scales3, opacities, feats, viewmats, Ks, cams.width, cams.height, near_plane=near,
+        means, quats, scales3, opacities * drawn[0], feats, viewmats, Ks, cams.width, cams.height, near_plane=near,
         packed=False, tile_size=tile, render_mode="RGB+D")
     depth = torch.where(alpha > 0, out[..., 5:6] / alpha.clamp_min(1e-10), torch.zeros_like(alpha))
     dist = (alpha * out[..., 4:5] - out[..., 3:4] ** 2).clamp_min(0)
     radii, visible, means2d = _screen(meta)
+    radii, visible = radii * drawn, visible & drawn
     return {"rgb": _background(background, out[..., :3], alpha), "alpha": alpha, "depth": depth,
             "median_depth": median, "distortion": dist, "normal": normal, "radii": radii, "visible": visible,
             "means2d": means2d}

@@ -21,9 +21,12 @@ Where gsplat differs from our rasterisers (not mapped; the CUDA test keeps its s
 alpha is clamped at 0.999 (ours 0.99, the official value); the 3DGS Jacobian is evaluated at the centre
 clamped to 1.3x the view frustum (as the official code); footprints are 3.33 sigma per axis (ours 3 sigma);
 the 2DGS depth channels (expected and median depth, distortion) use each splat's centre depth, not the depth
-where the ray meets the splat; its low-pass filter is compiled in at the official ``lowpass_sigma=1/sqrt(2)`` (the
+where the ray meets the splat; its low-pass filter is centred on the centre of the splat's projected 1-sigma ellipse (as the official
+code; ours on the projected splat centre: the two differ under perspective where the filter wins, i.e. for splats
+narrower than the filter) and compiled in at the official ``lowpass_sigma=1/sqrt(2)`` (the
 quick preset's 2DGS value, 1/sqrt(8), composes to it on gsplat: conf/tuning/quick_gs2d.yaml); its 2DGS backward
-launches on tiles of at most 16 px (:func:`require_2dgs_tile`).
+launches on tiles of at most 16 px (:func:`require_2dgs_tile`). gsplat would also draw 2-D splats whose 3-sigma
+disk crosses the camera plane, which ours culls; the bridge culls them too (:func:`drawn_2dgs`).
 """
 from __future__ import annotations
 

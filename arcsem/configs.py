@@ -10,8 +10,20 @@ from typing import Any
 
 from .registry import checked
 
-__all__ = ["ACT_MODES", "DEFAULT_LOSSES", "SPLIT_MODES", "ActConfig", "ColorizeConfig", "EvalConfig",
-           "GroupSchedule", "OptimConfig", "ReaderOptions", "TrainConfig"]
+__all__ = [
+    "ACT_MODES",
+    "DEFAULT_LOSSES",
+    "SPLIT_MODES",
+    "ActConfig",
+    "ColorizeConfig",
+    "EvalConfig",
+    "GroupSchedule",
+    "GuardConfig",
+    "OptimConfig",
+    "ReaderOptions",
+    "SurfaceConfig",
+    "TrainConfig",
+]
 
 ACT_MODES = ("rgb", "scalar")
 SPLIT_MODES = ("auto", "every_k", "holdout", "none")
@@ -98,6 +110,34 @@ DEFAULT_LOSSES = {
 
 
 @dataclass
+class GuardConfig:
+    """``colorize.guard``: the confidence tests TCM and CCM matches must pass (:mod:`arcsem.colorize.guard`)."""
+
+    enabled: bool = True  # false: every location keeps its nearest match (the paper, Ref-NPR)
+    ratio: float = checked(0.9, gt=0.0, le=1.0)  # best distance <= ratio x the best non-neighbouring one
+    exclude: int = checked(1, ge=0)  # cells around a match that count as its neighbours
+    mutual: bool = True  # the match's own nearest view location must be the query (within exclude cells)
+    normal_tol: float = checked(0.35, gt=0.0)  # largest difference of the normals' elevation n . u
+    height_tol: float = checked(0.15, gt=0.0)  # largest difference of the heights (share of the specimen's)
+
+
+@dataclass
+class SurfaceConfig:
+    """``colorize.surface``: reference colours spread over the stage-1 surface (:mod:`arcsem.colorize.surface`)."""
+
+    # fill: the stage-2 pseudo-colour target takes the surface colour where the 2-D pseudo-colours have none |
+    # off: 2-D pseudo-colours only (the paper)
+    mode: str = checked("fill", choices=("fill", "off"))
+    cell_px: float = checked(1.5, gt=0.0)  # node cell, in pixel footprints at the median depth
+    k: int = checked(12, ge=1)  # neighbours per node
+    reach: float = checked(3.0, gt=0.0)  # longest edge, in cells
+    grey_scale: float = checked(0.05, gt=0.0)  # s_g of the grey term (grey in [0, 1])
+    normal_scale: float = checked(0.25, gt=0.0)  # s_n of the normal term
+    clusters: int = checked(6, ge=1)  # reference colour clusters for the confidence
+    confidence: float = checked(0.6, gt=0.0, le=1.0)  # least probability of the best cluster
+
+
+@dataclass
 class ColorizeConfig:
     steps: int = checked(20_000, ge=1)  # ArCSEM stage 2
     references: Any = "five"  # preset (five|four|three|two|one) or image file(s)/folder matched by file stem
@@ -130,6 +170,11 @@ class ColorizeConfig:
     losses: dict[str, Any] = field(default_factory=lambda: {k: dict(v) for k, v in DEFAULT_LOSSES.items()})
     optim: OptimConfig = field(default_factory=OptimConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
+    surface: SurfaceConfig = field(default_factory=SurfaceConfig)
+    # pseudo-colours take each view's SEM brightness (arcsem.colorize.shading): auto (a line fitted to the
+    # references' colour against their grey; flat where the colours do not follow it) | off (copied as they are)
+    shading: str = checked("auto", choices=("auto", "off"))
+    guard: GuardConfig = field(default_factory=GuardConfig)
 
 
 @dataclass

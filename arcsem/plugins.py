@@ -39,7 +39,8 @@ class ColorTargets:
         is_reference: ``[C]`` bool, the artist-coloured views (``reference_l1`` only acts on them; the others skip them).
         reference: ``[C, H, W, 3]`` the artist colours (zeros for other views).
         pseudo: ``[C, H, W, 3]`` pseudo-colours; ``pseudo_valid``: ``[C, H, W]`` bool, the pixels that have one.
-        tcm_guidance: per feature block ``[C, D_b, h_b, w_b]`` (None without TCM/CCM guidance).
+        tcm_guidance: per feature block ``[C, D_b, h_b, w_b]`` (None without TCM/CCM guidance); ``tcm_valid``: per
+            block ``[C, h_b, w_b]`` bool, the locations whose match passed the guard (None: all).
         tcm_space: the TCM loss space, images ``[C, h, w, 3]`` -> per block ``[C, D_b, h_b, w_b]``.
         tcm_downscale: renders are scaled down by this before ``tcm_space``.
         ccm_target: ``[C, hc, wc, 3]`` matched reference cell colours; ``ccm_valid``: ``[C, hc, wc]`` bool.
@@ -51,6 +52,7 @@ class ColorTargets:
     pseudo: Tensor
     pseudo_valid: Tensor
     tcm_guidance: list[Tensor] | None = None
+    tcm_valid: list[Tensor] | None = None
     tcm_space: Callable[[Tensor], list[Tensor]] | None = None
     tcm_downscale: int = 4
     ccm_target: Tensor | None = None

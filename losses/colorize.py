@@ -27,13 +27,20 @@ def masked_l1(pred: Tensor, target: Tensor, valid: Tensor) -> Tensor:
     return ((pred - target).abs() * valid[..., None]).sum() / n.clamp_min(1)
 
 
-def tcm_distance(feats: list[Tensor], guidance: list[Tensor], views: Tensor | None = None) -> Tensor:
+def tcm_distance(feats: list[Tensor], guidance: list[Tensor], views: Tensor | None = None,
+                 valid: list[Tensor] | None = None) -> Tensor:
     """``sum_blocks mean_locations (1 - cos(F, G))`` for per-block features ``[C, D, h, w]``, over the views where
-    ``views [C]`` (bool; default all; none: 0, keeping the graph)."""
+    ``views [C]`` (bool; default all; none: 0, keeping the graph) and the locations where ``valid`` (per block
+    ``[C, h, w]`` bool: the matches that passed the guard; default all; a view with none adds 0)."""
     keep = torch.ones(feats[0].shape[0], dtype=torch.bool, device=feats[0].device) if views is None else views
     total = feats[0].new_zeros(())
-    for f, g in zip(feats, guidance):
-        per_view = (1.0 - torch.nn.functional.cosine_similarity(f, g, dim=1, eps=1e-8)).flatten(1).mean(1)  # [C]
+    for b, (f, g) in enumerate(zip(feats, guidance)):
+        d = 1.0 - torch.nn.functional.cosine_similarity(f, g, dim=1, eps=1e-8)  # [C, h, w]
+        if valid is None:
+            per_view = d.flatten(1).mean(1)  # [C]
+        else:
+            m = valid[b].to(d.dtype)
+            per_view = (d * m).flatten(1).sum(1) / m.flatten(1).sum(1).clamp_min(1)
         total = total + (per_view * keep).sum() / keep.sum().clamp_min(1)
     return total
 
@@ -105,7 +112,7 @@ class TCM(Loss):
     def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
         t = _targets(batch, self.name, "tcm_guidance", "tcm_space")
         img = downscale(out["rgb"], int(t.tcm_downscale))  # reference views too: skipping them would need a host read
-        return tcm_distance(t.tcm_space(img), t.tcm_guidance, ~t.is_reference)
+        return tcm_distance(t.tcm_space(img), t.tcm_guidance, ~t.is_reference, t.tcm_valid)
 
 
 @LOSSES.register("ccm")

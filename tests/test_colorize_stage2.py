@@ -47,6 +47,11 @@ def test_stage2_end_to_end(tmp_path, monkeypatch):
     assert sorted(p.stem for p in (run / "colored").glob("*.png")) == sorted(scene.train.names)
     assert (run / "colored_model.ply").is_file() and (run / "colorize" / "views.csv").is_file()
     assert s2["pseudo"]["cache_hit"] is False and 0.5 < s2["pseudo"]["coverage"] <= 1
+    # held-out colour renders beside the grey ones, with their true colour; the pseudo-colour target's parts
+    held = run / "colorize" / "renders" / "test"
+    assert sorted(p.name for p in held.glob("*.png")) == sorted(
+        f"{n}{s}.png" for n in scene.test.names for s in ("", "_gt"))
+    assert {"nodes", "confident", "filled"} <= set(s2["pseudo"]["surface"]) and s2["pseudo"]["shading"]["mode"] == "auto"
     after = load_checkpoint(run / "colorize" / "checkpoints" / "last.pt")["model"]
     for k, v in before.items():  # geometry frozen, colour changed, no ACT in stage 2
         if k.startswith("act."):

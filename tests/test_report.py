@@ -356,3 +356,28 @@ def test_report_videos_get_a_poster_of_their_middle_frame(tmp_path):
     assert poster.is_file() and abs(float(cv2.imread(str(poster)).mean()) - 80) < 6      # frame 4 of 9
     page = _section(Table("grayscale_comparison", [], [], [], None, []), [], videos, tmp_path / "out")
     assert 'poster="videos/grayscale_comparison/2DGS_turntable.jpg"' in page
+
+
+def test_colour_grid_shows_held_out_views_and_marks_references(tmp_path):
+    """The colour grid takes stage 2's held-out renders (colorize/renders/test/, title says so) where a run has
+    them; from training views it marks the references (metrics.json stage2.references) beside their names."""
+    import cv2
+
+    from arcsem.report.grids import study_grids
+
+    run = tmp_path / "r"
+    _png(run / "colored/v0.png", 90)
+    _png(run / "colored/v1.png", 95)
+    (run / "metrics.json").write_text('{"stage2": {"references": ["v1"]}}')
+    training = study_grids("reference_count", {"five": run}, tmp_path / "g1")
+    assert [t for t, _ in training] == ["reference_count: coloured views"]
+    marked = cv2.imread(str(training[0][1]))
+    _png(run / "colorize/renders/test/t0.png", 60)
+    _png(run / "colorize/renders/test/t0_gt.png", 61)
+    held = study_grids("reference_count", {"five": run}, tmp_path / "g2")
+    assert [t for t, _ in held] == ["reference_count: coloured views (held-out views)"]
+    img = cv2.imread(str(held[0][1]))
+    assert img[22 + 80, img.shape[1] - 5, 0] == 60 and img[22 + 80, 95, 0] == 61  # render; its true colour
+    tile_h = marked.shape[0] // 2  # v0, v1: the reference's row label has a second line, "(reference)"
+    row_label = lambda r: int((marked[r * tile_h: (r + 1) * tile_h, :90] < 128).any(-1).any(-1).sum())
+    assert row_label(1) > 1.5 * row_label(0)

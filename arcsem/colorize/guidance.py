@@ -94,8 +94,12 @@ class Guidance:
 
     def __init__(self, extractor, space, gray: Tensor, ref_indices, ref_colors: Tensor, tcm_downscale: int = 4,
                  ccm_downscale: int = 16, ccm_max_dist: float = 0.6, ccm_white: float = 0.99,
-                 cache_dir: str | Path | None = None, chunk: int = 1024):
+                 cache_dir: str | Path | None = None, chunk: int = 1024, geometry: Tensor | None = None,
+                 guard=None):
         self.extractor, self.space, self.gray, self.ref_indices = extractor, space, gray, list(ref_indices)
+        # guarded matching (arcsem.colorize.guard): geometry [N, G, H, W] descriptors of every view, guard a GuardConfig
+        self.geometry = geometry if guard is not None and guard.enabled else None
+        self.guard = guard
         self.tcm_downscale, self.ccm_downscale = tcm_downscale, ccm_downscale
         self.ccm_max_dist, self.ccm_white, self.chunk = ccm_max_dist, ccm_white, chunk
         self.cache_dir = Path(cache_dir) if cache_dir else None
@@ -106,8 +110,10 @@ class Guidance:
         self.ref_means = patch_means(ref_colors.float(), ccm_downscale).reshape(-1, 3)
         from .features.base import space_label
 
+        guard_key = () if self.geometry is None else ("guard-v1", self.geometry, sorted(vars(guard).items()))
         self.key = cache_key("guidance-v2", extractor.key(), space_label(space), gray,
-                             self.ref_indices, ref_colors, tcm_downscale, ccm_downscale, ccm_max_dist, ccm_white)
+                             self.ref_indices, ref_colors, tcm_downscale, ccm_downscale, ccm_max_dist, ccm_white,
+                             *guard_key)
         self._memory: dict[int, dict[str, Tensor]] = {}
 
     def to(self, device) -> Guidance:
@@ -118,6 +124,8 @@ class Guidance:
         self.ref_means, self.gray = self.ref_means.to(device), self.gray.to(device)
         if self._ref_gray is not None:
             self._ref_gray = [t.to(device) for t in self._ref_gray]
+        if self.geometry is not None:
+            self.geometry = self.geometry.to(device)
         self._memory = {v: {k: t.to(device) for k, t in m.items()} for v, m in self._memory.items()}
         if isinstance(self.extractor, torch.nn.Module):
             self.extractor.to(device)
@@ -138,8 +146,34 @@ class Guidance:
 
     def _compute(self, v: int) -> dict[str, Tensor]:
         feats = [f[0] for f in self.features(self.gray[v:v + 1])]
+        if self.geometry is not None:
+            return self._compute_guarded(v, feats)
         out = {f"tcm_idx{b}": i for b, i in enumerate(tcm_match(feats, self.ref_gray, self.chunk))}
         out["ccm_idx"], out["ccm_dist"] = ccm_match(feats[0], self.ref_gray[0], self.grid, self.chunk)
+        return out
+
+    def _geo(self, views: list[int], grid: tuple[int, int]) -> Tensor:
+        """``[len(views)*h*w, G]`` geometry descriptors of ``views`` at a feature grid (nearest sample; NaN kept)."""
+        g = F.interpolate(self.geometry[views].float(), size=grid, mode="nearest")
+        return g.permute(0, 2, 3, 1).reshape(-1, g.shape[1])
+
+    def _compute_guarded(self, v: int, feats: list[Tensor]) -> dict[str, Tensor]:
+        """As the plain search, among geometrically compatible locations, with the ratio and mutual tests
+        (:func:`arcsem.colorize.guard.guarded_nearest`): adds ``tcm_ok<b>`` ``[h_b, w_b]`` and ``ccm_ok [hc, wc]``."""
+        from .guard import grid_positions, guarded_nearest
+
+        out = {}
+        pairs = [(f, r, f"tcm_idx{b}", f"tcm_ok{b}") for b, (f, r) in enumerate(zip(feats, self.ref_gray))]
+        pairs.append((_pool_to(feats[0][None], self.grid)[0], _pool_to(self.ref_gray[0], self.grid), "ccm_idx",
+                      "ccm_ok"))
+        for f, r, name, ok_name in pairs:
+            D, h, w = f.shape
+            idx, dist, ok = guarded_nearest(
+                f.reshape(D, -1).T, _flat(r), self._geo([v], (h, w)), self._geo(self.ref_indices, tuple(r.shape[-2:])),
+                grid_positions(1, h, w)[:, 1:], grid_positions(*r.shape[:1], *r.shape[-2:]), self.guard, self.chunk)
+            out[name], out[ok_name] = idx.reshape(h, w), ok.reshape(h, w)
+            if name == "ccm_idx":
+                out["ccm_dist"] = dist.reshape(h, w)
         return out
 
     def matches(self, v: int) -> dict[str, Tensor]:
@@ -165,7 +199,10 @@ class Guidance:
             idx = m[f"tcm_idx{b}"]
             guide.append(rc[idx.reshape(-1)].T.reshape(rc.shape[1], *idx.shape))
         target, valid = ccm_targets(m["ccm_idx"], m["ccm_dist"], self.ref_means, self.ccm_max_dist, self.ccm_white)
-        return {"tcm_guidance": guide, "ccm_target": target, "ccm_valid": valid}
+        out = {"tcm_guidance": guide, "ccm_target": target, "ccm_valid": valid & m.get("ccm_ok", True)}
+        if "tcm_ok0" in m:
+            out["tcm_valid"] = [m[f"tcm_ok{b}"] for b in range(len(guide))]
+        return out
 
 
 def _atomic_savez(path: Path, arrays: dict) -> None:

@@ -9,7 +9,7 @@ import torch
 
 from ..metrics import metric_convention
 
-__all__ = ["colour_split", "evaluate_colour", "write_colored_products", "write_outputs"]
+__all__ = ["colour_split", "evaluate_colour", "write_colored_products", "write_heldout", "write_outputs"]
 
 
 def colour_split(split, idx: list[int]):
@@ -63,8 +63,8 @@ def _png(folder: Path, name: str, img: torch.Tensor) -> None:
 
 
 def write_outputs(backbone, scene, run_dir: Path, cc, pseudo: torch.Tensor, valid: torch.Tensor) -> dict:
-    """``colored/<view name>.png`` (every training view), ``colorize/pseudo/<name>.png``,
-    ``colored_turntable.*`` and ``colored_model.<ext>``; returns their paths."""
+    """``colored/<view name>.png`` (every training view), ``colorize/pseudo/<name>.png``, the held-out views
+    (:func:`write_heldout`), ``colored_turntable.*`` and ``colored_model.<ext>``; returns their paths."""
     from ..train.stage1 import turntable
 
     run_dir = Path(run_dir)
@@ -73,7 +73,7 @@ def write_outputs(backbone, scene, run_dir: Path, cc, pseudo: torch.Tensor, vali
         for i in range(len(split)):
             _png(run_dir / "colored", split.names[i], backbone.render(split.cameras[i:i + 1])["rgb"][0].clamp(0, 1).cpu())
             _png(run_dir / "colorize" / "pseudo", split.names[i], pseudo[i] * valid[i][..., None])
-    out = {"colored_dir": str(run_dir / "colored")}
+    out = {"colored_dir": str(run_dir / "colored"), **write_heldout(backbone, scene.test, run_dir)}
     if cc.eval.video:
         out["video"] = str(turntable(backbone, scene, run_dir / "colored_turntable", cc.eval.video_frames, cc.eval.fps))
     suffix = backbone.export_suffix
@@ -83,6 +83,20 @@ def write_outputs(backbone, scene, run_dir: Path, cc, pseudo: torch.Tensor, vali
     except NotImplementedError:
         out["export"] = None
     return out
+
+
+def write_heldout(backbone, test, run_dir: Path) -> dict:
+    """``colorize/renders/test/<view>.png``: the coloured render of every held-out view, beside the grey ones of
+    stage 1 (``renders/test/``), with its ground-truth colour as ``<view>_gt.png`` where the dataset has it."""
+    if not len(test):
+        return {}
+    folder = Path(run_dir) / "colorize" / "renders" / "test"
+    with torch.no_grad():
+        for i in range(len(test)):
+            _png(folder, test.names[i], backbone.render(test.cameras[i:i + 1])["rgb"][0].clamp(0, 1).cpu())
+            if test.colors is not None:
+                _png(folder, f"{test.names[i]}_gt", test.colors[i].float())
+    return {"heldout_dir": str(folder)}
 
 
 def write_colored_products(cfg, backbone, scene, run_dir: Path, steps: int, progress: bool) -> dict:

@@ -67,15 +67,15 @@ def reference_cloud(cams: Cameras, depths: Tensor, masks: Tensor, images: Tensor
 
     Args:
         cams: ``R`` reference cameras. depths: ``[R, H, W]``. masks: ``[R, H, W]`` bool.
-        images: ``[R, H, W, 3]`` reference colours.
+        images: ``[R, H, W, C]`` reference colours (and any other channels).
     Returns:
-        points ``[P, 3]`` float64 and colours ``[P, 3]`` float32 (numpy).
+        points ``[P, 3]`` float64 and colours ``[P, C]`` float32 (numpy).
     """
     pts, cols = [], []
     for r in range(len(cams)):
         flat, p = masked_points(cams[r], depths[r], masks[r])
         pts.append(p.numpy())
-        cols.append(images[r].reshape(-1, 3)[flat].float().numpy())
+        cols.append(images[r].reshape(-1, images.shape[-1])[flat].float().numpy())
     return np.concatenate(pts), np.concatenate(cols)
 
 
@@ -97,8 +97,9 @@ def pseudo_colors(
         ref_images: ``[R, H, W, 3]`` colours of those views.
         radius: fixed world radius; default ``radius_factor`` x the pixel footprint of each query.
     Returns:
-        colors ``[N, H, W, 3]`` float32 (0 where invalid) and valid ``[N, H, W]`` bool. Reference
-        views get their own colours inside their masks.
+        colors ``[N, H, W, C]`` float32 (0 where invalid; ``C`` the channels of ``ref_images``, which may carry
+        more than colour, e.g. the reference's grey) and valid ``[N, H, W]`` bool. Reference views get their own
+        colours inside their masks.
     """
     from scipy.spatial import cKDTree
     from tqdm.auto import tqdm
@@ -108,7 +109,7 @@ def pseudo_colors(
     masks = masks.bool()
     ridx = list(ref_indices)
     pts, cols = reference_cloud(cams[torch.as_tensor(ridx)], depths[ridx], masks[ridx], ref_images)
-    colors = torch.zeros(N, H, W, 3)
+    colors = torch.zeros(N, H, W, ref_images.shape[-1])
     valid = torch.zeros(N, H, W, dtype=torch.bool)
     if len(pts) == 0:
         log.warning("pseudo-colours: the reference masks are empty; no view gets a pseudo-colour")
@@ -122,7 +123,7 @@ def pseudo_colors(
             valid[v] = m
             continue
         hit, nn = query_view(tree, cams[v], depths[v], masks[v], radius, radius_factor)
-        colors[v].view(-1, 3)[hit] = cols_t[nn]
+        colors[v].view(-1, colors.shape[-1])[hit] = cols_t[nn]
         valid[v].view(-1)[hit] = True
     return colors, valid
 
@@ -191,8 +192,9 @@ def load_pseudo(path: Path) -> tuple[Tensor, Tensor]:
     with np.load(path) as z:
         shape = tuple(int(s) for s in z["shape"])
         valid = torch.from_numpy(np.unpackbits(z["valid"], count=int(np.prod(shape))).astype(bool).reshape(shape))
-        colors = torch.zeros(*shape, 3)
-        colors[valid] = torch.from_numpy(z["colors"])
+        stored = torch.from_numpy(z["colors"])
+        colors = torch.zeros(*shape, stored.shape[-1] if stored.ndim == 2 else 3)
+        colors[valid] = stored
     return colors, valid
 
 

@@ -30,6 +30,7 @@ from .config import ColorizeConfig
 from .guidance import Guidance
 from .masks import specimen_masks
 from .pseudocolor import cached_pseudo_colors, pseudo_colors, pseudo_key
+from .shading import fit_shading, shade
 from .references import References, load_references
 
 __all__ = ["ColorTargetHook", "check_stage1_model", "colorize_config", "colorize_losses", "find_stage1", "render_depths",
@@ -149,6 +150,8 @@ class ColorTargetHook:
             t = [self.guidance.targets(v) for v in views]
             stack = (lambda xs: xs[0][None]) if len(views) == 1 else torch.stack  # one view: a view, no copy
             targets.tcm_guidance = [stack([x["tcm_guidance"][b] for x in t]) for b in range(len(t[0]["tcm_guidance"]))]
+            if "tcm_valid" in t[0]:
+                targets.tcm_valid = [stack([x["tcm_valid"][b] for x in t]) for b in range(len(t[0]["tcm_valid"]))]
             targets.ccm_target = stack([x["ccm_target"] for x in t])
             targets.ccm_valid = stack([x["ccm_valid"] for x in t])
         return dataclasses.replace(batch, color=targets)
@@ -165,23 +168,82 @@ def _prepare_scene(scene, ckpt: Path, cc: ColorizeConfig):
     return resize_scene(scene, down, width)
 
 
-def _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir):
+def _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo: SurfaceGeometry):
+    """The pseudo-colour target ``[N, H, W, 3]`` and its pixels ``[N, H, W]`` of every training view: the 2-D
+    pseudo-colours (:mod:`.pseudocolor`), completed by the surface spread (:mod:`.surface`, ``colorize.surface``)
+    and shaded for each view (:mod:`.shading`, ``colorize.shading``); returns them and what to record."""
     t0 = time.perf_counter()
     depth_src = ckpt if cc.depth == "model" else split.depths
     if cc.depth == "dataset" and split.depths is None:
         raise DataError("colorize.depth=dataset but the dataset has no depth maps; use depth: model")
-    key = pseudo_key(depth_src, refs.images, refs.names, cc.radius, cc.radius_factor, masks, split.cameras)
+    grey = split.images.float().mean(-1).cpu()  # [N, H, W]
+    ridx = refs.indices.tolist()
+    carried = torch.cat([refs.images.float(), grey[ridx][..., None]], -1)  # colour + the grey it was painted on
+    key = pseudo_key(depth_src, carried, refs.names, cc.radius, cc.radius_factor, masks, split.cameras)
 
     def compute():
         depths = render_depths(backbone, split) if cc.depth == "model" else split.depths
-        return pseudo_colors(split.cameras, depths, masks, refs.indices.tolist(), refs.images, cc.radius,
-                             cc.radius_factor, progress=cc.progress)
+        return pseudo_colors(split.cameras, depths, masks, ridx, carried, cc.radius, cc.radius_factor,
+                             progress=cc.progress)
 
     colors, valid, hit = cached_pseudo_colors(cache_dir, key, compute)
-    return colors, valid, {"cache_hit": hit, "time_s": time.perf_counter() - t0, "key": key}
+    info = {"cache_hit": hit, "time_s": time.perf_counter() - t0, "key": key}
+    info["valid2d"] = valid  # the 2-D pseudo-colours' reach: the coverage split of the metrics
+    if cc.surface.mode == "fill":
+        colors, valid, info["surface"] = _surface_fill(cc, geo, split, masks, carried, ridx, cache_dir, key, colors,
+                                                       valid)
+    a, b = fit_shading(refs.images, grey[ridx], masks[ridx]) if cc.shading == "auto" else (1.0, 0.0)
+    info["shading"] = {"mode": cc.shading, "a": a, "b": b}
+    colors = torch.where(valid[..., None], shade(colors[..., :3], colors[..., 3], grey, a, b), colors[..., :3])
+    return colors, valid, info
 
 
-def _guidance(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir) -> tuple[Guidance, Any, dict]:
+class SurfaceGeometry:
+    """The stage-1 model's z-depth ``[N, H, W]`` (0 where alpha < 0.5) and unit world normals ``[N, H, W, 3]`` of
+    every view of ``split``, on the CPU, rendered on first use (``.value``) and kept for the run's other users."""
+
+    def __init__(self, backbone, split):
+        self.backbone, self.split, self._value = backbone, split, None
+
+    @property
+    def value(self) -> tuple[torch.Tensor, torch.Tensor]:
+        if self._value is None:
+            from ..visual import render_layers
+
+            layers = [render_layers(self.backbone, self.split.cameras[i:i + 1]) for i in range(len(self.split))]
+            depth = torch.cat([torch.where(x["valid"], x["depth"], torch.zeros_like(x["depth"])).cpu() for x in layers])
+            self._value = depth, torch.cat([x["normal"].cpu() for x in layers])
+        return self._value
+
+
+def _surface_fill(cc, geo: SurfaceGeometry, split, masks, carried, ridx, cache_dir, key, colors, valid):
+    """The 2-D pseudo-colours ``colors [N, H, W, C]``, ``valid [N, H, W]`` completed with the surface spread of the
+    references' ``carried [R, H, W, C]`` (:mod:`arcsem.colorize.surface`) where they have none; returns them and what
+    to record."""
+    from dataclasses import asdict
+
+    from .pseudocolor import cache_key
+    from .surface import surface_colors
+
+    t0, figures = time.perf_counter(), {}
+
+    def compute():
+        depth, normal = geo.value
+        cols, ok, figs = surface_colors(split.cameras.to(device="cpu"), depth, masks, split.images.float().mean(-1).cpu(),
+                                        normal, ridx, carried, cc.surface)
+        figures.update(figs)
+        return cols, ok
+
+    skey = cache_key("surface-v1", key, asdict(cc.surface))
+    scol, sok, hit = cached_pseudo_colors(cache_dir, skey, compute)
+    fill = sok & ~valid
+    colors = torch.where(fill[..., None], scol, colors)
+    info = {**figures, "cache_hit": hit, "filled_px": int(fill.sum()), "time_s": time.perf_counter() - t0}
+    return colors, valid | fill, info
+
+
+def _guidance(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo: SurfaceGeometry
+              ) -> tuple[Guidance, Any, dict]:
     """The TCM/CCM guidance of every view (computed now, cached on disk), its loss space and what to record."""
     from .features import SceneContext, build_extractor, tcm_space
     from .features.base import space_label
@@ -196,8 +258,13 @@ def _guidance(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir) -> tuple[G
                        progress=cc.progress)
     extractor = build_extractor(cc.features, ctx)
     space = tcm_space(cc.tcm_space, extractor)
+    geometry = None
+    if cc.guard.enabled:
+        from .guard import geometry_descriptors
+
+        geometry = geometry_descriptors(split.cameras.to(device="cpu"), *geo.value)
     guidance = Guidance(extractor, space, split.images, refs.indices.tolist(), refs.images, cc.tcm_downscale,
-                        cc.ccm_downscale, cc.ccm_max_dist, cc.ccm_white, cache_dir)
+                        cc.ccm_downscale, cc.ccm_max_dist, cc.ccm_white, cache_dir, geometry=geometry, guard=cc.guard)
     for i in range(len(split)):  # once per view, before training (cached on disk)
         guidance.matches(i)
     info = {"requested": cc.features, "name": extractor.name, "label": extractor.label(),
@@ -209,9 +276,11 @@ def _guidance(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir) -> tuple[G
     return guidance, space, info
 
 
-def _pseudo_quality(split, masks, refs, colors, valid) -> dict:
+def _pseudo_quality(split, masks, refs, colors, valid, name: str = "coverage") -> dict:
+    """Share of the non-reference views' mask pixels that ``valid`` holds (``name``) and, where the dataset has
+    colour, the mean absolute error of ``colors`` there against it (``mae_vs_gt``)."""
     others = [i for i in range(len(split)) if i not in set(refs.indices.tolist())]
-    out = {"coverage": float(valid[others].sum() / masks[others].sum().clamp_min(1)) if others else float("nan")}
+    out = {name: float(valid[others].sum() / masks[others].sum().clamp_min(1)) if others else float("nan")}
     if split.colors is not None and others and bool(valid[others].any()):
         err = (colors[others] - split.colors[others]).abs()[valid[others]]
         out["mae_vs_gt"] = float(err.mean())
@@ -237,11 +306,12 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     refs.images = _resize_images(refs.images, split.cameras.height, split.cameras.width)
     masks = specimen_masks(split, cc.masks, cc.mask_folder, cc.sam_checkpoint)
     cache_dir = Path(cc.cache_dir) if cc.cache_dir else cache_root(cfg) / "colorize"
-    pseudo, valid, pinfo = _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir)
+    geo = SurfaceGeometry(backbone, split)
+    pseudo, valid, pinfo = _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo)
     losses = colorize_losses(cc, backbone)
     guidance, space, finfo = None, None, None
     if any(n in losses.terms for n in ("tcm", "ccm")):
-        guidance, space, finfo = _guidance(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir)
+        guidance, space, finfo = _guidance(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo)
     hook = ColorTargetHook(refs, pseudo, valid, guidance, space, cc.tcm_downscale, cc.ccm_downscale)
     hook.to(run_device(cfg))  # the targets, the guidance and the loss space's extractor follow the model
     loop = LoopConfig(steps=cc.steps, stage="color", batch_views=cc.batch_views, log_every=cc.log_every,
@@ -253,15 +323,16 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     backbone.eval()
     features = finfo["label"] if finfo is not None else "unused"
     result = evaluate_colour(backbone, scene, refs, run_dir, cc)
-    for part, extra in coverage_metrics(backbone, scene, refs, masks, valid, cc).items():
+    for part, extra in coverage_metrics(backbone, scene, refs, masks, pinfo["valid2d"], cc).items():
         result.setdefault(part, {}).update(extra)
     result.update(write_outputs(backbone, scene, run_dir, cc, pseudo, valid))
     result.update(write_colored_products(cfg, backbone, scene, run_dir, res.steps, cc.progress))
     result.update(
         features=features, references=refs.names, losses=sorted(losses.terms), steps=res.steps, time_s=res.time_s,
         steps_per_s=res.steps_per_s, stage1_checkpoint=str(ckpt), image_size=[split.cameras.width, split.cameras.height],
-        pseudo={**_pseudo_quality(split, masks, refs, pseudo, valid), "cache_hit": pinfo["cache_hit"],
-                "time_s": pinfo["time_s"]}, guidance_time_s=finfo["time_s"] if finfo else 0.0,
+        pseudo={**_pseudo_quality(split, masks, refs, pseudo, pinfo["valid2d"]), "cache_hit": pinfo["cache_hit"],
+                "time_s": pinfo["time_s"], "shading": pinfo["shading"], **({"surface": {**pinfo["surface"], **_pseudo_quality(
+                    split, masks, refs, pseudo, valid & ~pinfo["valid2d"], "filled")}} if "surface" in pinfo else {})}, guidance_time_s=finfo["time_s"] if finfo else 0.0,
         feature_extractor=finfo, final_loss=res.history[-1]["loss"] if res.history else None)
     warning = loss_trend_warning(res.history, loop.desc)
     if warning:

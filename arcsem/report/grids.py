@@ -7,7 +7,8 @@ Files read from a run folder (names as the trainer and the colouriser write them
   masked like the ground truth; the colour bar's scale comes from ``metrics.json``)
 - ``renders/test/<view>_gt.png``     ground-truth grey image (optional; else the dataset folder)
 - ``renders/test/<view>_depth_gt.png`` ground-truth depth visualisation (optional)
-- ``colored/<view>.png``             stage-2 coloured training view
+- ``colorize/renders/test/<view>.png`` stage-2 coloured held-out view (``_gt.png`` beside it: its true colour)
+- ``colored/<view>.png``             stage-2 coloured training view (where a run has no held-out view)
 - ``colored/<view>_gt.png``          ground-truth colour (optional; else the dataset folder)
 
 Ground truth found in neither is rendered from the run's dataset (``config.yaml`` ``dataset``).
@@ -98,7 +99,10 @@ def _side(text: str, h: int, w: int = 90) -> np.ndarray:
     import cv2
 
     band = np.full((h, w, 3), 255, np.uint8)
-    cv2.putText(band, text[:12], (4, h // 2 + 5), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    lines = [t if i == 0 else f"({t}" for i, t in enumerate(text.split(" ("))]  # "h_10 (reference)": two lines
+    for k, line in enumerate(lines):
+        y = h // 2 + 5 + 18 * (k - (len(lines) - 1) / 2)
+        cv2.putText(band, line[:12], (4, int(y)), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
     return band
 
 
@@ -128,7 +132,7 @@ def gt_path(run: Path, name: str, kind: str, gt: GroundTruth | None = None,
     """Ground truth of view ``name`` (``kind``: gray | depth | color): a file in the run (next to the
     renders in ``folder``) or in the dataset folder, else a tile ``gt`` renders from the run's dataset."""
     local = {"gray": [f"{folder}/{name}_gt.png"], "depth": [f"{folder}/{name}_depth_gt.png"],
-             "color": [f"colored/{name}_gt.png", f"colored_gt/{name}.png"]}[kind]
+             "color": [f"{folder}/{name}_gt.png", f"colored/{name}_gt.png", f"colored_gt/{name}.png"]}[kind]
     cands = [run / p for p in local]
     root = _dataset_root(run)
     if root is not None:
@@ -155,7 +159,7 @@ shared model's folder)."""
 GRID = {  # kind -> (run folders, first with files wins; file suffix; ground-truth kind; first column; title)
     "gray": (STAGE1_RENDERS, "", "gray", "ground truth", "renders"),
     "depth": (STAGE1_RENDERS, "_depth", "depth", "GT depth", "depth maps"),
-    "color": (("colored",), "", "color", "GT colour", "coloured views"),
+    "color": (("colorize/renders/test", "colored"), "", "color", "GT colour", "coloured views"),
 }
 
 
@@ -196,6 +200,17 @@ def _depth_bar(runs: list[Path], out: Path, study: str) -> Path | None:
     return _write(bar[..., ::-1].copy(), out / f"{study}_depth_bar.png")
 
 
+def _marked(names: list[str], run: Path) -> list[str]:
+    """View names with `` (reference)`` after the run's stage-2 references (``metrics.json``)."""
+    import json
+
+    try:
+        refs = set((json.loads((Path(run) / "metrics.json").read_text()).get("stage2") or {}).get("references") or [])
+    except (FileNotFoundError, ValueError):
+        refs = set()
+    return [f"{n} (reference)" if n in refs else n for n in names]
+
+
 def study_grids(study: str, runs: Mapping[str, Path], out: Path,
                 gt: GroundTruth | None = None) -> list[tuple[str, Path]]:
     """Grids of one study: ``runs`` maps row label -> one run folder. Returns ``[(title, png)]``.
@@ -213,7 +228,7 @@ def study_grids(study: str, runs: Mapping[str, Path], out: Path,
             continue
         paths = [[gt_path(dirs[0], n, gt_kind, gt, folder)] + [d / folder / f"{n}{suffix}.png" for d in dirs]
                  for n in names]
-        img = make_grid(paths, [gt_label, *labels], names)
+        img = make_grid(paths, [gt_label, *labels], _marked(names, dirs[0]) if folder == "colored" else names)
         where = " (held-out views)" if folder.endswith("renders/test") else (
             " (training views)" if folder.endswith("renders/train") else "")
         grids.append((f"{study}: {title}{where}", _write(img, out / f"{study}_{kind}.png")))

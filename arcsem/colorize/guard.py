@@ -1,0 +1,87 @@
+"""Guarded correspondences for TCM and CCM: a match is kept only where the evidence for it is confident.
+
+The paper's TCM (after Ref-NPR) pairs every feature location of a view with its nearest reference feature by cosine
+distance, and CCM every cell; on a scene whose parts look alike in grey, such matches carry colours between parts.
+Here a location's match is searched among the reference locations that are **geometrically compatible** with it
+(stage-1 geometry: the surface normal's elevation towards the cameras and the height above the specimen's lowest
+point, :func:`geometry_descriptors`), and kept only if it passes:
+
+* the **ratio test** (Lowe 2004): its cosine distance is below ``ratio`` times that of the best compatible
+  location that is not its neighbour (more than ``exclude`` cells away in the same reference, or in another one),
+  so a match that could as well be elsewhere is dropped;
+* **mutual nearest neighbours**: the matched reference location's own nearest compatible location in the view is
+  within ``exclude`` cells of the query.
+
+Where no location passes, the view location gets no target and the losses pull nothing there.
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from ..cameras import Cameras
+from ..configs import GuardConfig
+
+__all__ = ["GuardConfig", "geometry_descriptors", "grid_positions", "guarded_nearest"]
+
+
+def geometry_descriptors(cams: Cameras, depths: Tensor, normals: Tensor) -> Tensor:
+    """``[N, 2, H, W]`` per pixel: the normal's elevation ``n . u`` and the height ``(x - x_low) . u / extent``, with
+    ``u`` the direction towards the cameras (minus their mean viewing direction: SEM views look down on the stage)
+    and ``x_low``/``extent`` the 1st percentile and the 1st-99th percentile span of the heights of all surface pixels.
+    NaN where a pixel has no depth (``depths [N, H, W]``, <= 0: none; world ``normals [N, H, W, 3]``)."""
+    up = -F.normalize(cams.forward.double().mean(0), dim=0)
+    pts = cams.to(dtype=torch.float64).unproject(depths.double())
+    h = (pts @ up).float()
+    ok = depths > 0
+    if not bool(ok.any()):
+        return torch.full((len(depths), 2, *depths.shape[1:]), float("nan"))
+    lo, hi = torch.quantile(h[ok][:: max(1, int(ok.sum()) // 200_000)], torch.tensor([0.01, 0.99]))
+    height = (h - lo) / (hi - lo).clamp_min(1e-9)
+    elev = (normals.double() @ up).float()
+    out = torch.stack([elev, height], 1)
+    return torch.where(ok[:, None], out, torch.full_like(out, float("nan")))
+
+
+def grid_positions(R: int, h: int, w: int) -> Tensor:
+    """``[R*h*w, 3]`` (reference, row, column) of flattened reference-major grid locations."""
+    r, y, x = torch.meshgrid(torch.arange(R), torch.arange(h), torch.arange(w), indexing="ij")
+    return torch.stack([r, y, x], -1).reshape(-1, 3)
+
+
+def _compatible(qg: Tensor, kg: Tensor, tol: Tensor) -> Tensor:
+    """``[Q, K]`` bool: every descriptor within ``tol [G]`` (NaN: never)."""
+    return ((qg[:, None, :] - kg[None, :, :]).abs() <= tol).all(-1)
+
+
+def guarded_nearest(query: Tensor, keys: Tensor, query_geo: Tensor, key_geo: Tensor, query_pos: Tensor,
+                    key_pos: Tensor, cfg: GuardConfig, chunk: int = 1024) -> tuple[Tensor, Tensor, Tensor]:
+    """Nearest compatible key by cosine distance, with the ratio and mutual tests.
+
+    Args: query ``[Q, D]`` features of one view's locations, keys ``[K, D]`` of the references'; query_geo ``[Q, G]``,
+        key_geo ``[K, G]`` geometry descriptors (NaN: unknown, never compatible); query_pos ``[Q, 2]`` (row, col),
+        key_pos ``[K, 3]`` (reference, row, col) grid positions.
+    Returns: index ``[Q]`` into the keys, cosine distance ``[Q]`` and kept ``[Q]`` bool.
+    """
+    tol = torch.tensor([cfg.normal_tol, cfg.height_tol])[: query_geo.shape[1]]
+    kn, qn_all = F.normalize(keys.float(), dim=-1, eps=1e-8), F.normalize(query.float(), dim=-1, eps=1e-8)
+    Q, K = len(query), len(keys)
+    idx, dist, ratio_ok = torch.zeros(Q, dtype=torch.long), torch.full((Q,), 2.0), torch.zeros(Q, dtype=torch.bool)
+    col_best, col_arg = torch.full((K,), -2.0), torch.zeros(K, dtype=torch.long)
+    kp = key_pos.float()
+    for s in range(0, Q, chunk):
+        sim = qn_all[s:s + chunk] @ kn.T
+        sim = torch.where(_compatible(query_geo[s:s + chunk], key_geo, tol), sim, torch.full_like(sim, -2.0))
+        best, arg = sim.max(1)
+        far = ((kp[None, :, 0] != kp[arg][:, None, 0])
+               | ((kp[None, :, 1:] - kp[arg][:, None, 1:]).abs().amax(-1) > cfg.exclude))
+        second = torch.where(far, sim, torch.full_like(sim, -2.0)).max(1).values
+        idx[s:s + chunk], dist[s:s + chunk] = arg, 1.0 - best
+        ratio_ok[s:s + chunk] = (best > -2.0) & ((1.0 - best) <= cfg.ratio * (1.0 - second))
+        cb, ca = sim.max(0)
+        upd = cb > col_best
+        col_best, col_arg = torch.where(upd, cb, col_best), torch.where(upd, ca + s, col_arg)
+    back = query_pos[col_arg[idx]].float()
+    mutual = (back - query_pos.float()).abs().amax(-1) <= cfg.exclude
+    return idx, dist, ratio_ok & (mutual | (not cfg.mutual))

@@ -1,0 +1,81 @@
+"""Guarded correspondences (arcsem.colorize.guard): geometry, ratio and mutual tests on hand-built features.
+
+The scene: one view location on the specimen's top (normal towards the cameras, high) and a reference with two
+candidate locations: on another part (a side, low) whose grey appearance is IDENTICAL to the query's, and on the
+same part, alike but not identical. Appearance alone picks the other part; the guard picks the right one.
+"""
+from __future__ import annotations
+
+import torch
+
+from arcsem.colorize.guard import grid_positions, guarded_nearest
+from arcsem.colorize.guidance import nearest_cosine
+from arcsem.configs import GuardConfig
+
+D = 16
+TOP, SIDE = [0.95, 0.9], [0.05, 0.3]  # (normal elevation, height) of the two parts
+
+
+def _keys(g: torch.Generator, n: int = 30) -> tuple[torch.Tensor, torch.Tensor]:
+    """A 1 x 5 x 6 reference grid of random features, all on the side part."""
+    keys = torch.randn(n, D, generator=g)
+    geo = torch.tensor(SIDE).repeat(n, 1)
+    return keys, geo
+
+
+def _wrong_part_scene():
+    g = torch.Generator().manual_seed(0)
+    keys, kgeo = _keys(g)
+    f = torch.randn(D, generator=g)
+    keys[7] = f  # another part, the same appearance
+    keys[22] = f + 0.3 * torch.randn(D, generator=g)  # the same part, alike
+    kgeo[22] = torch.tensor(TOP)
+    query, qgeo = f[None], torch.tensor([TOP])
+    return query, keys, qgeo, kgeo
+
+
+def test_appearance_alone_picks_the_other_part_and_the_guard_the_right_one():
+    query, keys, qgeo, kgeo = _wrong_part_scene()
+    plain, _ = nearest_cosine(query, keys)
+    assert plain.tolist() == [7]  # the wrong part: its grey features are identical
+    idx, dist, kept = guarded_nearest(query, keys, qgeo, kgeo, torch.tensor([[0, 0]]), grid_positions(1, 5, 6),
+                                      GuardConfig())
+    assert idx.tolist() == [22] and kept.tolist() == [True] and 0 < float(dist[0]) < 0.2
+
+
+def test_no_compatible_location_no_match():
+    query, keys, qgeo, kgeo = _wrong_part_scene()
+    kgeo[22] = torch.tensor(SIDE)
+    _, _, kept = guarded_nearest(query, keys, qgeo, kgeo, torch.tensor([[0, 0]]), grid_positions(1, 5, 6),
+                                 GuardConfig())
+    assert kept.tolist() == [False]
+    _, _, kept = guarded_nearest(query, keys, torch.tensor([[float("nan"), 0.5]]), kgeo, torch.tensor([[0, 0]]),
+                                 grid_positions(1, 5, 6), GuardConfig())
+    assert kept.tolist() == [False]  # no geometry known for the query: nothing is compatible
+
+
+def test_ratio_test_drops_a_match_that_could_as_well_be_elsewhere():
+    """Two compatible locations far apart (cells 2 and 27) alike and near the query: ambiguous, dropped; the same
+    pair as neighbours (cells 2 and 3) is one match, kept."""
+    g = torch.Generator().manual_seed(1)
+    keys, kgeo = _keys(g)
+    f = torch.randn(D, generator=g)
+    for far, want in ((27, False), (3, True)):
+        k, kg = keys.clone(), kgeo.clone()
+        k[2] = k[far] = f + 0.2 * torch.randn(D, generator=g)
+        kg[2], kg[far] = torch.tensor(TOP), torch.tensor(TOP)
+        _, _, kept = guarded_nearest(f[None], k, torch.tensor([TOP]), kg, torch.tensor([[0, 0]]),
+                                     grid_positions(1, 5, 6), GuardConfig())
+        assert kept.tolist() == [want], far
+
+
+def test_mutual_test_keeps_only_the_best_of_two_queries_for_one_location():
+    """Queries at cells (0, 0) and (3, 3) both match key 22; its nearest query is the second: only it is kept
+    (the first kept without the mutual test)."""
+    _, keys, qgeo, kgeo = _wrong_part_scene()
+    q = torch.stack([keys[22] + 0.4 * torch.randn(D, generator=torch.Generator().manual_seed(5)), keys[22]])
+    args = (q, keys, qgeo.repeat(2, 1), kgeo, torch.tensor([[0, 0], [3, 3]]), grid_positions(1, 5, 6))
+    idx, _, kept = guarded_nearest(*args, GuardConfig())
+    assert idx.tolist() == [22, 22] and kept.tolist() == [False, True]
+    _, _, kept = guarded_nearest(*args, GuardConfig(mutual=False))
+    assert kept.tolist() == [True, True]

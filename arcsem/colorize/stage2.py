@@ -30,8 +30,8 @@ from .config import ColorizeConfig
 from .guidance import Guidance
 from .masks import specimen_masks
 from .pseudocolor import cached_pseudo_colors, pseudo_colors, pseudo_key
-from .shading import fit_shading, shade
 from .references import References, load_references
+from .shading import fit_shading, shade
 
 __all__ = ["ColorTargetHook", "check_stage1_model", "colorize_config", "colorize_losses", "find_stage1", "render_depths",
            "run_stage2"]

@@ -242,9 +242,8 @@ def _surface_fill(cc, geo: SurfaceGeometry, split, masks, carried, ridx, cache_d
     return colors, valid | fill, info
 
 
-def _guidance(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo: SurfaceGeometry
-              ) -> tuple[Guidance, Any, dict]:
-    """The TCM/CCM guidance of every view (computed now, cached on disk), its loss space and what to record."""
+def _extractor(cc, cfg, ckpt, backbone, split, masks, cache_dir) -> tuple[Any, Any, dict]:
+    """The TCM/CCM feature extractor (``colorize.features``), its loss space and what to record."""
     from .features import SceneContext, build_extractor, tcm_space
     from .features.base import space_label
     from .pseudocolor import cache_key
@@ -258,22 +257,41 @@ def _guidance(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo: Surfa
                        progress=cc.progress)
     extractor = build_extractor(cc.features, ctx)
     space = tcm_space(cc.tcm_space, extractor)
-    geometry = None
-    if cc.guard.enabled:
-        from .guard import geometry_descriptors
-
-        geometry = geometry_descriptors(split.cameras.to(device="cpu"), *geo.value)
-    guidance = Guidance(extractor, space, split.images, refs.indices.tolist(), refs.images, cc.tcm_downscale,
-                        cc.ccm_downscale, cc.ccm_max_dist, cc.ccm_white, cache_dir, geometry=geometry, guard=cc.guard)
-    for i in range(len(split)):  # once per view, before training (cached on disk)
-        guidance.matches(i)
     info = {"requested": cc.features, "name": extractor.name, "label": extractor.label(),
             "tcm_space": space_label(space), "time_s": time.perf_counter() - t0}
     if hasattr(extractor, "weights_detail"):
         info["weights"] = extractor.weights_detail
     if hasattr(extractor, "info"):
         info["training"] = extractor.info
-    return guidance, space, info
+    return extractor, space, info
+
+
+def _guide_factory(cc, extractor, space, split, geo: SurfaceGeometry, cache_dir):
+    """``(reference view indices, their colours [R, H, W, 3]) -> Guidance`` of this run (guarded where
+    ``colorize.guard.enabled``: the stage-1 geometry's descriptors, :mod:`arcsem.colorize.guard`)."""
+    geometry = None
+    if cc.guard.enabled:
+        from .guard import geometry_descriptors
+
+        geometry = geometry_descriptors(split.cameras.to(device="cpu"), *geo.value)
+    return lambda idx, images: Guidance(extractor, space, split.images, idx, images, cc.tcm_downscale,
+                                        cc.ccm_downscale, cc.ccm_max_dist, cc.ccm_white, cache_dir,
+                                        geometry=geometry, guard=cc.guard)
+
+
+def _validate(cc, split, masks, refs, geo: SurfaceGeometry, make_guidance):
+    """``colorize.validate=auto`` with two or more references (:mod:`arcsem.colorize.validate`): the config with
+    the scene's own choice and the scores (None: not validated)."""
+    from .validate import apply_choice, validate
+
+    if cc.validate != "auto" or len(refs) < 2:
+        return cc, None
+    t0 = time.perf_counter()
+    depth, normal = geo.value
+    choice = validate(split.cameras.to(device="cpu"), depth, normal, masks, split.images.float().mean(-1).cpu(),
+                      refs.indices.tolist(), refs.images, cc, make_guidance)
+    choice["time_s"] = time.perf_counter() - t0
+    return apply_choice(cc, choice), choice
 
 
 def _pseudo_quality(split, masks, refs, colors, valid, name: str = "coverage") -> dict:
@@ -307,11 +325,22 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     masks = specimen_masks(split, cc.masks, cc.mask_folder, cc.sam_checkpoint)
     cache_dir = Path(cc.cache_dir) if cc.cache_dir else cache_root(cfg) / "colorize"
     geo = SurfaceGeometry(backbone, split)
+    extractor, space, finfo, make = None, None, None, None
+    if any(n in colorize_losses(cc, backbone).terms for n in ("tcm", "ccm")):
+        extractor, space, finfo = _extractor(cc, cfg, ckpt, backbone, split, masks, cache_dir)
+        make = _guide_factory(cc, extractor, space, split, geo, cache_dir)
+    cc, validation = _validate(cc, split, masks, refs, geo, make)
     pseudo, valid, pinfo = _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo)
     losses = colorize_losses(cc, backbone)
-    guidance, space, finfo = None, None, None
+    guidance = None
     if any(n in losses.terms for n in ("tcm", "ccm")):
-        guidance, space, finfo = _guidance(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo)
+        t0 = time.perf_counter()
+        guidance = make(refs.indices.tolist(), refs.images)
+        for i in range(len(split)):  # once per view, before training (cached on disk)
+            guidance.matches(i)
+        finfo["time_s"] += time.perf_counter() - t0
+    else:
+        space = None
     hook = ColorTargetHook(refs, pseudo, valid, guidance, space, cc.tcm_downscale, cc.ccm_downscale)
     hook.to(run_device(cfg))  # the targets, the guidance and the loss space's extractor follow the model
     loop = LoopConfig(steps=cc.steps, stage="color", batch_views=cc.batch_views, log_every=cc.log_every,
@@ -321,7 +350,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
                 config={"colorize": plain(cfg.get("colorize")), "stage1": str(ckpt), "pseudo": pinfo["key"]},
                 batch_hook=hook)
     backbone.eval()
-    features = finfo["label"] if finfo is not None else "unused"
+    features = finfo["label"] if guidance is not None else "unused"
     result = evaluate_colour(backbone, scene, refs, run_dir, cc)
     for part, extra in coverage_metrics(backbone, scene, refs, masks, pinfo["valid2d"], cc).items():
         result.setdefault(part, {}).update(extra)
@@ -332,8 +361,9 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
         steps_per_s=res.steps_per_s, stage1_checkpoint=str(ckpt), image_size=[split.cameras.width, split.cameras.height],
         pseudo={**_pseudo_quality(split, masks, refs, pseudo, pinfo["valid2d"]), "cache_hit": pinfo["cache_hit"],
                 "time_s": pinfo["time_s"], "shading": pinfo["shading"], **({"surface": {**pinfo["surface"], **_pseudo_quality(
-                    split, masks, refs, pseudo, valid & ~pinfo["valid2d"], "filled")}} if "surface" in pinfo else {})}, guidance_time_s=finfo["time_s"] if finfo else 0.0,
-        feature_extractor=finfo, final_loss=res.history[-1]["loss"] if res.history else None)
+                    split, masks, refs, pseudo, valid & ~pinfo["valid2d"], "filled")}} if "surface" in pinfo else {})}, guidance_time_s=finfo["time_s"] if guidance is not None else 0.0,
+        feature_extractor=finfo, final_loss=res.history[-1]["loss"] if res.history else None,
+        validation=validation)
     warning = loss_trend_warning(res.history, loop.desc)
     if warning:
         log.warning(warning)

@@ -1,0 +1,135 @@
+"""``colorize.validate=auto``: stage 2's settings chosen by the scene itself, each reference held out in turn.
+
+With two or more references, each reference ``r`` in turn is treated as a view nobody coloured: what stage 2 would
+train towards on it is built from the other references and scored against ``r``'s own artist colours, over its
+specimen pixels. Closed form, no training: a few seconds per reference. The declared grid (:data:`GRID`):
+
+* **the pseudo-colour target**: the surface spread on or off (``colorize.surface.mode``) x the shading transfer on
+  or off (``colorize.shading``). Scored by its mean squared error over every specimen pixel of ``r``; a pixel the
+  target does not reach is scored as the other references' mean colour (a flat guess, what stage 2 has there
+  without a target). The setting with the least error is chosen; pseudo-colours alone (both off) is one of the four;
+* **TCM** is kept where its guarded guidance lies closer to the truth in the TCM loss space than the chosen
+  target image (the same locations, mean cosine distance); **CCM** where its targets lie closer (squared error) to
+  the truth's cell colours than the target's cell means on the cells it acts on. Otherwise their weight becomes 0.
+
+So the chosen setting is never worse than pseudo-colours alone on the validation. The scores and the choice are
+recorded in ``metrics.json`` (``stage2.validation``).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from ..imageops import downscale, patch_means
+from .pseudocolor import pseudo_colors
+from .shading import fit_shading, shade
+from .surface import surface_colors
+
+__all__ = ["GRID", "apply_choice", "held_out_targets", "target_error", "validate"]
+
+GRID = [{"surface": s, "shading": h} for s in ("fill", "off") for h in ("auto", "off")]
+
+
+def held_out_targets(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Tensor, ridx: list[int],
+                     images: Tensor, r: int, cc) -> dict[str, Tensor]:
+    """What the other references give view ``ridx[r]``: 2-D pseudo-colours and surface colours, each with the grey
+    they were painted on (``[H, W, 4]``) and their pixels (``[H, W]``), and the shading line of the others."""
+    v, others = ridx[r], [i for i in range(len(ridx)) if i != r]
+    carried = torch.cat([images[others].float(), grey[[ridx[i] for i in others]][..., None]], -1)
+    sub = [ridx[i] for i in others] + [v]
+    p, pv = pseudo_colors(cams[torch.as_tensor(sub)], depth[sub], masks[sub], list(range(len(others))), carried,
+                          cc.radius, cc.radius_factor, progress=False)
+    s, sv, _ = surface_colors(cams, depth, masks, grey, normal, [ridx[i] for i in others], carried, cc.surface)
+    a, b = fit_shading(images[others], grey[[ridx[i] for i in others]], masks[[ridx[i] for i in others]])
+    flat = (images[others].float()[masks[[ridx[i] for i in others]]]).mean(0)
+    return {"pseudo": p[-1], "pseudo_valid": pv[-1], "surface": s[v], "surface_valid": sv[v], "shading": (a, b),
+            "flat": flat}
+
+
+def target_image(t: dict[str, Tensor], grey: Tensor, surface: str, shading: str) -> tuple[Tensor, Tensor]:
+    """The target ``[H, W, 3]`` of one grid setting on a held-out view of grey ``[H, W]`` and its pixels ``[H, W]``;
+    pixels without a target hold the flat guess."""
+    col, ok = t["pseudo"], t["pseudo_valid"]
+    if surface == "fill":
+        fill = t["surface_valid"] & ~ok
+        col, ok = torch.where(fill[..., None], t["surface"], col), ok | fill
+    a, b = t["shading"] if shading == "auto" else (1.0, 0.0)
+    rgb = torch.where(ok[..., None], shade(col[..., :3], col[..., 3], grey, a, b), t["flat"].expand_as(col[..., :3]))
+    return rgb, ok
+
+
+def target_error(rgb: Tensor, truth: Tensor, mask: Tensor) -> float:
+    """Mean squared error over the mask's pixels (``rgb``, ``truth`` ``[H, W, 3]``)."""
+    return float(((rgb - truth.float()) ** 2).sum(-1)[mask].mean() / 3) if bool(mask.any()) else float("nan")
+
+
+def _guide_scores(guidance, v: int, rgb: Tensor, truth: Tensor, space, tcm_downscale: int, ccm_downscale: int):
+    """``(tcm guidance, tcm target, ccm guidance, ccm target)`` distances to the truth on view ``v``'s guarded
+    locations (NaN where a loss acts nowhere)."""
+    t = guidance.targets(v)
+    with torch.no_grad():
+        f_truth = space(downscale(truth[None].float(), tcm_downscale))
+        f_rgb = space(downscale(rgb[None].float(), tcm_downscale))
+    g_err, r_err, n = 0.0, 0.0, 0
+    for b, guide in enumerate(t["tcm_guidance"]):
+        ok = t["tcm_valid"][b] if "tcm_valid" in t else torch.ones(guide.shape[1:], dtype=torch.bool)
+        if bool(ok.any()):
+            g_err += float((1 - F.cosine_similarity(guide[None].float(), f_truth[b], dim=1)[0])[ok].mean())
+            r_err += float((1 - F.cosine_similarity(f_rgb[b], f_truth[b], dim=1)[0])[ok].mean())
+            n += 1
+    cells, truth_cells = patch_means(rgb[None], ccm_downscale)[0], patch_means(truth[None].float(), ccm_downscale)[0]
+    ok = t["ccm_valid"]
+    c = (float(((t["ccm_target"] - truth_cells) ** 2)[ok].mean()), float(((cells - truth_cells) ** 2)[ok].mean())) \
+        if bool(ok.any()) else (float("nan"), float("nan"))
+    return (g_err / n, r_err / n, *c) if n else (float("nan"), float("nan"), *c)
+
+
+def validate(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Tensor, ridx: list[int], images: Tensor, cc,
+             make_guidance=None) -> dict:
+    """Scores of every grid setting and the choice (:func:`apply_choice` reads it).
+
+    Args: cams, depth ``[N, H, W]``, normal ``[N, H, W, 3]``, masks, grey ``[N, H, W]``: every training view;
+        ridx: ``R >= 2`` reference views; images ``[R, H, W, 3]`` their colours; cc: the stage-2 config;
+        make_guidance: ``(reference view indices, their images) -> Guidance`` (None: TCM/CCM are not scored).
+    """
+    errs = {f"{g['surface']}/{g['shading']}": [] for g in GRID}
+    guide = {"tcm": [], "ccm": []}
+    for r in range(len(ridx)):
+        v = ridx[r]
+        t = held_out_targets(cams, depth, normal, masks, grey, ridx, images, r, cc)
+        for g in GRID:
+            rgb, _ = target_image(t, grey[v], g["surface"], g["shading"])
+            errs[f"{g['surface']}/{g['shading']}"].append(target_error(rgb, images[r], masks[v]))
+        guide["rgb_" + str(r)] = t  # kept for the TCM/CCM scores below
+    mean = {k: sum(e) / len(e) for k, e in errs.items()}
+    best = min(mean, key=mean.get)
+    surface, shading = best.split("/")
+    out = {"references": len(ridx), "target_mse": mean, "surface": surface, "shading": shading}
+    if make_guidance is not None:
+        for r in range(len(ridx)):
+            others = [i for i in range(len(ridx)) if i != r]
+            guidance = make_guidance([ridx[i] for i in others], images[others])
+            rgb, _ = target_image(guide["rgb_" + str(r)], grey[ridx[r]], surface, shading)
+            s = _guide_scores(guidance, ridx[r], rgb, images[r], guidance.space, guidance.tcm_downscale,
+                              guidance.ccm_downscale)
+            guide["tcm"].append(s[:2])
+            guide["ccm"].append(s[2:])
+        for k in ("tcm", "ccm"):
+            pairs = [p for p in guide[k] if p[0] == p[0]]  # not NaN
+            g, t = (sum(p[0] for p in pairs) / len(pairs), sum(p[1] for p in pairs) / len(pairs)) if pairs else (1, 0)
+            out[k] = {"guidance": g, "target": t, "keep": bool(pairs) and g < t}
+    return out
+
+
+def apply_choice(cc, choice: dict):
+    """``cc`` (the stage-2 config) with the validation's choice: surface mode, shading, TCM/CCM weights (0 where
+    dropped)."""
+    losses = {k: dict(v) for k, v in (cc.losses or {}).items()}
+    for k in ("tcm", "ccm"):
+        if k in choice and not choice[k]["keep"] and k in losses:
+            losses[k]["weight"] = 0.0
+    return dataclasses.replace(cc, surface=dataclasses.replace(cc.surface, mode=choice["surface"]),
+                               shading=choice["shading"], losses=losses)

@@ -1,0 +1,51 @@
+"""colorize.validate=auto (arcsem.colorize.validate): the grid's targets, their score and the choice applied."""
+from __future__ import annotations
+
+import torch
+
+from arcsem.colorize.validate import GRID, apply_choice, target_error, target_image
+from arcsem.configs import ColorizeConfig
+
+
+def _targets():
+    H, W = 2, 3
+    pseudo = torch.zeros(H, W, 4)
+    pseudo[0, :] = torch.tensor([0.2, 0.4, 0.6, 0.5])  # row 0: 2-D pseudo-colour, painted on grey 0.5
+    surface = torch.zeros(H, W, 4)
+    surface[1, :2] = torch.tensor([0.8, 0.2, 0.2, 0.25])  # row 1, columns 0-1: the surface spread
+    ok_p = torch.zeros(H, W, dtype=torch.bool)
+    ok_p[0] = True
+    ok_s = torch.zeros(H, W, dtype=torch.bool)
+    ok_s[1, :2] = True
+    return {"pseudo": pseudo, "pseudo_valid": ok_p, "surface": surface, "surface_valid": ok_s,
+            "shading": (0.0, 1.0), "flat": torch.tensor([0.5, 0.5, 0.5])}
+
+
+def test_target_image_of_each_grid_setting():
+    t, grey = _targets(), torch.full((2, 3), 0.25)
+    rgb, ok = target_image(t, grey, "off", "off")
+    assert ok.tolist() == [[True] * 3, [False] * 3]
+    assert torch.equal(rgb[0, 0], torch.tensor([0.2, 0.4, 0.6])) and torch.equal(rgb[1, 2], torch.tensor([0.5] * 3))
+    rgb, ok = target_image(t, grey, "fill", "auto")  # shading L = g: grey 0.5 -> 0.25 halves row 0
+    assert ok.tolist() == [[True] * 3, [True, True, False]]
+    torch.testing.assert_close(rgb[0, 0], torch.tensor([0.1, 0.2, 0.3]))
+    torch.testing.assert_close(rgb[1, 0], torch.tensor([0.8, 0.2, 0.2]))  # painted on grey 0.25: unchanged
+    assert len(GRID) == 4 and {"surface": "off", "shading": "off"} in GRID  # pseudo-colours alone is a setting
+
+
+def test_target_error_is_the_mean_squared_error_over_the_mask():
+    truth = torch.zeros(2, 3, 3)
+    rgb = torch.zeros(2, 3, 3)
+    rgb[0, 0] = torch.tensor([0.3, 0.0, 0.0])  # squared error 0.09 / 3 channels at one of two masked pixels
+    mask = torch.zeros(2, 3, dtype=torch.bool)
+    mask[0, :2] = True
+    assert abs(target_error(rgb, truth, mask) - 0.015) < 1e-7
+
+
+def test_apply_choice_sets_the_target_and_drops_losses_that_lose():
+    cc = ColorizeConfig(losses={"tcm": {"weight": 1.0}, "ccm": {"weight": 5.0}, "pseudo_color": {"weight": 1.0}})
+    choice = {"surface": "off", "shading": "auto", "tcm": {"keep": False}, "ccm": {"keep": True}}
+    out = apply_choice(cc, choice)
+    assert out.surface.mode == "off" and out.shading == "auto"
+    assert out.losses["tcm"]["weight"] == 0.0 and out.losses["ccm"]["weight"] == 5.0
+    assert cc.losses["tcm"]["weight"] == 1.0  # the input config is left as it was

@@ -37,6 +37,10 @@ def conf_dir(tmp_path_factory) -> Path:
 def _compose(conf_dir: Path, overrides: list[str]):
     from hydra import compose, initialize_config_dir
 
+    from arcsem.schemas import setup
+
+    setup()  # the schemas and resolvers the configs name (as the arcsem command does at start-up)
+
     with initialize_config_dir(str(conf_dir), version_base=None):
         return compose("config", overrides=overrides, return_hydra_config=True)
 
@@ -216,3 +220,19 @@ def test_real_app_study_check_sweep(tmp_path, tiny_transforms):
 def test_studies_compose_with_every_launcher(conf_dir, launcher, target):
     cfg = _compose(conf_dir, ["experiment=reference_count", f"hydra/launcher={launcher}"])
     assert cfg.hydra.launcher._target_.endswith(target)
+
+
+@pytest.mark.parametrize("ablation", ["full", "pseudo_only"])
+def test_colorization_benchmark_composes_both_stage2_rows(conf_dir, ablation):
+    """The benchmark's rows: the default stage 2 (every addition on) and pseudo-colours alone (the paper's), over
+    both built-in colour scenes, one/three/five references and three seeds; every row is a row of its table."""
+    cfg = _compose(conf_dir, ["experiment=colorization_benchmark", f"ablation={ablation}", "dataset=diatom"])
+    c = cfg.colorize
+    on = [(c.losses.get(t) or {}).get("weight", 1.0) != 0 for t in ("tcm", "ccm")]
+    default = ablation == "full"
+    assert on == [default, default] and cfg.act.enabled and cfg.stage == "all" and cfg.dataset.specimen == "diatom"
+    assert (c.get("validate", "auto"), c.get("shading", "auto")) == (("auto", "auto") if default else ("off", "off"))
+    p = cfg.hydra.sweeper.params
+    rows = [f"{d}/{r}/{a}" for d in p["dataset"].split(",") for r in p["colorize.references"].split(",")
+            for a in p["ablation"].split(",")]
+    assert rows and set(rows) <= set(STUDIES["colorization_benchmark"].rows) and p["seed"] == "0,1,2"

@@ -62,6 +62,11 @@ STUDIES: dict[str, Study] = {
                "no_all": "w/o all"}, "full"),
         Study("feature_comparison", "colorize.references",  # before reference_count: it has both keys
               {f"{r}/{f}": f"{n}, {f}" for r, n in _REFERENCES.items() for f in _EXTRACTORS}, also=("colorize.features",)),
+        Study("colorization_benchmark", "dataset",  # before reference_count: it has its key
+              {f"{d}/{r}/{a}": f"{dn}, {n}, {an}" for d, dn in (("synthetic", "grain"), ("diatom", "diatom"))
+               for r, n in (("one", "1"), ("three", "3"), ("five", "5"))
+               for a, an in (("full", "default"), ("pseudo_only", "pseudo-colours"))},
+              also=("colorize.references", "ablation")),
         Study("reference_count", "colorize.references",
               {"five": "5", "four": "4", "three": "3", "two": "2", "one": "1"}, "five"),
         Study("runs", "", {}),  # every run of no known study (demo, single runs): one row per run folder

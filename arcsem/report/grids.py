@@ -150,7 +150,7 @@ def _write(img: np.ndarray, path: Path) -> Path:
     return path
 
 
-KINDS = {"grayscale_comparison": ("gray", "depth"), "colorization_ablation": ("color",),
+KINDS = {"grayscale_comparison": ("gray", "depth"), "colorization_ablation": ("color",), "colorization_benchmark": ("color",),
          "reference_count": ("color",), "feature_comparison": ("color",)}
 """Grid kinds per study; any other study (``runs``) gets every kind that has files."""
 STAGE1_RENDERS = ("renders/test", "stage1/renders/test", "renders/train", "stage1/renders/train")

@@ -74,13 +74,15 @@ LAYOUTS: dict[str, list[Column]] = {
     "colorization_ablation": COLOUR,
     "reference_count": COLOUR,
     "feature_comparison": COLOUR,
+    "colorization_benchmark": COLOUR,
     "runs": _ims("grey train (Table 1 protocol)", "stage1.train_paper") + _ims("grey held-out", "stage1.test") + [
         Column("depth", "err. %", DEPTH_PCT, "min", 2), CHAMFER]
     + _ims("colour non-ref.", "stage2.train_nonref") + _ims("colour held-out", "stage2.test")
     + _coverage("colour held-out", "stage2.test") + [FEATURES],
 }
 ROW_HEADER = {"grayscale_comparison": "Model", "colorization_ablation": "Variant",
-              "reference_count": "References", "feature_comparison": "References, features", "runs": "Run"}
+              "reference_count": "References", "feature_comparison": "References, features",
+              "colorization_benchmark": "Scene, references, stage 2", "runs": "Run"}
 
 
 @dataclass

@@ -131,6 +131,21 @@ class Guidance:
             self.extractor.to(device)
         return self
 
+    def without(self, r: int) -> Guidance:
+        """The guidance of the same views with reference ``r`` (a position in ``ref_indices``) left out, sharing
+        this one's features (nothing recomputed; kept in memory only): for holding references out in turn."""
+        import copy
+
+        keep = [i for i in range(len(self.ref_indices)) if i != r]
+        out = copy.copy(self)
+        out.ref_indices = [self.ref_indices[i] for i in keep]
+        R = len(self.ref_indices)
+        out.ref_color = [rc.reshape(R, -1, rc.shape[1])[keep].reshape(-1, rc.shape[1]) for rc in self.ref_color]
+        out.ref_means = self.ref_means.reshape(R, -1, 3)[keep].reshape(-1, 3)
+        out._ref_gray = [f[keep] for f in self.ref_gray]
+        out.cache_dir, out._memory, out.key = None, {}, f"{self.key}-without{r}"
+        return out
+
     def features(self, images: Tensor) -> list[Tensor]:
         """Extractor block features of images ``[C, H, W, 3]`` after the TCM downscale (no gradient)."""
         from .features.base import no_grad_features

@@ -279,7 +279,7 @@ def _guide_factory(cc, extractor, space, split, geo: SurfaceGeometry, cache_dir)
                                         geometry=geometry, guard=cc.guard)
 
 
-def _validate(cc, split, masks, refs, geo: SurfaceGeometry, make_guidance):
+def _validate(cc, split, masks, refs, geo: SurfaceGeometry, guidance):
     """``colorize.validate=auto`` with two or more references (:mod:`arcsem.colorize.validate`): the config with
     the scene's own choice and the scores (None: not validated)."""
     from .validate import apply_choice, validate
@@ -289,7 +289,7 @@ def _validate(cc, split, masks, refs, geo: SurfaceGeometry, make_guidance):
     t0 = time.perf_counter()
     depth, normal = geo.value
     choice = validate(split.cameras.to(device="cpu"), depth, normal, masks, split.images.float().mean(-1).cpu(),
-                      refs.indices.tolist(), refs.images, cc, make_guidance)
+                      refs.indices.tolist(), refs.images, cc, guidance)
     choice["time_s"] = time.perf_counter() - t0
     return apply_choice(cc, choice), choice
 
@@ -329,18 +329,17 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     if any(n in colorize_losses(cc, backbone).terms for n in ("tcm", "ccm")):
         extractor, space, finfo = _extractor(cc, cfg, ckpt, backbone, split, masks, cache_dir)
         make = _guide_factory(cc, extractor, space, split, geo, cache_dir)
-    cc, validation = _validate(cc, split, masks, refs, geo, make)
+    guidance = make(refs.indices.tolist(), refs.images) if make is not None else None
+    cc, validation = _validate(cc, split, masks, refs, geo, guidance)
     pseudo, valid, pinfo = _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo)
     losses = colorize_losses(cc, backbone)
-    guidance = None
     if any(n in losses.terms for n in ("tcm", "ccm")):
         t0 = time.perf_counter()
-        guidance = make(refs.indices.tolist(), refs.images)
         for i in range(len(split)):  # once per view, before training (cached on disk)
             guidance.matches(i)
         finfo["time_s"] += time.perf_counter() - t0
     else:
-        space = None
+        guidance, space = None, None
     hook = ColorTargetHook(refs, pseudo, valid, guidance, space, cc.tcm_downscale, cc.ccm_downscale)
     hook.to(run_device(cfg))  # the targets, the guidance and the loss space's extractor follow the model
     loop = LoopConfig(steps=cc.steps, stage="color", batch_views=cc.batch_views, log_every=cc.log_every,

@@ -140,18 +140,18 @@ def colour_clusters(colours: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
 
 
 def surface_colors(cams: Cameras, depths: Tensor, masks: Tensor, grey: Tensor, normals: Tensor,
-                   ref_indices: list[int], ref_images: Tensor, p: SurfaceConfig | None = None
-                   ) -> tuple[Tensor, Tensor, dict]:
+                   ref_indices: list[int], ref_images: Tensor, p: SurfaceConfig | None = None,
+                   graph: SurfaceGraph | None = None) -> tuple[Tensor, Tensor, dict]:
     """Colour of every masked pixel of every view from the references' colours, spread over the surface.
 
-    Args: as :func:`build_graph`; ref_indices: ``R`` view indices of the references; ref_images ``[R, H, W, C]``:
+    Args: as :func:`build_graph` (``graph``: built by it already, for these views); ref_indices: ``R`` view indices of the references; ref_images ``[R, H, W, C]``:
         colours, and any further channels to carry alike (e.g. the reference's grey); clustered on the first 3.
     Returns: colours ``[N, H, W, C]`` float32 (0 where invalid), valid ``[N, H, W]`` bool (a confident node) and
     figures (nodes, scribbled nodes, confident share).
     """
     p = p or SurfaceConfig()
     N, H, W = depths.shape
-    graph = build_graph(cams, depths, masks, grey, normals, p)
+    graph = graph if graph is not None else build_graph(cams, depths, masks, grey, normals, p)
     M = len(graph.grey)
     C = ref_images.shape[-1]
     colours, valid = torch.zeros(N, H, W, C), torch.zeros(N, H, W, dtype=torch.bool)

@@ -34,15 +34,16 @@ GRID = [{"surface": s, "shading": h} for s in ("fill", "off") for h in ("auto", 
 
 
 def held_out_targets(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Tensor, ridx: list[int],
-                     images: Tensor, r: int, cc) -> dict[str, Tensor]:
+                     images: Tensor, r: int, cc, graph=None) -> dict[str, Tensor]:
     """What the other references give view ``ridx[r]``: 2-D pseudo-colours and surface colours, each with the grey
-    they were painted on (``[H, W, 4]``) and their pixels (``[H, W]``), and the shading line of the others."""
+    they were painted on (``[H, W, 4]``) and their pixels (``[H, W]``), and the shading line of the others
+    (``graph``: the views' surface graph, :func:`arcsem.colorize.surface.build_graph`, built once for all)."""
     v, others = ridx[r], [i for i in range(len(ridx)) if i != r]
     carried = torch.cat([images[others].float(), grey[[ridx[i] for i in others]][..., None]], -1)
     sub = [ridx[i] for i in others] + [v]
     p, pv = pseudo_colors(cams[torch.as_tensor(sub)], depth[sub], masks[sub], list(range(len(others))), carried,
                           cc.radius, cc.radius_factor, progress=False)
-    s, sv, _ = surface_colors(cams, depth, masks, grey, normal, [ridx[i] for i in others], carried, cc.surface)
+    s, sv, _ = surface_colors(cams, depth, masks, grey, normal, [ridx[i] for i in others], carried, cc.surface, graph)
     a, b = fit_shading(images[others], grey[[ridx[i] for i in others]], masks[[ridx[i] for i in others]])
     flat = (images[others].float()[masks[[ridx[i] for i in others]]]).mean(0)
     return {"pseudo": p[-1], "pseudo_valid": pv[-1], "surface": s[v], "surface_valid": sv[v], "shading": (a, b),
@@ -88,18 +89,22 @@ def _guide_scores(guidance, v: int, rgb: Tensor, truth: Tensor, space, tcm_downs
 
 
 def validate(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Tensor, ridx: list[int], images: Tensor, cc,
-             make_guidance=None) -> dict:
+             guidance=None) -> dict:
     """Scores of every grid setting and the choice (:func:`apply_choice` reads it).
 
     Args: cams, depth ``[N, H, W]``, normal ``[N, H, W, 3]``, masks, grey ``[N, H, W]``: every training view;
         ridx: ``R >= 2`` reference views; images ``[R, H, W, 3]`` their colours; cc: the stage-2 config;
-        make_guidance: ``(reference view indices, their images) -> Guidance`` (None: TCM/CCM are not scored).
+        guidance: the run's TCM/CCM guidance of all ``R`` references (None: TCM/CCM are not scored), held out
+        from with :meth:`~arcsem.colorize.guidance.Guidance.without`.
     """
+    from .surface import build_graph
+
     errs = {f"{g['surface']}/{g['shading']}": [] for g in GRID}
     guide = {"tcm": [], "ccm": []}
+    graph = build_graph(cams, depth, masks, grey, normal, cc.surface)
     for r in range(len(ridx)):
         v = ridx[r]
-        t = held_out_targets(cams, depth, normal, masks, grey, ridx, images, r, cc)
+        t = held_out_targets(cams, depth, normal, masks, grey, ridx, images, r, cc, graph)
         for g in GRID:
             rgb, _ = target_image(t, grey[v], g["surface"], g["shading"])
             errs[f"{g['surface']}/{g['shading']}"].append(target_error(rgb, images[r], masks[v]))
@@ -108,13 +113,11 @@ def validate(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Tensor, r
     best = min(mean, key=mean.get)
     surface, shading = best.split("/")
     out = {"references": len(ridx), "target_mse": mean, "surface": surface, "shading": shading}
-    if make_guidance is not None:
+    if guidance is not None:
         for r in range(len(ridx)):
-            others = [i for i in range(len(ridx)) if i != r]
-            guidance = make_guidance([ridx[i] for i in others], images[others])
+            held = guidance.without(r)
             rgb, _ = target_image(guide["rgb_" + str(r)], grey[ridx[r]], surface, shading)
-            s = _guide_scores(guidance, ridx[r], rgb, images[r], guidance.space, guidance.tcm_downscale,
-                              guidance.ccm_downscale)
+            s = _guide_scores(held, ridx[r], rgb, images[r], held.space, held.tcm_downscale, held.ccm_downscale)
             guide["tcm"].append(s[:2])
             guide["ccm"].append(s[2:])
         for k in ("tcm", "ccm"):

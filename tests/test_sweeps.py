@@ -216,3 +216,17 @@ def test_real_app_study_check_sweep(tmp_path, tiny_transforms):
 def test_studies_compose_with_every_launcher(conf_dir, launcher, target):
     cfg = _compose(conf_dir, ["experiment=reference_count", f"hydra/launcher={launcher}"])
     assert cfg.hydra.launcher._target_.endswith(target)
+
+
+@pytest.mark.parametrize("overrides, cpus, gpus", [([], 4, None), (["threads=2", "device=cuda"], 2, 1),
+                                                    (["threads=1", "device=cuda:1"], 1, 2)])
+def test_slurm_launcher_asks_for_the_jobs_threads_and_gpus(overrides, cpus, gpus):
+    """conf/hydra/launcher/submitit_slurm.yaml: cores from ``threads`` (4 when null), GPUs from ``device``."""
+    from hydra import compose, initialize_config_module
+
+    with initialize_config_module("arcsem.conf", version_base=None):
+        cfg = compose("config", overrides=["experiment=reference_count", "hydra/launcher=submitit_slurm", *overrides],
+                      return_hydra_config=True)
+    launcher = cfg.hydra.launcher
+    assert (launcher.cpus_per_task, launcher.gpus_per_task, launcher.timeout_min) == (cpus, gpus, 360)
+    assert launcher._target_.endswith("SlurmLauncher")

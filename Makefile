@@ -9,7 +9,7 @@ CPP     := $(wildcard backbones/gaussians/cpp/*.cpp backbones/gaussians/cpp/*.h 
 JOBS    ?= 2
 export PIP_DISABLE_PIP_VERSION_CHECK=1
 
-.PHONY: setup demo test clean-venv browser
+.PHONY: setup demo test clean-venv browser slurm
 
 setup: $(EXT)
 
@@ -35,8 +35,19 @@ browser:
 	  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; } || \
 	  echo "chromium not installed: the browser tests will be skipped (apt-get install chromium)"
 
-test: $(EXT) browser
-	$(BIN)/python -m pytest -q -n $(JOBS) --dist loadgroup
+# A single-node SLURM for the `slurm` tests (tests/slurm/cluster.sh starts and stops it): Debian's slurmctld,
+# slurmd, slurm-client and slurmdbd (packages of slurm-wlm), munge, and MariaDB for slurmdbd's accounting (sacct,
+# which submitit polls), installed like Chromium; elsewhere those tests are skipped and say why.
+SLURM_PKGS := slurmctld slurmd slurm-client slurmdbd munge mariadb-server
+slurm:
+	@{ for exe in slurmctld slurmd slurmdbd sbatch munged mariadbd; do command -v $$exe || exit 1; done; } >/dev/null 2>&1 || \
+	  { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && \
+	  echo "installing slurm, munge and mariadb (apt) for the slurm tests" && apt-get update -qq >/dev/null && \
+	  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $(SLURM_PKGS) >/dev/null; } || \
+	  echo "slurm not installed: the slurm tests will be skipped (apt-get install $(SLURM_PKGS))"
+
+test: $(EXT) browser slurm
+	$(BIN)/python -m pytest -q -rs -n $(JOBS) --dist loadgroup
 
 clean-venv:
 	rm -rf $(VENV)

@@ -3,7 +3,9 @@
 ``os.cpu_count()`` (and torch's default thread count) counts the machine's cores, not this process's: a
 cluster job pinned to 4 cores of a 64-core node (CPU affinity, ``taskset``, Slurm's ``--cpus-per-task``) or
 limited by a container's CPU quota (cgroup v2 ``cpu.max``, v1 ``cpu.cfs_quota_us``) that starts 64 threads
-spin-waits them against each other and runs several times slower than with 4.
+spin-waits them against each other and runs several times slower than with 4. A SLURM job on a cluster that
+does not bind tasks to cores (``TaskPlugin=task/none``) sees the whole node: its allocation,
+``SLURM_CPUS_PER_TASK``, caps the count too.
 """
 from __future__ import annotations
 
@@ -11,7 +13,7 @@ import math
 import os
 from pathlib import Path
 
-__all__ = ["SPINCOUNT", "cgroup_cpu_limit", "shorter_openmp_spin", "usable_cores"]
+__all__ = ["SPINCOUNT", "cgroup_cpu_limit", "shorter_openmp_spin", "slurm_allocation", "usable_cores"]
 
 SPINCOUNT = "3000"
 
@@ -36,8 +38,15 @@ def cgroup_cpu_limit(root: str | os.PathLike = "/sys/fs/cgroup") -> float | None
     return None if quota <= 0 or period <= 0 else quota / period
 
 
-def usable_cores(root: str | os.PathLike = "/sys/fs/cgroup") -> int:
-    """Cores this process may run on: its CPU affinity, capped by the cgroup quota (rounded up; at least 1)."""
+def slurm_allocation(environ=os.environ) -> int | None:
+    """The cores SLURM gave this job's task (``SLURM_CPUS_PER_TASK``), or None outside a job or when unset."""
+    value = environ.get("SLURM_CPUS_PER_TASK", "")
+    return int(value) if value.isdigit() and int(value) > 0 else None
+
+
+def usable_cores(root: str | os.PathLike = "/sys/fs/cgroup", environ=os.environ) -> int:
+    """Cores this process may run on: its CPU affinity, capped by the cgroup quota (rounded up) and by a SLURM
+    job's allocation (:func:`slurm_allocation`); at least 1."""
     try:
         n = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):  # not on Linux
@@ -45,6 +54,9 @@ def usable_cores(root: str | os.PathLike = "/sys/fs/cgroup") -> int:
     limit = cgroup_cpu_limit(root)
     if limit is not None:
         n = min(n, max(1, math.ceil(limit)))
+    slurm = slurm_allocation(environ)
+    if slurm is not None:
+        n = min(n, slurm)
     return max(1, n)
 
 

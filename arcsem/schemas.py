@@ -13,7 +13,9 @@
 
 * **Resolvers.** ``${gs2d_lowpass:<rasterizer>,<sigma>}``: a preset's 2DGS low-pass sigma, or gsplat's fixed one
   where ``backbone.rasterizer=gsplat`` (:func:`arcsem.backbones.gs2d.config.lowpass_for`);
-  ``${of_steps:${train.steps},<fraction>}``: a schedule's step as a fraction of the run (:func:`of_steps`).
+  ``${of_steps:${train.steps},<fraction>}``: a schedule's step as a fraction of the run (:func:`of_steps`);
+  ``${slurm_cpus:${threads}}`` and ``${slurm_gpus:${device}}``: what a SLURM job asks for
+  (conf/hydra/launcher/submitit_slurm.yaml; :func:`slurm_cpus`, :func:`slurm_gpus`).
 
 :func:`setup` is idempotent; the ``arcsem`` CLI and ``arcsem.conf`` (read by ``compose``) call it.
 """
@@ -25,10 +27,12 @@ from importlib import metadata
 from hydra.core.config_search_path import ConfigSearchPath
 from hydra.plugins.search_path_plugin import SearchPathPlugin
 
-__all__ = ["CONFIG_GROUP", "CONF_GROUP", "EntryPointSearchPath", "backbone_schema", "of_steps", "setup"]
+__all__ = ["CONFIG_GROUP", "CONF_GROUP", "SLURM_CPUS", "EntryPointSearchPath", "backbone_schema", "of_steps", "setup",
+           "slurm_cpus", "slurm_gpus"]
 
 CONFIG_GROUP = "arcsem.backbone_configs"  # backbone name -> "module:ConfigClass"
 CONF_GROUP = "arcsem.conf"  # plugin name -> "package.conf" (a package of config groups)
+SLURM_CPUS = 4  # cores a SLURM job asks for when ``threads`` is null
 _done = False
 
 
@@ -50,6 +54,23 @@ def of_steps(steps: int, fraction: float) -> int:
     """``${of_steps:${train.steps},<fraction>}``: a step of a preset's schedule as a fraction of the run (rounded,
     at least 1), so the schedule keeps its shape when ``train.steps`` changes (conf/tuning/quick_*.yaml)."""
     return max(1, round(int(steps) * float(fraction)))
+
+
+def slurm_cpus(threads: int | None) -> int:
+    """``${slurm_cpus:${threads}}``: the cores a SLURM job asks for: ``threads``, or :data:`SLURM_CPUS` when null
+    (the job then runs that many threads: :func:`arcsem.cores.usable_cores` reads its allocation)."""
+    return SLURM_CPUS if threads is None else int(threads)
+
+
+def slurm_gpus(device: str | None) -> int | None:
+    """``${slurm_gpus:${device}}``: GPUs a SLURM task asks for: 1 for ``cuda``, k + 1 for ``cuda:k`` (a job sees
+    its GPUs as ``cuda:0`` ...), None (none) for the CPU."""
+    name = str(device or "cpu")
+    if name == "cuda":
+        return 1
+    if name.startswith("cuda:") and name[5:].isdigit():
+        return int(name[5:]) + 1
+    return None
 
 
 def setup() -> None:
@@ -81,4 +102,11 @@ def setup() -> None:
 
     OmegaConf.register_new_resolver("gs2d_lowpass", lowpass_for, replace=True)
     OmegaConf.register_new_resolver("of_steps", of_steps, replace=True)
+    OmegaConf.register_new_resolver("slurm_cpus", slurm_cpus, replace=True)
+    OmegaConf.register_new_resolver("slurm_gpus", slurm_gpus, replace=True)
+    import warnings
+
+    # conf/hydra/launcher/submitit_slurm.yaml (every key, so it stands alone) is checked against the plugin's
+    # schema of the same name, which Hydra calls deprecated on every sweep: the check is wanted, the notice is not
+    warnings.filterwarnings("ignore", message=r"(?s).*'hydra/launcher/submitit_slurm' is validated against ConfigStore")
     _done = True

@@ -34,6 +34,15 @@ def test_usable_cores_follow_affinity_and_quota(tmp_path, monkeypatch):
     assert usable_cores(tmp_path) == 1  # pinned to one core
 
 
+def test_usable_cores_follow_a_slurm_allocation(tmp_path, monkeypatch):
+    """A SLURM task not bound to its cores (task/none) sees the node's 8; its allocation says 3."""
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3, 4, 5, 6, 7})
+    assert usable_cores(tmp_path, environ={"SLURM_CPUS_PER_TASK": "3"}) == 3
+    assert usable_cores(tmp_path, environ={"SLURM_CPUS_PER_TASK": "16"}) == 8  # never more than it may use
+    assert usable_cores(tmp_path, environ={"SLURM_CPUS_PER_TASK": ""}) == 8
+    assert usable_cores(tmp_path, environ={}) == 8
+
+
 def test_threads_null_sets_the_usable_cores(monkeypatch):
     import arcsem.cores
 

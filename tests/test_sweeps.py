@@ -236,3 +236,17 @@ def test_colorization_benchmark_composes_both_stage2_rows(conf_dir, ablation):
     rows = [f"{d}/{r}/{a}" for d in p["dataset"].split(",") for r in p["colorize.references"].split(",")
             for a in p["ablation"].split(",")]
     assert rows and set(rows) <= set(STUDIES["colorization_benchmark"].rows) and p["seed"] == "0,1,2"
+
+
+@pytest.mark.parametrize("overrides, cpus, gpus", [([], 4, None), (["threads=2", "device=cuda"], 2, 1),
+                                                    (["threads=1", "device=cuda:1"], 1, 2)])
+def test_slurm_launcher_asks_for_the_jobs_threads_and_gpus(overrides, cpus, gpus):
+    """conf/hydra/launcher/submitit_slurm.yaml: cores from ``threads`` (4 when null), GPUs from ``device``."""
+    from hydra import compose, initialize_config_module
+
+    with initialize_config_module("arcsem.conf", version_base=None):
+        cfg = compose("config", overrides=["experiment=reference_count", "hydra/launcher=submitit_slurm", *overrides],
+                      return_hydra_config=True)
+    launcher = cfg.hydra.launcher
+    assert (launcher.cpus_per_task, launcher.gpus_per_task, launcher.timeout_min) == (cpus, gpus, 360)
+    assert launcher._target_.endswith("SlurmLauncher")

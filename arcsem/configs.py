@@ -119,6 +119,7 @@ class GuardConfig:
     mutual: bool = True  # the match's own nearest view location must be the query (within exclude cells)
     normal_tol: float = checked(0.35, gt=0.0)  # largest difference of the normals' elevation n . u
     height_tol: float = checked(0.15, gt=0.0)  # largest difference of the heights (share of the specimen's)
+    views_tol: float = checked(0.2, gt=0.0)  # largest difference from the other views' median colour at a point
 
 
 @dataclass

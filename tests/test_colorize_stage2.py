@@ -59,6 +59,9 @@ def test_stage2_end_to_end(tmp_path, monkeypatch):
     assert v["target_mse"][f"{v['surface']}/{v['shading']}"] == min(v["target_mse"].values())
     assert {"guidance", "target", "keep"} <= set(v["tcm"]) and sorted(s2["losses"]) == sorted(
         ["pseudo_color", "reference_l1"] + [k for k in ("ccm", "tcm") if v[k]["keep"]])
+    if v["tcm"]["keep"] or v["ccm"]["keep"]:  # guarded matches also tested for agreement across the views
+        dropped = s2["feature_extractor"]["agreement_dropped"]
+        assert set(dropped) == {"ccm", "tcm0", "tcm1"} and all(0 <= x <= 1 for x in dropped.values())
     after = load_checkpoint(run / "colorize" / "checkpoints" / "last.pt")["model"]
     for k, v in before.items():  # geometry frozen, colour changed, no ACT in stage 2
         if k.startswith("act."):

@@ -79,3 +79,21 @@ def test_mutual_test_keeps_only_the_best_of_two_queries_for_one_location():
     assert idx.tolist() == [22, 22] and kept.tolist() == [False, True]
     _, _, kept = guarded_nearest(*args, GuardConfig(mutual=False))
     assert kept.tolist() == [True, True]
+
+
+def test_views_that_disagree_about_a_points_colour_are_dropped():
+    """Three views see the same surface point (and one more point each); at the shared point two bring red and
+    one blue: the blue match is dropped. A point only one view sees keeps its match, whatever its colour; two views
+    that disagree, with no third, both lose theirs."""
+    from arcsem.colorize.guard import cross_view_agreement
+
+    red, blue = torch.tensor([0.9, 0.1, 0.1]), torch.tensor([0.1, 0.1, 0.9])
+    shared = torch.tensor([0.05, 0.05, 0.05])
+    points = [torch.stack([shared, torch.tensor([float(v) + 1.05, 0.05, 0.05])]) for v in range(3)]
+    colours = [torch.stack([red, blue]), torch.stack([red, red]), torch.stack([blue, blue])]
+    keep = [torch.tensor([True, True])] * 3
+    out = cross_view_agreement(points, colours, keep, cell=0.5, tol=0.2)
+    assert [o.tolist() for o in out] == [[True, True], [True, True], [False, True]]
+    points[1][0] = float("nan")  # no surface known at the shared point in view 1: one red, one blue, no majority
+    out = cross_view_agreement(points, colours, keep, cell=0.5, tol=0.2)
+    assert [o.tolist() for o in out] == [[False, True], [False, True], [False, True]]

@@ -10,7 +10,9 @@ point, :func:`geometry_descriptors`), and kept only if it passes:
   location that is not its neighbour (more than ``exclude`` cells away in the same reference, or in another one),
   so a match that could as well be elsewhere is dropped;
 * **mutual nearest neighbours**: the matched reference location's own nearest compatible location in the view is
-  within ``exclude`` cells of the query.
+  within ``exclude`` cells of the query;
+* **agreement across views** (:func:`cross_view_agreement`): the colour a match brings to a surface point must
+  agree (within ``views_tol``) with the median of what the other views' matches bring to the same point.
 
 Where no location passes, the view location gets no target and the losses pull nothing there.
 """
@@ -23,7 +25,7 @@ from torch import Tensor
 from ..cameras import Cameras
 from ..configs import GuardConfig
 
-__all__ = ["GuardConfig", "geometry_descriptors", "grid_positions", "guarded_nearest"]
+__all__ = ["GuardConfig", "cross_view_agreement", "geometry_descriptors", "grid_positions", "guarded_nearest"]
 
 
 def geometry_descriptors(cams: Cameras, depths: Tensor, normals: Tensor) -> Tensor:
@@ -85,3 +87,35 @@ def guarded_nearest(query: Tensor, keys: Tensor, query_geo: Tensor, key_geo: Ten
     back = query_pos[col_arg[idx]].float()
     mutual = (back - query_pos.float()).abs().amax(-1) <= cfg.exclude
     return idx, dist, ratio_ok & (mutual | (not cfg.mutual))
+
+
+def cross_view_agreement(points: list[Tensor], colours: list[Tensor], keep: list[Tensor], cell: float,
+                         tol: float) -> list[Tensor]:
+    """Which kept matches agree with the other views about the colour of their surface point.
+
+    Args: per view, its locations' world points ``[L, 3]`` (NaN: no surface), the colour each match brings
+        ``[L, 3]`` and whether the match is kept ``[L]``; cell: the world size of a location (points in one cube
+        of that size are one surface point); tol: the largest channel difference from the point's median colour.
+    Returns: per view ``[L]`` bool: kept, and either the only view with a kept match at that point or within
+        ``tol`` of the median over every view's kept matches there.
+    """
+    import numpy as np
+    import pandas as pd
+
+    out = [k.clone() & torch.isfinite(p).all(-1) for k, p in zip(keep, points)]
+    sel = [torch.nonzero(o)[:, 0] for o in out]
+    if not sum(len(x) for x in sel):
+        return out
+    view = np.concatenate([np.full(len(x), v) for v, x in enumerate(sel)])
+    idx = torch.cat(sel).numpy()
+    pts = torch.cat([p[x].double() for p, x in zip(points, sel)]).numpy()
+    col = torch.cat([c[x].float() for c, x in zip(colours, sel)]).numpy()
+    _, group = np.unique(np.floor(pts / cell).astype(np.int64), axis=0, return_inverse=True)
+    df = pd.DataFrame({"g": group.reshape(-1), "v": view, "r": col[:, 0], "gr": col[:, 1], "b": col[:, 2]})
+    views = df.groupby("g")["v"].nunique()
+    med = df.groupby("g")[["r", "gr", "b"]].median()
+    off = np.abs(col - med.loc[df["g"]].to_numpy()).max(1) > tol
+    bad = off & (views.loc[df["g"]].to_numpy() >= 2)
+    for v in np.unique(view[bad]):
+        out[int(v)][torch.from_numpy(idx[bad & (view == v)])] = False
+    return out

@@ -108,6 +108,8 @@ class Guidance:
             self.ref_color = [_flat(f) for f in space(downscale(ref_colors.float(), tcm_downscale))]
         self._ref_gray: list[Tensor] | None = None  # extractor features of the grey references, when needed
         self.ref_means = patch_means(ref_colors.float(), ccm_downscale).reshape(-1, 3)
+        self.ref_rgb = ref_colors.float()  # [R, H, W, 3]: the colour a match brings, for the agreement test
+        self._agree: dict[tuple[int, str], Tensor] = {}  # (view, "ccm"|"tcm<b>") -> [h, w] bool (agree())
         from .features.base import space_label
 
         guard_key = () if self.geometry is None else ("guard-v1", self.geometry, sorted(vars(guard).items()))
@@ -127,6 +129,7 @@ class Guidance:
         if self.geometry is not None:
             self.geometry = self.geometry.to(device)
         self._memory = {v: {k: t.to(device) for k, t in m.items()} for v, m in self._memory.items()}
+        self._agree = {k: t.to(device) for k, t in self._agree.items()}
         if isinstance(self.extractor, torch.nn.Module):
             self.extractor.to(device)
         return self
@@ -142,6 +145,7 @@ class Guidance:
         R = len(self.ref_indices)
         out.ref_color = [rc.reshape(R, -1, rc.shape[1])[keep].reshape(-1, rc.shape[1]) for rc in self.ref_color]
         out.ref_means = self.ref_means.reshape(R, -1, 3)[keep].reshape(-1, 3)
+        out.ref_rgb, out._agree = self.ref_rgb[keep], {}
         out._ref_gray = [f[keep] for f in self.ref_gray]
         out.cache_dir, out._memory, out.key = None, {}, f"{self.key}-without{r}"
         return out
@@ -214,10 +218,46 @@ class Guidance:
             idx = m[f"tcm_idx{b}"]
             guide.append(rc[idx.reshape(-1)].T.reshape(rc.shape[1], *idx.shape))
         target, valid = ccm_targets(m["ccm_idx"], m["ccm_dist"], self.ref_means, self.ccm_max_dist, self.ccm_white)
-        out = {"tcm_guidance": guide, "ccm_target": target, "ccm_valid": valid & m.get("ccm_ok", True)}
+        out = {"tcm_guidance": guide, "ccm_target": target,
+               "ccm_valid": valid & m.get("ccm_ok", True) & self._agree.get((v, "ccm"), True)}
         if "tcm_ok0" in m:
-            out["tcm_valid"] = [m[f"tcm_ok{b}"] for b in range(len(guide))]
+            out["tcm_valid"] = [m[f"tcm_ok{b}"] & self._agree.get((v, f"tcm{b}"), True) for b in range(len(guide))]
         return out
+
+    def agree(self, points: Tensor, footprint: float, tol: float) -> dict[str, float]:
+        """Drop the guarded matches whose colour disagrees with the other views' at the same surface point
+        (:func:`arcsem.colorize.guard.cross_view_agreement`), once every view's matches exist.
+
+        Args: points ``[N, H, W, 3]`` world point of every pixel of every view (NaN: no surface); footprint: the
+            world size of a pixel; tol: the largest channel difference from a point's median colour.
+        Returns: the share of the kept matches dropped, per kind (``ccm``, ``tcm<b>``).
+        """
+        from .guard import cross_view_agreement
+
+        N, H = points.shape[0], points.shape[1]
+        kinds = [("ccm", self.grid)] + [(f"tcm{b}", tuple(r.shape[-2:])) for b, r in enumerate(self.ref_gray)]
+        dropped = {}
+        for name, grid in kinds:
+            pts = F.interpolate(points.permute(0, 3, 1, 2).float(), size=grid, mode="nearest")
+            pts = pts.permute(0, 2, 3, 1).reshape(N, -1, 3)
+            cols, keep = [], []
+            for v in range(N):
+                t, m = self.targets(v), self.matches(v)
+                if name == "ccm":
+                    cols.append(t["ccm_target"].reshape(-1, 3))
+                    keep.append(t["ccm_valid"].reshape(-1))
+                else:
+                    b = int(name[3:])
+                    rgb = _flat(_pool_to(self.ref_rgb.permute(0, 3, 1, 2), grid))  # [R*h*w, 3]
+                    cols.append(rgb[m[f"tcm_idx{b}"].reshape(-1)])
+                    keep.append(t["tcm_valid"][b].reshape(-1) if "tcm_valid" in t else torch.ones(len(rgb) // len(
+                        self.ref_indices), dtype=torch.bool))
+            ok = cross_view_agreement(list(pts), cols, keep, footprint * H / grid[0], tol)
+            for v in range(N):
+                self._agree[(v, name)] = ok[v].reshape(grid)
+            before = sum(int(k.sum()) for k in keep)
+            dropped[name] = 1.0 - sum(int(o.sum()) for o in ok) / max(before, 1)
+        return dropped
 
 
 def _atomic_savez(path: Path, arrays: dict) -> None:

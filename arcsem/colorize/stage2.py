@@ -279,6 +279,18 @@ def _guide_factory(cc, extractor, space, split, geo: SurfaceGeometry, cache_dir)
                                         geometry=geometry, guard=cc.guard)
 
 
+def _agree(guidance: Guidance, split, geo: SurfaceGeometry, tol: float) -> dict[str, float]:
+    """The guidance's cross-view agreement test on the stage-1 surface points of every pixel."""
+    from .pseudocolor import pixel_footprint
+
+    depth, _ = geo.value
+    cams = split.cameras.to(device="cpu", dtype=torch.float64)
+    pts = cams.unproject(depth.double())
+    pts = torch.where((depth > 0)[..., None], pts, torch.full_like(pts, float("nan")))
+    foot = pixel_footprint(cams, depth.double().reshape(len(depth), -1))[(depth > 0).reshape(len(depth), -1)]
+    return guidance.agree(pts, float(foot.median()) if foot.numel() else 1.0, tol)
+
+
 def _validate(cc, split, masks, refs, geo: SurfaceGeometry, guidance):
     """``colorize.validate=auto`` with two or more references (:mod:`arcsem.colorize.validate`): the config with
     the scene's own choice and the scores (None: not validated)."""
@@ -337,6 +349,8 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
         t0 = time.perf_counter()
         for i in range(len(split)):  # once per view, before training (cached on disk)
             guidance.matches(i)
+        if cc.guard.enabled:
+            finfo["agreement_dropped"] = _agree(guidance, split, geo, cc.guard.views_tol)
         finfo["time_s"] += time.perf_counter() - t0
     else:
         guidance, space = None, None

@@ -50,8 +50,8 @@ def _read_pixels(path: Path) -> tuple[np.ndarray, bool]:
     if Path(path).suffix.lower() in (".tif", ".tiff"):  # every compression, the Orientation tag applied
         from ..sem.image import orient, read_tiff
 
-        arr, orientation, _ = read_tiff(Path(path), [])
-        return orient(arr, orientation), False
+        tiff = read_tiff(Path(path), [])  # uint8/uint16 over the file's intensity range (its levels)
+        return orient(tiff.pixels, tiff.orientation), False
     img = _cv2().imread(str(path), _cv2().IMREAD_UNCHANGED)
     if img is None:
         raise DataError(f"{path}: cannot read image (missing, corrupt or unsupported format)")

@@ -1,0 +1,127 @@
+"""SEM sample formats read over their real intensity range (8/12/16/32-bit integers, floats), by both readers
+(the calibration's :func:`read_sem_image` and the datasets' :func:`arcsem.data.io.read_image`), and colour TIFFs:
+grey content read as grey, colour content read with a warning naming the file."""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+import tifffile
+
+from arcsem.data.io import read_image
+from arcsem.sem.image import read_sem_image
+
+
+def ramp(h: int = 40, w: int = 64) -> np.ndarray:
+    """``[h, w]`` float64 in [0, 1]: a horizontal ramp with a vertical ripple (every level used)."""
+    x = np.linspace(0.0, 1.0, w)[None, :]
+    y = 0.5 + 0.5 * np.sin(np.linspace(0, 3 * np.pi, h))[:, None]
+    return 0.8 * x + 0.2 * y
+
+
+def write(path, data, **kw):
+    tifffile.imwrite(path, data, metadata=None, **kw)
+    return path
+
+
+def both(path):
+    """(SEM reader's image, the dataset reader's grey channel in [0, 1])."""
+    return read_sem_image(path), read_image(path)[0][..., 0]
+
+
+def test_float_raw_detector_counts_use_the_data_range(tmp_path):
+    """float32 holding counts 0..65535 (not [0, 1]) was clipped to white by the dataset reader (every pixel 1.0)."""
+    counts = (ramp() * 60000 + 2000).astype(np.float32)
+    im, grey = both(write(tmp_path / "f.tif", counts))
+    assert im.levels.source == "the data's 0.1/99.9 percentiles"
+    assert im.levels.lo == pytest.approx(np.percentile(counts, 0.1)) and im.levels.hi == pytest.approx(
+        np.percentile(counts, 99.9))
+    expect = np.clip((counts - im.levels.lo) / (im.levels.hi - im.levels.lo), 0, 1)
+    np.testing.assert_allclose(grey, expect, atol=1 / 65535)
+    np.testing.assert_allclose(im.pixels / 65535.0, expect, atol=1 / 65535)
+    assert 0.3 < grey.mean() < 0.7                               # not white
+
+
+def test_uint32_counts_beyond_sixteen_bits(tmp_path):
+    """uint32 samples (here up to 200,000) were clipped at 65535 (SEM reader) or to white (dataset reader)."""
+    counts = np.round(ramp() * 200_000).astype(np.uint32)
+    im, grey = both(write(tmp_path / "u32.tif", counts))
+    assert im.bits == 16 and "percentiles" in im.levels.source
+    assert np.corrcoef(im.pixels.ravel(), counts.ravel())[0, 1] > 0.999
+    assert (im.pixels == 65535).mean() < 0.01 and 0.3 < grey.mean() < 0.7
+
+
+def test_float_in_unit_range_is_taken_as_it_is(tmp_path):
+    unit = ramp().astype(np.float32)
+    im, grey = both(write(tmp_path / "unit.tif", unit))
+    assert (im.levels.lo, im.levels.hi, im.levels.source) == (0.0, 1.0, "float samples within [0, 1]")
+    np.testing.assert_allclose(grey, unit, atol=0.6 / 65535)
+
+
+def test_range_tags_of_the_file_win(tmp_path):
+    """SMinSampleValue/SMaxSampleValue (any type) and MaxSampleValue (integers): the range the file declares."""
+    counts = (ramp() * 20000).astype(np.float32)
+    im, grey = both(write(tmp_path / "s.tif", counts, extratags=[(340, 11, 1, 0.0, True), (341, 11, 1, 40000.0, True)]))
+    assert im.levels.describe() == "0..40000 (SMinSampleValue/SMaxSampleValue tags)"
+    np.testing.assert_allclose(grey, counts / 40000.0, atol=1 / 65535)
+    twelve = np.round(ramp() * 4095).astype(np.uint16)          # 12-bit data in 16-bit samples
+    im, grey = both(write(tmp_path / "m.tif", twelve, extratags=[(281, 3, 1, 4095, True)]))
+    assert im.levels.describe() == "0..4095 (MinSampleValue/MaxSampleValue tags)"
+    np.testing.assert_allclose(grey, twelve / 4095.0, atol=0.6 / 65535)
+
+
+def test_bits_per_sample(tmp_path):
+    """12-bit packed samples span 0..4095 (read as 0..65535 they were 16x too dark); 8 and 16 bits stay as stored."""
+    twelve = np.round(ramp() * 4095).astype(np.uint16)
+    im, grey = both(write(tmp_path / "b12.tif", twelve, bitspersample=12))
+    assert im.levels.describe() == "0..4095 (BitsPerSample 12)"
+    np.testing.assert_allclose(grey, twelve / 4095.0, atol=0.6 / 65535)
+    for dtype, top in ((np.uint8, 255), (np.uint16, 65535)):
+        data = np.round(ramp() * top).astype(dtype)
+        im, grey = both(write(tmp_path / f"b{top}.tif", data))
+        assert im.levels.describe() == f"0..{top} (BitsPerSample {8 * data.itemsize})"
+        np.testing.assert_array_equal(im.pixels, data)
+
+
+def test_signed_integers_use_the_data_range(tmp_path):
+    signed = np.round(ramp() * 3000 - 1500).astype(np.int16)
+    im, grey = both(write(tmp_path / "i16.tif", signed))
+    assert "percentiles" in im.levels.source and im.levels.lo < -1400 and im.levels.hi > 1400
+    assert np.corrcoef(grey.ravel(), signed.ravel())[0, 1] > 0.999
+
+
+def test_nan_samples_are_an_error(tmp_path):
+    from arcsem.errors import DataError
+
+    bad = ramp().astype(np.float32)
+    bad[3, 5] = np.nan
+    with pytest.raises(DataError, match=r"nan\.tif: 1 pixel value\(s\) are NaN or infinite \(first at x=5, y=3\)"):
+        read_sem_image(write(tmp_path / "nan.tif", bad))
+
+
+@pytest.mark.parametrize("channels", [3, 4])
+def test_colour_tiff_of_grey_content_is_grey(tmp_path, channels):
+    """RGB(A) of one grey whose channels differ by a level or two (a lossy codec, a converter's rounding): grey, no
+    warning (they were read as colour before: only exactly equal channels counted as grey)."""
+    grey8 = np.round(ramp() * 253 + 1).astype(np.uint8)
+    wobble = np.random.default_rng(0).integers(-1, 2, size=(*grey8.shape, 3))
+    rgb = (grey8[..., None] + wobble).astype(np.uint8)
+    if channels == 4:
+        rgb = np.concatenate([rgb, np.full_like(grey8, 255)[..., None]], -1)
+    path = write(tmp_path / "g.tif", rgb, photometric="rgb", compression="lzw")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        im = read_sem_image(path)
+    assert im.pixels.shape == grey8.shape and not any("colour" in n for n in im.notes)
+    assert np.abs(im.pixels.astype(int) - grey8).max() <= 4
+
+
+def test_colour_content_warns_naming_the_file(tmp_path):
+    rgb = np.zeros((40, 64, 3), np.uint8)
+    rgb[..., 0] = np.round(ramp() * 255)                          # red only: colour
+    path = write(tmp_path / "red.tif", rgb, photometric="rgb")
+    with pytest.warns(UserWarning, match=r"red\.tif: a colour image .* read as its luminance"):
+        im = read_sem_image(path)
+    np.testing.assert_allclose(im.pixels, np.round(rgb[..., 0] * 0.299), atol=1)
+    assert "colour image read as its luminance" in im.notes

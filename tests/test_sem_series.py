@@ -82,3 +82,29 @@ def test_series_errors(tmp_path):
     (folder / "img_5.png").write_bytes(b"not an image")
     with pytest.raises(DataError, match="img_5.png: cannot read image"):
         read_series(folder)
+
+
+def test_dead_lines_by_their_statistics_relative_to_the_image():
+    """A black last row of small noise (0..4, standard deviation 0.7-0.95: above the old fixed 0.5) in every frame
+    and a corrupted first column (garbage, or the scan's wrapped-around last column) in 4 of 7 frames: found by
+    their statistics against the image, one crop for the series; clean frames and flat content keep every line."""
+    rng = np.random.default_rng(3)
+    frames = []
+    for i in range(7):   # SEM-like: structure a few pixels wide (neighbouring lines alike) and scan noise
+        smooth = cv2.GaussianBlur(rng.normal(0, 1, (120, 160)), (0, 0), 3.0)
+        img = np.clip(120 + 40 * smooth / smooth.std() + rng.normal(0, 4, smooth.shape), 0, 255).astype(np.uint8)
+        if i in (0, 3):
+            img[:, 0] = rng.integers(0, 256, img.shape[0])
+        elif i in (1, 5):
+            img[:, 0] = img[:, -1]
+        img[-1] = rng.permutation(np.repeat([0, 1, 2, 3, 4], [48, 72, 32, 6, 2]))  # values 0..4, std 0.87
+        frames.append(img)
+    assert all(0.7 <= f[-1].std() <= 0.95 and f[-1].max() <= 4 for f in frames)
+    crop = detect_crop(frames)
+    assert (crop.top, crop.bottom, crop.left, crop.right) == (0, 1, 1, 0) and "dead border lines" in crop.describe()
+    clean = [sem_like(seed=i) for i in range(3)]
+    assert detect_crop(clean).describe() == "none"
+    band = sem_like(seed=4).astype(np.float32)                       # a dark band fading into the content
+    fade = np.clip((np.arange(120) - 6) / 10.0, 0, 1)[:, None]
+    band = (20 + rng.normal(0, 1.0, band.shape)) * (1 - fade) + band * fade
+    assert detect_crop([np.clip(band, 0, 255).astype(np.uint8)]).describe() == "none"

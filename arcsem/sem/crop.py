@@ -5,12 +5,19 @@ ground, thin text and lines), under image rows that are not: per row, the *flatn
 pixels within one grey level of the row's most common value. The bar is the tallest bottom block
 (1.5 % to 35 % of the height) whose mean flatness is >= 0.75, whose top row is flat (>= 0.6) and whose
 16 rows above it are not (mean < 0.5). Where the metadata says how many rows the image has above its bar
-(FEI ``ResolutionY``), that is used instead. Dead lines are border rows or columns of one constant value
-(standard deviation below half a grey level), fewer than 10 % of the size per side (a side constant over
-10 % of the image is flat content, not a border).
+(FEI ``ResolutionY``), that is used instead.
 
-The series gets one crop: for each side the median over the images (a bar or border that half of the
-images show is cut from all of them), so every view keeps the same size and pixel grid.
+Dead lines are judged by their statistics relative to the image, not by fixed grey levels. Per side, with
+``L_0`` the outermost line: a line is *odd* when it is flat (standard deviation under a tenth of the image's
+median line deviation: a black row of small noise) or *unlike its inner neighbour* (mean absolute difference
+``|L_k - L_k+1|`` over 4x the image's median such step, at least half a grey level: a corrupted or wrapped
+column). The dead lines are the leading run of odd lines up to its last such jump, within 10 % of the size: a
+flat band that fades into the content has no jump and stays (flat content, not a border).
+
+The series gets one crop. The data bar: the median over the images (a bar that half of the images show is cut
+from all of them). Dead lines per side: the count that a third of the images reach (a column corrupted in 3 of
+7 frames is cut from all; a line costs little, a stray one left shows in every render). Every view keeps the
+same size and pixel grid.
 """
 from __future__ import annotations
 
@@ -18,10 +25,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Crop", "bar_height", "dead_lines", "detect_crop", "row_flatness"]
+__all__ = ["Crop", "bar_height", "dead_lines", "dead_run", "detect_crop", "row_flatness"]
 
 BAR_RANGE = (0.015, 0.35)
 DEAD_MAX = 0.10
+FLAT, JUMP = 0.1, 4.0  # odd lines: deviation under FLAT x, or step to the inner neighbour over JUMP x, the median
 
 
 @dataclass(frozen=True)
@@ -77,16 +85,22 @@ def bar_height(img8: np.ndarray, context: int = 16) -> int:
     return 0
 
 
+def dead_run(lines: np.ndarray, limit: int) -> int:
+    """Dead outer lines of ``lines [N, M]`` float32 (line 0 outermost), at most ``limit``; module docstring."""
+    std = lines.std(axis=1)                                   # [N]
+    step = np.abs(np.diff(lines, axis=0)).mean(axis=1)        # [N - 1]: |L_k - L_k+1|
+    jump = step[:limit] > JUMP * max(float(np.median(step)), 0.5)
+    odd = (std[:limit] < FLAT * float(np.median(std))) | jump
+    run = limit if odd.all() else int(np.argmin(odd))
+    last = np.nonzero(jump[:run])[0]
+    return int(last[-1]) + 1 if len(last) else 0
+
+
 def dead_lines(img8: np.ndarray) -> dict[str, int]:
-    """Constant border rows/columns per side of ``img8 [H, W]``: ``{top, bottom, left, right}``."""
+    """Dead border rows/columns per side of ``img8 [H, W]``: ``{top, bottom, left, right}`` (:func:`dead_run`)."""
     img = img8.astype(np.float32)
-    out = {}
-    for side, lines in (("top", img), ("bottom", img[::-1]), ("left", img.T), ("right", img.T[::-1])):
-        limit = int(DEAD_MAX * len(lines))
-        std = lines[:limit].std(axis=1)
-        alive = np.nonzero(std >= 0.5)[0]
-        out[side] = int(alive[0]) if len(alive) else 0  # constant over the whole 10 %: flat content, not a border
-    return out
+    return {side: dead_run(lines, int(DEAD_MAX * len(lines)))
+            for side, lines in (("top", img), ("bottom", img[::-1]), ("left", img.T), ("right", img.T[::-1]))}
 
 
 def detect_crop(images: list[np.ndarray], image_rows: list[int | None] | None = None,
@@ -110,7 +124,8 @@ def detect_crop(images: list[np.ndarray], image_rows: list[int | None] | None = 
     if bar:
         reasons.append(f"{why}: {bar} rows")
     dead = [dead_lines(im[: H - bar]) for im in small]
-    sides = {s: int(np.median([d[s] for d in dead])) for s in ("top", "bottom", "left", "right")}
+    third = max(1, int(np.ceil(len(dead) / 3)))  # the count reached by a third of the images
+    sides = {s: sorted((d[s] for d in dead), reverse=True)[third - 1] for s in ("top", "bottom", "left", "right")}
     if any(sides.values()):
         reasons.append("dead border lines")
     return Crop(top=sides["top"], bottom=bar + sides["bottom"], left=sides["left"], right=sides["right"],

@@ -194,3 +194,57 @@ def test_negative_tilts_as_the_readme_writes_them(tmp_path, capsys):
     assert code == 2 and "--tilts has 2 value(s)" in err
     code, err = run(capsys, folder, "--out", tmp_path / "out", "--tilts", "-9,-0.5,9", "--inspect")
     assert code == 0
+
+
+def zeiss_series(folder, n=3, **replace):
+    """``n`` 160x120 TIFFs with a Zeiss tag (tilts -3, 0, 3...); ``replace``: {old text: new text} in the tag."""
+    import tifffile
+
+    from tests.test_sem_metadata import ZEISS
+
+    folder.mkdir(parents=True, exist_ok=True)
+    for i in range(n):
+        text = ZEISS.replace("Stage at T =  -9.0", f"Stage at T =  {3.0 * (i - 1)}")
+        for old, new in replace.items():
+            text = text.replace(old, new)
+        tifffile.imwrite(folder / f"z_{i}.tif", sem_like(seed=i), metadata=None,
+                         extratags=[(34118, 2, 0, text.encode("latin-1"), True)])
+    return folder
+
+
+def test_unphysical_metadata_ends_with_one_error_line(tmp_path, capsys):
+    """A Zeiss tag whose tilts are x100 and whose pixel size is negative: the run went on and wrote a negative focal
+    length (which arcsem then refused); now one error line names the file and the key, exit 2, nothing written."""
+    folder = zeiss_series(tmp_path / "in", **{"Stage at T =  -3.0": "Stage at T =  -300.0",
+                                              "Image Pixel Size = 5.825 nm": "Image Pixel Size = -5.825 nm"})
+    code, err = run(capsys, folder, "--out", tmp_path / "out")
+    assert code == 2 and err.startswith("error: ") and "z_0.tif: TIFF tag 34118 (Zeiss) 'Stage at T = -300.0" in err
+    assert "give --tilts" in err and not (tmp_path / "out").exists()
+    code, err = run(capsys, folder, "--out", tmp_path / "out", "--tilts", "-3,0,3")
+    assert code == 2 and "z_0.tif: TIFF tag 34118 (Zeiss) 'Image Pixel Size = -5.825 nm'" in err
+    for bad in ("-1", "0", "inf", "nan"):
+        code, err = run(capsys, folder, "--out", tmp_path / "out", "--tilts", "-3,0,3", "--pixel-size", bad)
+        assert code == 2 and f"error: --pixel-size {bad}: must be a positive number of micrometres" == err
+    assert not (tmp_path / "out").exists()
+
+
+def test_inspect_says_where_each_number_comes_from(tmp_path, capsys):
+    folder = zeiss_series(tmp_path / "in")
+    assert main([str(folder), "--inspect"]) == 0
+    out = capsys.readouterr().out.split("where the numbers come from:")[1]
+    for line in ("tilt: TIFF tag 34118 'Stage at T' (every image)", "rot: TIFF tag 34118 'Stage at R' (every image)",
+                 "pixel: TIFF tag 34118 'Image Pixel Size' x 1024 / 160 px (every image)",
+                 "levels: 0..255 (BitsPerSample 8) (every image)", "WD: TIFF tag 34118 'WD' (every image)",
+                 "orient: as stored (every image)"):
+        assert line in out
+    csv = tmp_path / "t.csv"
+    csv.write_text("z_0.tif,-3,10\nz_1.tif,0\nz_2.tif,3\n")
+    assert main([str(folder), "--inspect", "--tilts", str(csv), "--pixel-size", "0.01"]) == 0
+    out = capsys.readouterr().out.split("where the numbers come from:")[1]
+    assert "tilt: --tilts t.csv (every image)" in out and "pixel: --pixel-size (every image)" in out
+    assert "rot: --tilts t.csv (z_0.tif); TIFF tag 34118 'Stage at R' (z_1.tif, z_2.tif)" in out
+    png = write_series(tmp_path / "png", n=2)
+    assert main([str(png), "--inspect", "--tilts", "0,3"]) == 0
+    out = capsys.readouterr().out.split("where the numbers come from:")[1]
+    assert "rot: default 0 (none given) (every image)" in out and "levels: 0..255 (8-bit samples)" in out
+    assert "pixel: none (every image)" in out

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -188,3 +189,54 @@ def test_pixel_size_of_a_turned_or_resized_image(tmp_path, stored, expect_nm, no
     assert s.pixel_sizes == pytest.approx([expect_nm * 1e-9] * 3, rel=1e-3)
     notes = " ".join(s.images[0].notes)
     assert (note in notes) if note else ("turned" not in notes and "resized" not in notes)
+
+
+@pytest.mark.parametrize("stage,tilt,rot,unit", [
+    ("StageR=-2.3611\r\nStageT=0.15707963", 9.0, math.degrees(-2.3611), "rad?"),  # radians (most xT versions)
+    ("StageR=135\r\nStageT=52", 52.0, 135.0, "deg"),                              # degrees: StageT beyond pi/2
+    ("StageR=200.5\r\nStageT=0.5", 0.5, 200.5, "deg"),                            # degrees: StageR beyond 2 pi
+    ("StageR=10 deg\r\nStageT=1.2 deg", 1.2, 10.0, "deg"),                        # the unit written
+    ("StageR=0.5 rad\r\nStageT=0.1 rad", math.degrees(0.1), math.degrees(0.5), "rad"),
+])
+def test_fei_stage_angles_in_radians_or_degrees(stage, tilt, rot, unit):
+    """FEI writes StageT/StageR in radians in some versions and degrees in others: 52 was read as 52 rad (2979 deg)."""
+    m = parse_fei(FEI.replace("StageR=-2.3611\r\nStageT=0.15707963", stage))
+    assert (m.tilt_deg, m.rotation_deg, m.angle_unit) == (pytest.approx(tilt), pytest.approx(rot), unit)
+    assert m.origin("tilt_deg") == f"TIFF tag 34682 '[Stage] StageT ({'degrees' if unit == 'deg' else 'radians'})'"
+
+
+def test_fei_series_reads_open_angles_as_degrees_with_the_rest(tmp_path):
+    """A degrees series whose first tilt (1 deg) would also fit radians (57.3 deg): read as the series is written."""
+    from arcsem.sem.series import read_series
+
+    img = np.random.default_rng(0).integers(20, 230, size=(48, 64), dtype=np.uint8)
+    for i, t in enumerate((1.0, 30.0, 60.0)):
+        _tif(tmp_path / f"f{i}.tif", img, 34682, FEI.replace("StageR=-2.3611\r\nStageT=0.15707963",
+                                                               f"StageR=0\r\nStageT={t}"))
+    s = read_series(tmp_path)
+    assert s.tilts == pytest.approx([1.0, 30.0, 60.0])
+    assert "StageT/StageR read as degrees (as f1.tif, whose angles are in degrees)" in s.images[0].meta.notes
+    assert set(s.sources["tilt"]) == {"TIFF tag 34682 '[Stage] StageT (degrees)'"}
+
+
+@pytest.mark.parametrize("old,new,key", [
+    ("Stage at T =  -9.0", "Stage at T =  -900.0", "'Stage at T = -900.0 \u00b0' gives -900 degrees"),   # x100
+    ("Image Pixel Size = 5.825 nm", "Image Pixel Size = -5.825 nm", "'Image Pixel Size = -5.825 nm'"),
+    ("Image Pixel Size = 5.825 nm", "Image Pixel Size = inf nm", "'Image Pixel Size = inf nm' gives inf m"),
+    ("Stage at R = 245.8", "Stage at R = 24580", "'Stage at R = 24580 \u00b0'"),
+])
+def test_unphysical_vendor_values_are_refused_naming_file_and_key(tmp_path, old, new, key):
+    """A Zeiss tag with tilts x100 or a negative pixel size was accepted (a negative focal length followed)."""
+    from arcsem.errors import DataError
+    from arcsem.sem.series import read_series
+
+    img = np.random.default_rng(0).integers(20, 230, size=(48, 64), dtype=np.uint8)
+    for i in range(2):
+        _tif(tmp_path / f"z{i}.tif", img, 34118, ZEISS.replace(old, new))
+    with pytest.raises(DataError, match=rf"z0\.tif: TIFF tag 34118 \(Zeiss\) {re.escape(key)}"):
+        read_series(tmp_path)
+    table = read_series(tmp_path, strict=False)                    # the inspection table shows it instead
+    assert any(n.startswith("refused: TIFF tag 34118") for n in table.images[0].notes)
+    (tmp_path.parent / "t.csv").write_text("z0.tif,0,10\nz1.tif,3,10\n")               # tilt and rotation
+    overrides = {"tilts": str(tmp_path.parent / "t.csv")} if "Stage" in old else {"pixel_size_um": 0.01}
+    assert read_series(tmp_path, **overrides).images[0].meta.vendor == "zeiss"   # an override replaces it

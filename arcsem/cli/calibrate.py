@@ -146,7 +146,10 @@ def _write(out: Path, series, cal, args, opts) -> None:
     lo, hi = np.percentile(spec, 1, axis=0), np.percentile(spec, 99, axis=0)
     pad = 0.1 * (hi - lo)
     extra = {"world_unit": cal.unit,
-             "frames": [{"stage_tilt_deg": t, "stage_rotation_deg": r} for t, r in zip(series.tilts, series.rotations)],
+             "frames": [{"stage_tilt_deg": t, "stage_rotation_deg": r, "stage_angles_from": ts, "pixel_size_from": ps,
+                         "intensity_levels": im.levels.describe() if im.levels else None}
+                        for t, r, ts, ps, im in zip(series.tilts, series.rotations, series.sources["tilt"],
+                                                    series.sources["pixel"], series.images)],
              "calibration": {"tool": "arcsem-calibrate", "rms_px": cal.stats["rms_px"], "report": "report/report.md",
                              "crop": vars(series.crop) | {"reasons": list(series.crop.reasons)}}}
     p_um = series.pixel_size_m * 1e6 if series.pixel_size_m else None

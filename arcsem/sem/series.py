@@ -10,7 +10,7 @@ Vendor values that are used are checked against their physical range (:func:`arc
 tilt beyond 90 degrees, a rotation beyond a turn, a pixel size that is not positive and finite stop the series
 with a DataError naming the file and the key (the inspection table shows them instead). FEI stage angles whose
 unit the values leave open are read as degrees when another FEI image of the series is certainly in degrees.
-Every number keeps where it came from (``*_sources``; the inspection table lists them).
+Every number keeps where it came from (``Series.sources``; the inspection table lists them).
 """
 from __future__ import annotations
 
@@ -166,6 +166,7 @@ def _check(im: SemImage, fields: tuple[str, ...], fix: str, strict: bool) -> Non
 
 def _angles(images: list[SemImage], files: list[Path], tilts: str | None, strict: bool):
     """Per image tilt and rotation (degrees or None), the series' angle source and per image sources."""
+    _fei_units(images)
     if tilts is not None:
         tilt, rot, source = parse_tilts(tilts, files)
         for r, im in zip(rot, images):
@@ -174,7 +175,6 @@ def _angles(images: list[SemImage], files: list[Path], tilts: str | None, strict
                                               else "default 0 (none given)") for r, im in zip(rot, images)]
         rot = [r if r is not None else (im.meta.rotation_deg or 0.0) for r, im in zip(rot, images)]
         return tilt, rot, source, [source] * len(images), rsrc
-    _fei_units(images)
     for im in images:
         _check(im, ("tilt_deg", "rotation_deg"), "give --tilts (a list or a CSV) to override", strict)
     tilt, rot = [im.meta.tilt_deg for im in images], [im.meta.rotation_deg for im in images]

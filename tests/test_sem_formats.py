@@ -125,3 +125,12 @@ def test_colour_content_warns_naming_the_file(tmp_path):
         im = read_sem_image(path)
     np.testing.assert_allclose(im.pixels, np.round(rgb[..., 0] * 0.299), atol=1)
     assert "colour image read as its luminance" in im.notes
+
+
+def test_four_bit_palette_image_spans_the_grey_range(tmp_path):
+    """A 4-bit palette (indices 0..15): its colour map gives 8-bit grey; the index depth is not the grey range."""
+    idx = (np.arange(40 * 64).reshape(40, 64) % 16).astype(np.uint8)
+    cmap = np.zeros((3, 256), np.uint16)                    # tifffile writes 256 entries; 16 used: grey 0..65535
+    cmap[:, :16] = np.arange(16) * 4369
+    im = read_sem_image(write(tmp_path / "p.tif", idx, photometric="palette", colormap=cmap, bitspersample=4))
+    np.testing.assert_array_equal(im.pixels, np.round(idx.astype(float) * 4369 / 65535 * 255).astype(np.uint8))

@@ -202,6 +202,8 @@ def read_tiff(path: Path, notes: list[str]) -> Tiff:
                 notes.append("palette image: colour map applied")
             tags = {c: page.tags[c].value for c in (258, 280, 281, 340, 341) if c in page.tags}
             tags[258] = int(np.max(tags.get(258, 8 * arr.dtype.itemsize)))
+            if "palette image: colour map applied" in notes:  # 8-bit luminance now, whatever the index depth
+                tags = {258: 8}
             alpha = arr.ndim == 3 and arr.shape[-1] in (2, 4) and bool(page.extrasamples)
             orientation = int(page.tags[274].value) if 274 in page.tags else 1
             meta = None

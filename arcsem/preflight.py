@@ -18,7 +18,7 @@ from typing import Any
 from .errors import ConfigError, DataError, PluginError
 
 __all__ = ["FEATURE_STRIDE", "MIN_IMAGE_SIZE", "STAGE_PLAN", "check_config", "check_device", "check_flag_overrides",
-           "check_scene", "training_size"]
+           "check_scene", "check_stage2_inputs", "training_size"]
 
 STAGE_PLAN = {"gray": ("gray",), "color": ("color",), "all": ("gray", "color"), "check": ("gray", "color"),
               "render": ("render",)}
@@ -248,6 +248,16 @@ def late_reset_warning(cfg: Any) -> str | None:
             f"{int(0.9 * steps)} (backbone.opacity_reset_every, backbone.densify_until or train.steps)")
 
 
+def check_stage2_inputs(cfg: Any, cc: Any, scene: Any) -> None:
+    """What stage 2 needs of the loaded scene: the masks and depth ``colorize`` asks for, images large enough for
+    TCM/CCM, and readable references (ConfigError or DataError naming the key, file or view)."""
+    from .colorize.references import load_references
+
+    load_references(scene, cc.references)
+    _check_color_inputs(cc, scene)
+    _check_color_size(cfg, cc, scene)
+
+
 def check_scene(cfg: Any, scene: Any, stage: str, run_dir: Path) -> list[str]:
     """Checks that need the loaded scene; returns warnings. ``stage=color`` also checks the stage-1 model."""
     stages = STAGE_PLAN[stage]
@@ -259,14 +269,11 @@ def check_scene(cfg: Any, scene: Any, stage: str, run_dir: Path) -> list[str]:
         warnings.append(late_reset_warning(cfg))
     _check_gsplat_scene(dict(cfg.backbone), scene)
     if "color" in stages:
-        from .colorize.references import load_references
         from .colorize.stage2 import check_stage1_model, colorize_config
 
         cc = colorize_config(cfg)
         try:
-            _check_color_inputs(cc, scene)
-            _check_color_size(cfg, cc, scene)
-            load_references(scene, cc.references)
+            check_stage2_inputs(cfg, cc, scene)
         except (ConfigError, DataError) as exc:
             if stage != "check":
                 raise

@@ -214,7 +214,8 @@ def _check_color_size(cfg: Any, cc: Any, scene: Any) -> None:
     need = max(FEATURE_STRIDE * cc.tcm_downscale, cc.ccm_downscale)
     if min(w, h) < need:
         off = " ".join(f"colorize.losses.{n}.weight=0" for n in terms)
-        raise ConfigError(f"colorize: {' and '.join(t.upper() for t in terms)} need stage-2 images of at least "
+        verb = "need" if len(terms) > 1 else "needs"
+        raise ConfigError(f"colorize: {' and '.join(t.upper() for t in terms)} {verb} stage-2 images of at least "
                           f"{need}x{need} px (tcm_downscale {cc.tcm_downscale} x the features' {FEATURE_STRIDE}-px "
                           f"cells, ccm_downscale {cc.ccm_downscale}); these are {w}x{h} px: lower "
                           f"colorize.tcm_downscale/ccm_downscale or turn them off ({off})")

@@ -59,7 +59,8 @@ def check_intrinsics(K: np.ndarray, width: int, height: int, model: str, where: 
                      keys: tuple[str, str, str, str] = ("fl_x", "fl_y", "cx", "cy")) -> None:
     """DataError naming the key (``keys``: the file's names of fx, fy, cx, cy) when ``K [3, 3]`` holds a number the
     renderers cannot use: not finite, above :data:`MAX_INTRINSIC`, a pinhole focal length above
-    :data:`MAX_PINHOLE_FOCAL_WIDTHS` image widths, or a principal point 100 image sizes away from the image."""
+    :data:`MAX_PINHOLE_FOCAL_WIDTHS` image widths or under a thousandth of one, or a principal point 100 image sizes
+    away from the image."""
     values = (K[0, 0], K[1, 1], K[0, 2], K[1, 2])
     for key, value, size in zip(keys, values, (width, height, width, height)):
         v = float(value)
@@ -68,6 +69,9 @@ def check_intrinsics(K: np.ndarray, width: int, height: int, model: str, where: 
         if key in keys[:2] and model == "pinhole" and v > MAX_PINHOLE_FOCAL_WIDTHS * size:
             raise DataError(f"{where}: '{key}' = {v:g} px is over {MAX_PINHOLE_FOCAL_WIDTHS:g} image widths (a field "
                             "of view under a microradian); for such a camera use camera_model ORTHOGRAPHIC")
+        if key in keys[:2] and model == "pinhole" and v < 1e-3 * size:
+            raise DataError(f"{where}: '{key}' = {v:g} px is under a thousandth of the image size {size} (a field of "
+                            "view over 179.8 degrees): not a pinhole camera")
         if key in keys[2:] and abs(v) > 100 * size:
             raise DataError(f"{where}: '{key}' = {v:g} px puts the principal point over 100 image sizes "
                             f"away from the {width}x{height} image")

@@ -49,6 +49,8 @@ def dataset_root(path: str | Path) -> Path:
 
 def resolve_file(base: Path, rel: str, what: str, exts: tuple[str, ...] = IMAGE_EXTS) -> Path:
     """``base / rel``; if it does not exist, try ``rel`` with each extension appended/replaced."""
+    if "\x00" in rel:
+        raise DataError(f"{what}: the file name {rel!r} holds a NUL character")
     try:
         path = (base / rel).resolve()
     except (RuntimeError, OSError) as exc:  # a symlink loop (RuntimeError before Python 3.13, OSError ELOOP after)
@@ -76,6 +78,9 @@ def _read_pixels(path: Path) -> tuple[np.ndarray, bool]:
 
         arr, orientation, _ = read_tiff(Path(path), [])
         return orient(arr, orientation), False
+    from .headers import check_declared_size, image_header
+
+    check_declared_size(Path(path), image_header(Path(path)))  # a decompression bomb is refused before decoding
     try:
         img = _cv2().imread(str(path), _cv2().IMREAD_UNCHANGED)
     except _cv2().error as exc:  # e.g. more pixels than CV_IO_MAX_IMAGE_PIXELS

@@ -101,7 +101,7 @@ def _intrinsics(p: dict, img_path: Path, where: str) -> tuple[np.ndarray, int, i
                         "is not supported in transforms.json; undistort the images first")
     model = MODELS[name]
     if "w" in p and "h" in p:
-        w, h = int(_number(p, "w", where, True)), int(_number(p, "h", where, True))
+        w, h = _pixels(p, "w", where), _pixels(p, "h", where)
     else:  # the header's size; the pixels are decoded only where the header cannot be parsed
         wh = image_header(img_path)
         check_declared_size(img_path, wh)
@@ -125,6 +125,14 @@ def _intrinsics(p: dict, img_path: Path, where: str) -> tuple[np.ndarray, int, i
     return K, w, h, model
 
 
+def _pixels(p: dict, key: str, where: str) -> int:
+    """An image side in pixels: a whole number from 1 to 10^6."""
+    value = _number(p, key, where, True)
+    if value != int(value) or value > 1e6:
+        raise DataError(f"{where}: '{key}' must be a whole number of pixels (1 to 1000000), got {p[key]!r}")
+    return int(value)
+
+
 def _angle(p: dict, key: str, where: str) -> float:
     """A field of view in radians, in (0, pi)."""
     a = _number(p, key, where, True)
@@ -142,10 +150,16 @@ def _pose(frame: dict, where: str) -> np.ndarray:
         c2w = np.vstack([c2w, [0, 0, 0, 1]])
     if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
         raise DataError(f"{where}: 'transform_matrix' must be a finite 4x4 (or 3x4) matrix")
+    if np.abs(c2w[:3, 3]).max() > MAX_POSITION:
+        raise DataError(f"{where}: 'transform_matrix' puts the camera at {c2w[:3, 3].tolist()}, over "
+                        f"{MAX_POSITION:g} scene units from the origin")
     check_rotation(c2w[:3, :3], f"{where}: 'transform_matrix'")
     c2w_cv = opengl_to_opencv(torch.from_numpy(c2w)).numpy()
     return np.linalg.inv(c2w_cv)
 
+
+MAX_POSITION = 1e12
+"""Farthest camera position from the origin, in scene units (float32 cameras and bounds overflow beyond)."""
 
 OPTIONAL = ("mask", "depth", "normal", "color", "clean", "reference")  # frame keys <name>_path
 

@@ -75,8 +75,7 @@ def _stage2_problem(cfg: Any, scene: Any, cc: Any) -> str | None:
         check_stage2_inputs(cfg, cc, scene)
     except (ConfigError, DataError) as exc:
         if "reference" in str(exc):
-            return ("stage 2 needs colour references: add colorize.references=<image file(s) or folder, each named "
-                    "after its training view> (or a preset of the dataset), then stage=all")
+            return "stage 2 needs references: colorize.references=<files/folder named after views>; then stage=all"
         return "stage 2 cannot run as configured (the warning above says why); fix that, then stage=all"
     return None
 

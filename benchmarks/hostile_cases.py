@@ -230,7 +230,7 @@ def _config() -> list[Case]:
         Case("stage=all on 32x24 images, CCM only", "error", ("CCM needs stage-2 images of at least 32x32 px", "these are 16x12 px"),
              _folder_named("refs", True), overrides=[*TINY, "colorize.references=./refs", "train.downscale=2",
                                                       "colorize.losses.tcm.weight=0"], stage="all", in_case_dir=True),
-        Case("stage=check without references", "ok", ("stage=gray", "stage 2 needs colour references")),
+        Case("stage=check without references", "ok", ("stage=gray", "stage 2 needs references: colorize.references=")),
         Case("stage=check says the real training size", "ok", ("1500 steps at 32x24 px",),
              overrides=["train.width=288"], absent=("288 px wide",)),
         Case("stage=gray: metrics.json strict JSON", "ok", ("stage 1 (gs2d)",), overrides=TINY, stage="gray"),

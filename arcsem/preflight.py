@@ -254,8 +254,8 @@ def check_stage2_inputs(cfg: Any, cc: Any, scene: Any) -> None:
     TCM/CCM, and readable references (ConfigError or DataError naming the key, file or view)."""
     from .colorize.references import load_references
 
-    load_references(scene, cc.references)
     _check_color_inputs(cc, scene)
+    load_references(scene, cc.references)
     _check_color_size(cfg, cc, scene)
 
 

@@ -154,8 +154,12 @@ def _inputs(scene: Any) -> tuple[list[str], list[str]]:
 
 
 def _write_metrics(run_dir: Path, metrics: dict, t_start: float) -> None:
+    """The one writer of ``metrics.json``: strict JSON, a NaN or infinity as ``null`` with its reason in ``nulls``
+    (:mod:`arcsem.metrics_json`)."""
+    from .metrics_json import strict_metrics
+
     metrics["timings"]["total_s"] = time.perf_counter() - t_start
-    write_json_atomic(run_dir / "metrics.json", metrics)
+    write_json_atomic(run_dir / "metrics.json", strict_metrics(metrics), allow_nan=False)
 
 
 def _run_stages(cfg: DictConfig, scene: Any, run_dir: Path, stages: tuple[str, ...], metrics: dict,

@@ -35,10 +35,14 @@ def check_summary(cfg: Any, scene: Any, result: dict) -> str:
     tr, te = scene.train, scene.test
     cams = tr.cameras
     refs = ", ".join(f"{k} ({len(v)})" for k, v in scene.reference_sets.items()) or "none"
-    size = f"{tc.width} px wide" if tc.width else f"downscale {tc.downscale:g}"
+    from .preflight import training_size
+
+    w, h = training_size(cams, tc.downscale, tc.width)  # what stage 1 trains at (train.width never upsamples)
+    size = f"{w}x{h} px"
     scale, scale_name = scene.scale
     name = str(cfg.backbone.name)
     steps, losses1 = tc.steps, tc.losses  # the preset as tuned for this backbone (conf/tuning)
+    stage2 = _stage2_problem(cfg, scene, cc)
     lines = [
         "check: OK (the data was read and the model built; nothing was trained)",
         f"  dataset    {cfg.dataset.kind}: {scene.root}",
@@ -50,13 +54,30 @@ def check_summary(cfg: Any, scene: Any, result: dict) -> str:
         f"  backbone   {name} ({result.get('backbone_origin', '?')}), {result.get('primitives', 0):,} at start",
         f"  ACT        {'on' if result.get('act') else 'off'}",
         f"  stage 1    {steps} steps at {size}; losses: {_terms(losses1)}",
-        f"  stage 2    {cc.steps} steps, references '{cc.references}'; losses: {_terms(cc.losses)}",
+        (f"  stage 2    {cc.steps} steps, references '{cc.references}'{' (cannot run)' if stage2 else ''}; "
+         f"losses: {_terms(cc.losses)}"),
         f"  outputs    mesh {'on' if mc.enabled else 'off'}"
         + (f" (voxel {mc.voxel_size:g})" if mc.voxel_size else " (voxel: one training pixel)")
         + f"; videos {'on' if tc.eval.video else 'off'} ({tc.eval.video_frames} frames at {tc.eval.fps} fps)",
-        "  run        " + " ".join(["arcsem", *_overrides(cfg), "stage=all"]),
+        "  run        " + " ".join(["arcsem", *_overrides(cfg), "stage=gray" if stage2 else "stage=all"]),
     ]
+    if stage2 is not None:
+        lines.append(f"  colour     {stage2}")
     return "\n".join(lines)
+
+
+def _stage2_problem(cfg: Any, scene: Any, cc: Any) -> str | None:
+    """None where stage 2 can run as configured, else what to do (the check's warning says what is wrong)."""
+    from .errors import ConfigError, DataError
+    from .preflight import check_stage2_inputs
+
+    try:
+        check_stage2_inputs(cfg, cc, scene)
+    except (ConfigError, DataError) as exc:
+        if "reference" in str(exc):
+            return "stage 2 needs references: colorize.references=<files/folder named after views>; then stage=all"
+        return "stage 2 cannot run as configured (the warning above says why); fix that, then stage=all"
+    return None
 
 
 def _overrides(cfg: Any) -> list[str]:

@@ -141,7 +141,8 @@ class SurfaceConfig:
 @dataclass
 class ColorizeConfig:
     steps: int = checked(20_000, ge=1)  # ArCSEM stage 2
-    references: Any = "five"  # preset (five|four|three|two|one) or image file(s)/folder matched by file stem
+    references: Any = "five"  # preset (five|four|three|two|one: a bare word is always a preset) or image file(s)/
+    # folder matched by file stem, written as a path (with / or .: ./one, refs/a.png)
     stage1: str | None = None  # stage-1 run folder or checkpoint; default: this run's, then the shared cache
     masks: str = checked("auto", choices=("auto", "dataset", "files", "otsu", "grabcut", "sam", "none"))  # auto (dataset masks, else otsu) | dataset | files | otsu | grabcut | sam | none
     mask_folder: str | None = None  # masks=files: folder of <view name>.<ext>

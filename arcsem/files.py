@@ -63,6 +63,7 @@ def jsonable(obj: Any) -> Any:
     return obj
 
 
-def write_json_atomic(path: str | os.PathLike, obj: Any, indent: int | None = 2) -> None:
-    """``json.dump`` of ``obj`` (tensors and arrays converted) to ``path``, atomically."""
-    write_text_atomic(path, json.dumps(jsonable(obj), indent=indent, default=str) + "\n")
+def write_json_atomic(path: str | os.PathLike, obj: Any, indent: int | None = 2, allow_nan: bool = True) -> None:
+    """``json.dump`` of ``obj`` (tensors and arrays converted) to ``path``, atomically; ``allow_nan=False``: strict
+    JSON (ValueError for a NaN or infinity, which plain ``json`` writes as ``NaN``/``Infinity``)."""
+    write_text_atomic(path, json.dumps(jsonable(obj), indent=indent, default=str, allow_nan=allow_nan) + "\n")

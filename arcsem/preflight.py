@@ -17,7 +17,8 @@ from typing import Any
 
 from .errors import ConfigError, DataError, PluginError
 
-__all__ = ["MIN_IMAGE_SIZE", "STAGE_PLAN", "check_config", "check_device", "check_flag_overrides", "check_scene"]
+__all__ = ["FEATURE_STRIDE", "MIN_IMAGE_SIZE", "STAGE_PLAN", "check_config", "check_device", "check_flag_overrides",
+           "check_scene", "check_stage2_inputs", "training_size"]
 
 STAGE_PLAN = {"gray": ("gray",), "color": ("color",), "all": ("gray", "color"), "check": ("gray", "color"),
               "render": ("render",)}
@@ -157,8 +158,18 @@ def check_config(cfg: Any, stage: str, overrides: list[str] | None = None) -> No
     if stage not in STAGES:
         raise ConfigError(f"stage: unknown stage '{stage}'; available: {', '.join(STAGES)}")
     _check_top_level(cfg)
+    if stage != "render":
+        from .data import check_dataset_config
+
+        check_dataset_config(cfg.dataset)
     for name in STAGE_PLAN[stage]:
         {"gray": _check_gray, "color": _check_color, "render": _check_render}[name](cfg)
+
+
+def training_size(cams: Any, downscale: float, width: int | None) -> tuple[int, int]:
+    """``(w, h)`` of the training images of ``cams`` at ``width`` (never above the images') or ``1 / downscale``."""
+    w = min(width, cams.width) if width else round(cams.width / downscale)
+    return w, round(cams.height * w / cams.width)
 
 
 def _check_sizes(cfg: Any, scene: Any, stages: tuple[str, ...]) -> list[str]:
@@ -175,13 +186,39 @@ def _check_sizes(cfg: Any, scene: Any, stages: tuple[str, ...]) -> list[str]:
     if tc.width and tc.width > cams.width:
         warnings.append(f"train.width={tc.width} is wider than the images ({cams.width} px): training at "
                         f"{cams.width} px (arcsem never upsamples)")
-    w = min(tc.width, cams.width) if tc.width else round(cams.width / tc.downscale)
-    h = round(cams.height * w / cams.width)
+    w, h = training_size(cams, tc.downscale, tc.width)
     if min(w, h) < MIN_IMAGE_SIZE:
         key = "train.width" if tc.width else "train.downscale"
         raise ConfigError(f"{key}: training images would be {w}x{h} px; arcsem needs at least "
                           f"{MIN_IMAGE_SIZE}x{MIN_IMAGE_SIZE} (the SSIM window)")
     return warnings
+
+
+FEATURE_STRIDE = 8
+"""The coarsest block of every TCM/CCM feature extractor (VGG's relu4_x, DAISY's and the learned CNN's), in pixels of
+the images after ``colorize.tcm_downscale``: each side needs at least one such cell."""
+
+
+def _check_color_size(cfg: Any, cc: Any, scene: Any) -> None:
+    """TCM and CCM need stage-2 images of at least ``FEATURE_STRIDE x tcm_downscale`` px a side, and one CCM cell
+    (``ccm_downscale``) each way: ConfigError with the figures (32x24 images at the paper's tcm_downscale 4 have a
+    6-px side there, and VGG's pooling fails)."""
+    terms = [n for n in ("tcm", "ccm") if float(((cc.losses or {}).get(n) or {}).get("weight", 0) or 0) != 0]
+    if not terms:
+        return
+    from .train.stage1 import train_config
+
+    tc = train_config(cfg)
+    down, width = (cc.downscale, cc.width) if (cc.downscale != 1.0 or cc.width) else (tc.downscale, tc.width)
+    w, h = training_size(scene.train.cameras, down, width)
+    need = max(FEATURE_STRIDE * cc.tcm_downscale, cc.ccm_downscale)
+    if min(w, h) < need:
+        off = " ".join(f"colorize.losses.{n}.weight=0" for n in terms)
+        verb = "need" if len(terms) > 1 else "needs"
+        raise ConfigError(f"colorize: {' and '.join(t.upper() for t in terms)} {verb} stage-2 images of at least "
+                          f"{need}x{need} px (tcm_downscale {cc.tcm_downscale} x the features' {FEATURE_STRIDE}-px "
+                          f"cells, ccm_downscale {cc.ccm_downscale}); these are {w}x{h} px: lower "
+                          f"colorize.tcm_downscale/ccm_downscale or turn them off ({off})")
 
 
 def _check_color_inputs(cc: Any, scene: Any) -> None:
@@ -212,24 +249,32 @@ def late_reset_warning(cfg: Any) -> str | None:
             f"{int(0.9 * steps)} (backbone.opacity_reset_every, backbone.densify_until or train.steps)")
 
 
+def check_stage2_inputs(cfg: Any, cc: Any, scene: Any) -> None:
+    """What stage 2 needs of the loaded scene: the masks and depth ``colorize`` asks for, images large enough for
+    TCM/CCM, and readable references (ConfigError or DataError naming the key, file or view)."""
+    from .colorize.references import load_references
+
+    _check_color_inputs(cc, scene)
+    load_references(scene, cc.references)
+    _check_color_size(cfg, cc, scene)
+
+
 def check_scene(cfg: Any, scene: Any, stage: str, run_dir: Path) -> list[str]:
     """Checks that need the loaded scene; returns warnings. ``stage=color`` also checks the stage-1 model."""
     stages = STAGE_PLAN[stage]
     if len(scene.train) < 2:
         raise DataError(f"{scene.root}: {len(scene.train)} training view(s); a 3-D scene needs at least 2 "
                         "(check dataset.split and dataset.max_views)")
-    warnings = _check_sizes(cfg, scene, stages)
+    warnings = [*getattr(scene, "warnings", []), *_check_sizes(cfg, scene, stages)]
     if "gray" in stages and late_reset_warning(cfg):
         warnings.append(late_reset_warning(cfg))
     _check_gsplat_scene(dict(cfg.backbone), scene)
     if "color" in stages:
-        from .colorize.references import load_references
         from .colorize.stage2 import check_stage1_model, colorize_config
 
         cc = colorize_config(cfg)
         try:
-            _check_color_inputs(cc, scene)
-            load_references(scene, cc.references)
+            check_stage2_inputs(cfg, cc, scene)
         except (ConfigError, DataError) as exc:
             if stage != "check":
                 raise

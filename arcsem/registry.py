@@ -105,11 +105,12 @@ class Registry:
 
 
 def checked(default: Any = dataclasses.MISSING, *, default_factory: Any = dataclasses.MISSING,
-            ge: float | None = None, gt: float | None = None, le: float | None = None,
+            ge: float | None = None, gt: float | None = None, le: float | None = None, lt: float | None = None,
             choices: tuple | None = None) -> Any:
-    """A dataclass field whose value :func:`validate_config` checks: ``ge``/``gt``/``le`` bounds (None passes),
-    ``choices`` (the allowed values). Example: ``steps: int = checked(1500, ge=1)``."""
-    rules = {k: v for k, v in (("ge", ge), ("gt", gt), ("le", le), ("choices", choices)) if v is not None}
+    """A dataclass field whose value :func:`validate_config` checks: ``ge``/``gt``/``le``/``lt`` bounds (None
+    passes), ``choices`` (the allowed values). Example: ``steps: int = checked(1500, ge=1)``."""
+    rules = {k: v for k, v in (("ge", ge), ("gt", gt), ("le", le), ("lt", lt), ("choices", choices))
+             if v is not None}
     if default_factory is not dataclasses.MISSING:
         return dataclasses.field(default_factory=default_factory, metadata={"checks": rules})
     return dataclasses.field(default=default, metadata={"checks": rules})
@@ -126,7 +127,7 @@ def _violation(value: Any, rules: dict) -> str | None:
     if math.isnan(value):
         return "must be a number, got NaN"
     for op, bad, text in (("ge", lambda v, b: v < b, ">="), ("gt", lambda v, b: v <= b, ">"),
-                          ("le", lambda v, b: v > b, "<=")):
+                          ("le", lambda v, b: v > b, "<="), ("lt", lambda v, b: v >= b, "<")):
         if op in rules and bad(value, rules[op]):
             return f"must be {text} {rules[op]}"
     return None

@@ -87,6 +87,7 @@ class Scene:
         extent: scene extent used by Gaussian learning rates (see :attr:`extent`).
         bounds_source: where ``bounds`` come from: ``"given"`` (the dataset's ``aabb``, or whoever built
             the scene), ``"points"`` (percentiles of the point cloud) or ``"cameras"`` (the frusta).
+        warnings: what the reader noticed and decided (an alpha channel ignored, colour views), one line each.
     """
 
     root: str
@@ -100,6 +101,7 @@ class Scene:
     specimen_size: float | None = None
     micrometres_per_unit: float | None = None
     bounds_source: str = "given"
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def extent(self) -> float:

@@ -12,10 +12,13 @@ def offline(tmp_path, monkeypatch):
     monkeypatch.setenv("TORCH_HOME", str(tmp_path))  # an empty hub cache
 
 
-def test_vgg16_blocks_shapes_normalisation(offline):
-    with pytest.warns(UserWarning, match="RANDOM weights"):
+def test_vgg16_blocks_shapes_normalisation(offline, caplog):
+    with caplog.at_level("WARNING", logger="arcsem.colorize.vgg"):
         v = VGGFeatures("vgg16")
     assert v.features_source == "random"
+    # one warning (the log only, not also a Python warning), naming what metrics.json records
+    warned = [r.getMessage() for r in caplog.records if "RANDOM weights" in r.getMessage()]
+    assert len(warned) == 1 and "'features: vgg16-random'" in warned[0]
     # torchvision vgg16.features: relu3_1..3 = 11, 13, 15; relu4_1..3 = 18, 20, 22
     assert v.layers == {3: [11, 13, 15], 4: [18, 20, 22]}
     assert isinstance(v.trunk[10], nn.Conv2d) and v.trunk[10].in_channels == 128 and v.trunk[10].out_channels == 256
@@ -32,16 +35,14 @@ def test_vgg16_blocks_shapes_normalisation(offline):
 
 
 def test_vgg19_layers(offline):
-    with pytest.warns(UserWarning):
-        v = VGGFeatures("vgg19")
+    v = VGGFeatures("vgg19")
     assert v.layers == {3: [11, 13, 15, 17], 4: [20, 22, 24, 26]}
     f3, f4 = v(torch.rand(1, 32, 32, 3))
     assert f3.shape[1] == 1024 and f4.shape[1] == 2048
 
 
 def test_weights_from_hub_cache_are_loaded(offline, tmp_path):
-    with pytest.warns(UserWarning):
-        donor = VGGFeatures("vgg16")
+    donor = VGGFeatures("vgg16")
     sd = {f"features.{k}": t + 0.5 for k, t in donor.trunk.state_dict().items()}
     sd["classifier.0.weight"] = torch.zeros(1)  # extra keys of the full model are ignored
     (tmp_path / "hub" / "checkpoints").mkdir(parents=True)

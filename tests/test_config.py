@@ -112,7 +112,8 @@ def test_app_dispatches_stages(tmp_path, monkeypatch):
     colour[..., 0] = 200  # a colour reference for view_01 (stage=all checks the references before stage 1)
     cv2.imwrite(str(tmp_path / "view_01.png"), colour)
     cfg = compose_with("dataset=transforms", f"dataset.path={scene.parent}", "stage=all",
-                       f"colorize.references={tmp_path / 'view_01.png'}")
+                       f"colorize.references={tmp_path / 'view_01.png'}",  # 16x12 px: too small for TCM/CCM
+                       "colorize.losses.tcm.weight=0", "colorize.losses.ccm.weight=0")
     m = app.run(cfg, run_dir=tmp_path / "r")
     assert calls == [("gray", 2, tmp_path / "r"), ("color", 2, tmp_path / "r")]
     assert m["psnr"] == 25.0 and m["stages"]["gray"]["psnr"] == 30.5 and m["lpips_weights"] == "missing: test"

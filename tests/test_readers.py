@@ -144,7 +144,7 @@ def test_specimen_size_sets_the_length_scale_of_depth_errors(tiny_transforms):
     assert read_transforms(path).scale == (0.5, "specimen diameter")
     meta["specimen_size"] = -1
     path.write_text(json.dumps(meta))
-    with pytest.raises(DataError, match="transforms.json.*'specimen_size' must be a positive number"):
+    with pytest.raises(DataError, match="transforms.json.*'specimen_size' must be a positive finite number"):
         read_transforms(path)
 
 
@@ -276,8 +276,8 @@ def test_load_scene_synthetic_dispatch(monkeypatch, tmp_path):
         return write_transforms_scene(tmp_path / "syn", n=2).parent
 
     monkeypatch.setattr(synth, "ensure_scene", fake_ensure_scene, raising=False)
-    s = load_scene({"kind": "synthetic", "shape": "pollen", "n_views": 2, "downscale": 1, "split": "none"})
-    assert calls == [{"shape": "pollen", "n_views": 2}] and len(s.train) == 2
+    s = load_scene({"kind": "synthetic", "width": 32, "n_horizontal": 3, "downscale": 1, "split": "none"})
+    assert calls == [{"width": 32, "n_horizontal": 3}] and len(s.train) == 2
 
 
 def test_load_scene_config_errors(tiny_transforms):

@@ -93,9 +93,21 @@ def _unknown_schema_key(exc: BaseException) -> str | None:
     return f"{cause.full_key}: unknown key; valid keys: {keys}"
 
 
+def _unparsable_override(exc: BaseException) -> str | None:
+    """For an override Hydra's grammar cannot read (a non-ASCII letter in a path: ``LexerNoViableAltException``):
+    the override and how to quote its value."""
+    from hydra.errors import OverrideParseException
+
+    if not isinstance(exc, OverrideParseException) or "NoViableAlt" not in str(exc) or "=" not in exc.override:
+        return None
+    key, value = exc.override.split("=", 1)
+    return (f"{exc.override}: Hydra's override grammar does not take this value unquoted (a non-ASCII letter or "
+            f"another special character); quote it, in a shell: \"{key}='{value}'\"")
+
+
 def describe(exc: BaseException) -> str:
     """The one-line message for a user-facing error (see :func:`exit_code`)."""
-    unknown = _unknown_schema_key(exc)
+    unknown = _unknown_schema_key(exc) or _unparsable_override(exc)
     if unknown:
         return unknown
     if isinstance(exc, KeyboardInterrupt):

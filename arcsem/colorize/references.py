@@ -90,15 +90,18 @@ def load_references(scene, spec: str | list[str]) -> References:
 
     Args:
         scene: :class:`arcsem.scene.Scene`; its ``train`` split gives names and sizes.
-        spec: a preset in ``scene.reference_sets``, a path, or a list of paths (a folder means
+        spec: a preset in ``scene.reference_sets`` (a bare word: ``one``, even where a folder ``one`` exists), a
+            path (written with ``/`` or ``.``: ``./one``, ``refs/a.png``), or a list of paths (a folder means
             every image file in it).
     """
     train = scene.train
     hw = (train.cameras.height, train.cameras.width)
-    if isinstance(spec, str) and not Path(spec).exists() and ("/" not in spec and "." not in spec):
+    if isinstance(spec, str) and "/" not in spec and "." not in spec:  # a bare word names a preset, never a path
         if spec not in scene.reference_sets:
+            path = f"; for the file or folder '{spec}' write ./{spec}" if Path(spec).exists() else ""
             raise ConfigError(
-                f"colorize.references: unknown preset '{spec}'; the dataset has: {', '.join(scene.reference_sets) or 'none'}"
+                f"colorize.references: unknown preset '{spec}'; the dataset has: "
+                f"{', '.join(scene.reference_sets) or 'none'}{path}"
             )
         names = list(scene.reference_sets[spec])
         images = []

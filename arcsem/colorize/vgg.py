@@ -3,13 +3,12 @@
 Features are the relu3_x and relu4_x layers, concatenated along channels per block (VGG16: 3 x 256
 channels at 1/4 resolution and 3 x 512 at 1/8; VGG19: 4 x 256 and 4 x 512). Inputs are normalised
 with the ImageNet mean/std. Weights come from the torch hub cache (:mod:`arcsem.weights`); where
-they cannot be had the network runs with RANDOM weights after a loud warning, and
-``features_source`` says ``"random"`` so that runs record ``features: random``.
+they cannot be had the network runs with RANDOM weights after a loud warning (one per job, in its log), and
+``features_source`` says ``"random"`` so that runs record ``vgg16-random`` (:meth:`VGGFeatures.label`).
 """
 from __future__ import annotations
 
 import logging
-import warnings
 
 import torch
 from torch import Tensor, nn
@@ -90,10 +89,11 @@ class VGGFeatures(nn.Module):
         self.features_source, self.weights_detail = "imagenet", detail
 
     def _warn_random(self, why: str) -> None:
+        """One warning (the job's log: console and main.log), naming what ``metrics.json`` records."""
         msg = (f"VGG ({self.arch}) runs with RANDOM weights ({why}); TCM/CCM matches are not the paper's. "
-               f"Put {WEIGHT_FILES[self.arch]} into the torch hub cache; this run records 'features: random'.")
+               f"Put {WEIGHT_FILES[self.arch]} into the torch hub cache; this run records "
+               f"'features: {self.label()}' in metrics.json.")
         self.weights_detail = why
-        warnings.warn(msg, stacklevel=3)
         log.warning(msg)
 
     differentiable = True  # usable on a colour render: the paper's TCM loss space

@@ -18,6 +18,8 @@ from .transforms import read_transforms
 __all__ = [
     "KINDS",
     "ReaderOptions",
+    "check_dataset_config",
+    "dataset_keys",
     "load_scene",
     "read_colmap",
     "read_image",
@@ -31,6 +33,55 @@ KINDS = ("transforms", "colmap", "synthetic")
 # Keys of a dataset config that are reader options, not parameters of the synthetic generator.
 _READER_KEYS = {"kind", "path", "downscale", "split", "test_every", "max_views", "holdout", "images", "masks",
                 "undistort", "params"}
+_KIND_KEYS = {"transforms": ("path",), "colmap": ("path", "images", "masks", "undistort"), "synthetic": ("params",)}
+
+
+def dataset_keys(kind: str) -> list[str]:
+    """The keys a ``dataset`` config of ``kind`` may hold: ``kind``, the reader options, the kind's own (for
+    ``synthetic``: every :class:`~arcsem.synthetic.SceneParams` field)."""
+    import dataclasses
+
+    keys = ["kind", *_KIND_KEYS[kind], *(f.name for f in dataclasses.fields(ReaderOptions))]
+    if kind == "synthetic":
+        from ..synthetic.write import SceneParams
+
+        keys += [f.name for f in dataclasses.fields(SceneParams) if f.name not in keys]
+    return keys
+
+
+def check_dataset_config(cfg: Any) -> None:
+    """ConfigError naming the key for a ``dataset`` config with a kind or key arcsem does not know (a typo added
+    with ``+dataset.dowscale=4`` would be ignored otherwise), bad reader options, or, for ``synthetic``, a
+    generator parameter out of its range (``n_horizontal=0``, ``noise=-1``, ``camera=fisheye``)."""
+    kind = _get(cfg, "kind")
+    if kind not in KINDS:
+        raise ConfigError(f"dataset.kind: unknown kind '{kind}'; available: {', '.join(KINDS)}")
+    keys = dataset_keys(kind)
+    unknown = [str(k) for k in (cfg.keys() if hasattr(cfg, "keys") else vars(cfg)) if k not in keys]
+    if unknown:
+        raise ConfigError(f"dataset.{unknown[0]}: unknown key for dataset kind '{kind}'; valid keys: "
+                          f"{', '.join(keys)}")
+    reader_options(cfg)
+    if kind == "synthetic":
+        _synthetic_params(cfg)
+
+
+def _synthetic_params(cfg: Any) -> dict:
+    """The generator's parameters of a synthetic dataset config, validated against ``SceneParams``."""
+    from omegaconf import DictConfig, OmegaConf
+
+    from ..registry import validate_config
+    from ..synthetic.write import SceneParams
+
+    plain = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else dict(cfg)
+    params = plain.get("params")
+    where = "dataset.params" if params is not None else "dataset"
+    if params is None:
+        params = {k: v for k, v in plain.items() if k not in _READER_KEYS}
+    if not isinstance(params, dict):
+        raise ConfigError(f"dataset.params: expected a mapping of generator parameters, got {params!r}")
+    validate_config(SceneParams, params, where=where)
+    return params
 
 
 def _get(cfg: Any, key: str, default: Any = None) -> Any:
@@ -46,21 +97,13 @@ def _synthetic_path(cfg: Any) -> Path:
         from ..synthetic import ensure_scene
     except ImportError as exc:
         raise PluginError(f"dataset kind 'synthetic' needs arcsem.synthetic.ensure_scene: {exc}") from None
-    from omegaconf import DictConfig, OmegaConf
-
-    plain = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else dict(cfg)
-    params = plain.get("params")
-    if params is None:
-        params = {k: v for k, v in plain.items() if k not in _READER_KEYS}
-    return Path(ensure_scene(**params))
+    return Path(ensure_scene(**_synthetic_params(cfg)))
 
 
 def load_scene(cfg: Any) -> Scene:
     """Read the dataset described by a ``conf/dataset/*.yaml`` config (DictConfig or dict)."""
-    kind = _get(cfg, "kind")
-    if kind not in KINDS:
-        raise ConfigError(f"dataset.kind: unknown kind '{kind}'; available: {', '.join(KINDS)}")
-    opts = reader_options(cfg)
+    check_dataset_config(cfg)
+    kind, opts = _get(cfg, "kind"), reader_options(cfg)
     if kind == "synthetic":
         return read_transforms(_synthetic_path(cfg), opts)
     from omegaconf import DictConfig, OmegaConf

@@ -19,7 +19,8 @@ from ..configs import ReaderOptions
 from ..errors import DataError
 from ..registry import plain, validate_config
 from ..scene import Scene, Split
-from .io import read_array, read_image, read_mask, resize
+from .headers import check_declared_size, check_image_budget, image_header
+from .io import grey_if_equal_channels, read_array, read_image, read_mask, resize
 from .names import view_names
 
 __all__ = [
@@ -28,6 +29,7 @@ __all__ = [
     "assemble_scene",
     "bounds_from_cameras",
     "bounds_from_points",
+    "check_intrinsics",
     "check_rotation",
     "reader_options",
     "select_views",
@@ -45,6 +47,34 @@ def check_rotation(R: np.ndarray, where: str, tol: float = 1e-3) -> None:
         what = "singular" if abs(det) < 1e-9 else ("a reflection" if det < 0 else "not orthonormal")
         raise DataError(f"{where}: the rotation part is {what} (|R^T R - I| = {err:.3g}, det = {det:.3g}); "
                         "a camera pose must be a rigid transform")
+
+
+MAX_INTRINSIC = 1e12
+"""Largest focal length or principal point (pixels) arcsem accepts: the float32 renderers square focal lengths."""
+MAX_PINHOLE_FOCAL_WIDTHS = 1e6
+"""A pinhole focal length above this many image widths is a field of view under a microradian: orthographic."""
+
+
+def check_intrinsics(K: np.ndarray, width: int, height: int, model: str, where: str,
+                     keys: tuple[str, str, str, str] = ("fl_x", "fl_y", "cx", "cy")) -> None:
+    """DataError naming the key (``keys``: the file's names of fx, fy, cx, cy) when ``K [3, 3]`` holds a number the
+    renderers cannot use: not finite, above :data:`MAX_INTRINSIC`, a pinhole focal length above
+    :data:`MAX_PINHOLE_FOCAL_WIDTHS` image widths or under a thousandth of one, or a principal point 100 image sizes
+    away from the image."""
+    values = (K[0, 0], K[1, 1], K[0, 2], K[1, 2])
+    for key, value, size in zip(keys, values, (width, height, width, height)):
+        v = float(value)
+        if not np.isfinite(v) or abs(v) > MAX_INTRINSIC:
+            raise DataError(f"{where}: '{key}' = {v:g} is out of range (at most {MAX_INTRINSIC:g} pixels)")
+        if key in keys[:2] and model == "pinhole" and v > MAX_PINHOLE_FOCAL_WIDTHS * size:
+            raise DataError(f"{where}: '{key}' = {v:g} px is over {MAX_PINHOLE_FOCAL_WIDTHS:g} image widths (a field "
+                            "of view under a microradian); for such a camera use camera_model ORTHOGRAPHIC")
+        if key in keys[:2] and model == "pinhole" and v < 1e-3 * size:
+            raise DataError(f"{where}: '{key}' = {v:g} px is under a thousandth of the image size {size} (a field of "
+                            "view over 179.8 degrees): not a pinhole camera")
+        if key in keys[2:] and abs(v) > 100 * size:
+            raise DataError(f"{where}: '{key}' = {v:g} px puts the principal point over 100 image sizes "
+                            f"away from the {width}x{height} image")
 
 
 @dataclass
@@ -118,8 +148,19 @@ def _holdout(views: list[ViewSpec], held: list[str]) -> tuple[list[ViewSpec], li
 
 
 def _read_view(v: ViewSpec, size: tuple[int, int]) -> dict[str, np.ndarray | None]:
-    """Read every file of one view at the camera's size, undistort, and resize to ``size`` (w, h)."""
+    """Read every file of one view at the camera's size, undistort, and resize to ``size`` (w, h).
+
+    An alpha channel that is 0 everywhere (an exporter that never set it) is ignored: the colour channels are
+    the image and alpha gives no mask (``out["notes"]`` says ``alpha0``). An RGB image of grey content is read as
+    grey (:func:`~arcsem.data.io.grey_if_equal_channels`); one of colour content is kept and noted ``colour``."""
     img, alpha = read_image(v.image)
+    notes = []
+    if alpha is not None and not alpha.any():
+        alpha = None
+        notes.append("alpha0")
+    img, coloured = grey_if_equal_channels(img)
+    if coloured:
+        notes.append("colour")
     if img.shape[:2] != (v.height, v.width):
         raise DataError(f"view '{v.name}': image {v.image} is {img.shape[1]}x{img.shape[0]} "
                         f"but its camera is {v.width}x{v.height}")
@@ -132,7 +173,7 @@ def _read_view(v: ViewSpec, size: tuple[int, int]) -> dict[str, np.ndarray | Non
             arr = v.undistort(arr)
         return resize(arr, size, nearest)
 
-    out: dict[str, np.ndarray | None] = {}
+    out: dict[str, np.ndarray | list | None] = {"notes": notes}
     if alpha is not None:  # RGBA -> RGB over a black background; alpha is the mask unless one is given
         img = img * alpha[..., None]
     out["image"] = fit(img, v.image)
@@ -159,8 +200,14 @@ def _stack(items: list[np.ndarray | None], name: str, views: list[ViewSpec]) -> 
 
 
 def _load_split(views: list[ViewSpec], size: tuple[int, int], factor: float, train: bool,
-                model: str) -> tuple[Split, dict[str, torch.Tensor]]:
+                model: str) -> tuple[Split, dict[str, torch.Tensor], dict[str, list[Path]]]:
+    """The split of ``views`` at ``size``, its reference images by view name, and the image files of each
+    reading note of :func:`_read_view` (``{"alpha0": [...], "colour": [...]}``)."""
     data = [_read_view(v, size) for v in views]
+    notes: dict[str, list[Path]] = {}
+    for v, d in zip(views, data):
+        for note in d["notes"]:
+            notes.setdefault(note, []).append(v.image)
     w, h = (views[0].width, views[0].height) if views else size
     w2c = torch.from_numpy(np.stack([v.w2c for v in views])).float() if views else torch.zeros(0, 4, 4)
     K = torch.from_numpy(np.stack([v.K for v in views])).float() if views else torch.zeros(0, 3, 3)
@@ -174,7 +221,20 @@ def _load_split(views: list[ViewSpec], size: tuple[int, int], factor: float, tra
                   normals=col("normal"), colors=col("color"), clean=col("clean"),
                   files=[str(v.image) for v in views])
     refs = {v.name: torch.from_numpy(d["reference"]) for v, d in zip(views, data) if d["reference"] is not None}
-    return split, refs
+    return split, refs, notes
+
+
+def _reading_warnings(notes: dict[str, list[Path]]) -> list[str]:
+    """One warning per reading note of :func:`_read_view`, naming the first file and how many there are."""
+    text = {"alpha0": "an alpha channel that is 0 everywhere: the alpha is ignored (the colour channels are the "
+                      "image, no masks from alpha)",
+            "colour": "colour content (not grey): stage 1 fits it as colour, although SEM views are grey; convert "
+                      "the images to grey if they are SEM images"}
+    out = []
+    for note, files in notes.items():
+        more = f" and {len(files) - 1} more" if len(files) > 1 else ""
+        out.append(f"{files[0]}{more}: {text[note]}")
+    return out
 
 
 def _common_size(views: list[ViewSpec]) -> tuple[int, int, str]:
@@ -228,9 +288,12 @@ def assemble_scene(root: Path, views: list[ViewSpec], opts: ReaderOptions, *, bo
     if not train_v:
         raise DataError(f"{root}: no training views after the split (split={opts.split})")
     size = (round(w / opts.downscale), round(h / opts.downscale))
-    train, refs = _load_split(train_v, size, opts.downscale, True, model)
-    test, test_refs = _load_split(test_v, size, opts.downscale, False, model)
+    _check_headers(train_v + test_v, opts.downscale)
+    train, refs, notes = _load_split(train_v, size, opts.downscale, True, model)
+    test, test_refs, test_notes = _load_split(test_v, size, opts.downscale, False, model)
     refs.update(test_refs)
+    for note, files in test_notes.items():
+        notes.setdefault(note, []).extend(files)
     known, all_names = set(train.names) | set(test.names), {v.name for v in views}
     for set_name, names in (reference_sets or {}).items():
         bad = [n for n in names if n not in all_names]
@@ -242,6 +305,8 @@ def assemble_scene(root: Path, views: list[ViewSpec], opts: ReaderOptions, *, bo
             box = torch.as_tensor(np.asarray(bounds, dtype=np.float32)).reshape(2, 3)
         except (ValueError, TypeError, RuntimeError):
             raise DataError(f"{root}: 'aabb' must be [[xmin, ymin, zmin], [xmax, ymax, zmax]], got {bounds}") from None
+        if not torch.isfinite(box).all():
+            raise DataError(f"{root}: 'aabb' must hold finite numbers, got {box.tolist()}")
         if not (box[1] > box[0]).all():
             raise DataError(f"{root}: 'aabb' max {box[1].tolist()} must exceed min {box[0].tolist()}")
     source = "given"
@@ -251,5 +316,21 @@ def assemble_scene(root: Path, views: list[ViewSpec], opts: ReaderOptions, *, bo
         box, source = bounds_from_cameras(train.cameras), "cameras"
     to_t = lambda a: None if a is None else torch.as_tensor(np.asarray(a, dtype=np.float32))
     return Scene(str(root), train, test, box, points=to_t(points), point_colors=to_t(point_colors),
-                 references=refs, reference_sets=sets, specimen_size=specimen_size, bounds_source=source)
+                 references=refs, reference_sets=sets, specimen_size=specimen_size, bounds_source=source,
+                 warnings=_reading_warnings(notes))
+
+
+def _check_headers(views: list[ViewSpec], downscale: float) -> None:
+    """Before any pixel is decoded: every image's header size matches its camera, none is a decompression bomb,
+    and reading them all fits in memory (:func:`~arcsem.data.headers.check_image_budget`)."""
+    sizes = []
+    for v in views:
+        wh = image_header(v.image)
+        check_declared_size(v.image, wh)
+        turned = v.image.suffix.lower() in (".tif", ".tiff")  # the Orientation tag may swap width and height
+        if wh is not None and wh != (v.width, v.height) and not turned:
+            raise DataError(f"view '{v.name}': image {v.image} is {wh[0]}x{wh[1]} but its camera is "
+                            f"{v.width}x{v.height}")
+        sizes.append(wh or (v.width, v.height))
+    check_image_budget(sizes, downscale)
 

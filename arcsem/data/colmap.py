@@ -18,8 +18,8 @@ import numpy as np
 
 from ..errors import DataError
 from ..scene import Scene
-from .build import ReaderOptions, ViewSpec, assemble_scene
-from .io import IMAGE_EXTS, resolve_file
+from .build import ReaderOptions, ViewSpec, assemble_scene, check_intrinsics
+from .io import IMAGE_EXTS, dataset_root, resolve_file
 
 __all__ = ["colmap_intrinsics", "find_colmap_model", "read_colmap"]
 
@@ -53,6 +53,8 @@ def colmap_intrinsics(camera, undistort: bool) -> tuple[np.ndarray, np.ndarray |
                         f"(supported: {', '.join(_MODELS)})")
     fx, fy, cx, cy, dist = _MODELS[model](params)
     K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+    check_intrinsics(K, int(camera.width), int(camera.height), "pinhole", f"COLMAP camera {camera.camera_id}",
+                     ("focal length fx", "focal length fy", "principal point cx", "principal point cy"))
     if not any(float(d) != 0.0 for d in dist):
         return K, None
     if not undistort:
@@ -81,7 +83,7 @@ def read_colmap(path: str | Path, opts: ReaderOptions | None = None, *, images: 
     import pycolmap
 
     opts = opts or ReaderOptions()
-    root = Path(path).expanduser().resolve()
+    root = dataset_root(path)
     model_dir = find_colmap_model(root)
     ext = ".bin" if (model_dir / "cameras.bin").is_file() else ".txt"
     missing = [f"{n}{ext}" for n in ("cameras", "images", "points3D") if not (model_dir / f"{n}{ext}").is_file()]

@@ -12,7 +12,10 @@ from ..errors import DataError
 from .ply import read_points, write_points
 
 __all__ = [
+    "GREY_TOLERANCE",
     "IMAGE_EXTS",
+    "dataset_root",
+    "grey_if_equal_channels",
     "read_array",
     "read_image",
     "read_mask",
@@ -26,10 +29,33 @@ read_ply, write_ply = read_points, write_points  # the point-cloud names the rea
 
 IMAGE_EXTS = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".exr")
 
+GREY_TOLERANCE = 4 / 255
+"""An RGB image is grey content when its channels differ by more than this at no more than 0.1 % of its pixels
+(a grey picture saved as colour PNG or JPEG: JPEG's colour conversion leaves differences of 1/255 or 2/255)."""
+
+
+def dataset_root(path: str | Path) -> Path:
+    """``dataset.path`` made absolute (symbolic links followed); DataError for a link that loops and for an image
+    file (the reader wants the dataset's folder or its description file)."""
+    try:
+        root = Path(path).expanduser().resolve()
+    except (RuntimeError, OSError) as exc:  # a symlink loop (RuntimeError before Python 3.13, OSError ELOOP after)
+        raise DataError(f"dataset.path: {path} is a symbolic link that loops ({type(exc).__name__})") from None
+    if root.is_file() and root.suffix.lower() in IMAGE_EXTS:
+        raise DataError(f"dataset.path: {root} is an image file; give the dataset's folder (the one that holds "
+                        "transforms.json or the COLMAP model)")
+    return root
+
 
 def resolve_file(base: Path, rel: str, what: str, exts: tuple[str, ...] = IMAGE_EXTS) -> Path:
     """``base / rel``; if it does not exist, try ``rel`` with each extension appended/replaced."""
-    path = (base / rel).resolve()
+    if "\x00" in rel:
+        raise DataError(f"{what}: the file name {rel!r} holds a NUL character")
+    try:
+        path = (base / rel).resolve()
+    except (RuntimeError, OSError) as exc:  # a symlink loop (RuntimeError before Python 3.13, OSError ELOOP after)
+        raise DataError(f"{what}: {base / rel}: a symbolic link that loops ({type(exc).__name__}); "
+                        "point it at a real file") from None
     if path.is_file():
         return path
     for ext in exts:
@@ -52,7 +78,14 @@ def _read_pixels(path: Path) -> tuple[np.ndarray, bool]:
 
         tiff = read_tiff(Path(path), [])  # uint8/uint16 over the file's intensity range (its levels)
         return orient(tiff.pixels, tiff.orientation), False
-    img = _cv2().imread(str(path), _cv2().IMREAD_UNCHANGED)
+    from .headers import check_declared_size, image_header
+
+    check_declared_size(Path(path), image_header(Path(path)))  # a decompression bomb is refused before decoding
+    try:
+        img = _cv2().imread(str(path), _cv2().IMREAD_UNCHANGED)
+    except _cv2().error as exc:  # e.g. more pixels than CV_IO_MAX_IMAGE_PIXELS
+        last = [ln.strip() for ln in str(exc).splitlines() if ln.strip()][-1]
+        raise DataError(f"{path}: cannot decode the image (OpenCV: {last})") from None
     if img is None:
         raise DataError(f"{path}: cannot read image (missing, corrupt or unsupported format)")
     return img, True
@@ -88,6 +121,18 @@ def read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     elif bgr:
         img = img[..., ::-1]  # BGR -> RGB
     return np.ascontiguousarray(img), alpha
+
+
+def grey_if_equal_channels(img: np.ndarray) -> tuple[np.ndarray, float]:
+    """``[H, W, 3]`` -> itself, or its channel mean three times where it is grey content (:data:`GREY_TOLERANCE`);
+    and the fraction of pixels whose channels differ by more than the tolerance (0: grey)."""
+    spread = img.max(-1) - img.min(-1)
+    if not spread.any():
+        return img, 0.0
+    coloured = float(np.mean(spread > GREY_TOLERANCE))
+    if coloured > 1e-3:
+        return img, coloured
+    return np.ascontiguousarray(np.repeat(img.mean(-1, keepdims=True), 3, axis=-1)), 0.0
 
 
 def read_mask(path: Path) -> np.ndarray:

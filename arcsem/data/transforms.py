@@ -31,10 +31,11 @@ import torch
 from ..cameras import opengl_to_opencv
 from ..errors import DataError
 from ..scene import Scene
-from .build import ReaderOptions, ViewSpec, assemble_scene, check_rotation
-from .io import read_image, read_ply, resolve_file
+from .build import ReaderOptions, ViewSpec, assemble_scene, check_intrinsics, check_rotation
+from .headers import check_declared_size, image_header
+from .io import dataset_root, read_image, read_ply, resolve_file
 
-__all__ = ["find_transforms_files", "frame_views", "read_transforms"]
+__all__ = ["find_transforms_files", "frame_views", "load_json_file", "read_transforms"]
 
 MODELS = {"PINHOLE": "pinhole", "SIMPLE_PINHOLE": "pinhole", "OPENCV": "pinhole", "ORTHOGRAPHIC": "orthographic"}
 DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
@@ -56,11 +57,24 @@ def find_transforms_files(path: Path) -> list[tuple[Path, str | None]]:
     raise DataError(f"{path}: no transforms.json (or transforms_train.json) in this folder")
 
 
-def _load_json(path: Path) -> dict:
+def load_json_file(path: Path) -> object:
+    """A JSON file as Python objects; DataError naming the file when it is not UTF-8 (a BOM is allowed), not
+    JSON, or nested too deeply for the parser (a crafted file)."""
     try:
-        data = json.loads(path.read_text())
+        text = path.read_bytes().decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise DataError(f"{path}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at offset {exc.start}); "
+                        "save the file as UTF-8") from None
+    try:
+        return json.loads(text)
     except json.JSONDecodeError as exc:
         raise DataError(f"{path}: malformed JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+    except RecursionError:
+        raise DataError(f"{path}: the JSON is nested too deeply to read (thousands of levels of [ or {{)") from None
+
+
+def _load_json(path: Path) -> dict:
+    data = load_json_file(path)
     if not isinstance(data, dict) or not isinstance(data.get("frames"), list):
         raise DataError(f"{path}: expected an object with a 'frames' list")
     return data
@@ -87,10 +101,11 @@ def _intrinsics(p: dict, img_path: Path, where: str) -> tuple[np.ndarray, int, i
                         "is not supported in transforms.json; undistort the images first")
     model = MODELS[name]
     if "w" in p and "h" in p:
-        w, h = int(_number(p, "w", where, True)), int(_number(p, "h", where, True))
-    else:
-        img = read_image(img_path)[0]
-        w, h = img.shape[1], img.shape[0]
+        w, h = _pixels(p, "w", where), _pixels(p, "h", where)
+    else:  # the header's size; the pixels are decoded only where the header cannot be parsed
+        wh = image_header(img_path)
+        check_declared_size(img_path, wh)
+        w, h = wh or read_image(img_path)[0].shape[1::-1]
     if "fl_x" in p:
         fx = _number(p, "fl_x", where, True)
     elif "camera_angle_x" in p and model == "pinhole":
@@ -106,7 +121,16 @@ def _intrinsics(p: dict, img_path: Path, where: str) -> tuple[np.ndarray, int, i
     cx = _number(p, "cx", where) if "cx" in p else w / 2
     cy = _number(p, "cy", where) if "cy" in p else h / 2
     K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
+    check_intrinsics(K, w, h, model, where)
     return K, w, h, model
+
+
+def _pixels(p: dict, key: str, where: str) -> int:
+    """An image side in pixels: a whole number from 1 to 10^6."""
+    value = _number(p, key, where, True)
+    if value != int(value) or value > 1e6:
+        raise DataError(f"{where}: '{key}' must be a whole number of pixels (1 to 1000000), got {p[key]!r}")
+    return int(value)
 
 
 def _angle(p: dict, key: str, where: str) -> float:
@@ -126,10 +150,16 @@ def _pose(frame: dict, where: str) -> np.ndarray:
         c2w = np.vstack([c2w, [0, 0, 0, 1]])
     if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
         raise DataError(f"{where}: 'transform_matrix' must be a finite 4x4 (or 3x4) matrix")
+    if np.abs(c2w[:3, 3]).max() > MAX_POSITION:
+        raise DataError(f"{where}: 'transform_matrix' puts the camera at {c2w[:3, 3].tolist()}, over "
+                        f"{MAX_POSITION:g} scene units from the origin")
     check_rotation(c2w[:3, :3], f"{where}: 'transform_matrix'")
     c2w_cv = opengl_to_opencv(torch.from_numpy(c2w)).numpy()
     return np.linalg.inv(c2w_cv)
 
+
+MAX_POSITION = 1e12
+"""Farthest camera position from the origin, in scene units (float32 cameras and bounds overflow beyond)."""
 
 OPTIONAL = ("mask", "depth", "normal", "color", "clean", "reference")  # frame keys <name>_path
 
@@ -159,7 +189,7 @@ def frame_views(path: Path, data: dict, split: str | None) -> list[ViewSpec]:
 def read_transforms(path: str | Path, opts: ReaderOptions | None = None) -> Scene:
     """Read a transforms.json file or folder into a :class:`Scene` (see the module docstring)."""
     opts = opts or ReaderOptions()
-    files = find_transforms_files(Path(path).expanduser().resolve())
+    files = find_transforms_files(dataset_root(path))
     views, first = [], None
     for file, split in files:
         data = _load_json(file)
@@ -183,8 +213,8 @@ def _micrometres_per_unit(file: Path, data: dict, scene: Scene, downscale: float
     size = data.get("pixel_size_um")
     if size is None:
         return None
-    if not isinstance(size, (int, float)) or not size > 0:
-        raise DataError(f"{file}: 'pixel_size_um' must be a positive number (micrometres), got {size!r}")
+    if not _positive_finite(size):
+        raise DataError(f"{file}: 'pixel_size_um' must be a positive finite number (micrometres), got {size!r}")
     cams = scene.train.cameras
     px_per_unit = cams.K[:, 0, 0].double() * float(downscale)  # at the json's resolution
     if not cams.is_ortho:
@@ -198,6 +228,11 @@ def _specimen_size(file: Path, data: dict) -> float | None:
     size = data.get("specimen_size", (data.get("synthetic") or {}).get("grain_size"))
     if size is None:
         return None
-    if not isinstance(size, (int, float)) or not size > 0:
-        raise DataError(f"{file}: 'specimen_size' must be a positive number, got {size!r}")
+    if not _positive_finite(size):
+        raise DataError(f"{file}: 'specimen_size' must be a positive finite number, got {size!r}")
     return float(size)
+
+
+def _positive_finite(value: object) -> bool:
+    """A JSON number (not a boolean) that is finite and > 0 (``Infinity``, ``NaN``, 0 and negatives are not)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0

@@ -19,6 +19,7 @@ import torch
 from PIL import Image
 
 from ..data.ply import write_points
+from ..registry import checked
 from .cameras import ViewSpec, arc_cameras, arc_views
 from .render import RenderConfig, ViewImages, render_views
 from .sdf import make_grain
@@ -37,21 +38,21 @@ class SceneParams:
     """Everything the scene depends on (hashed for the cache folder)."""
 
     seed: int = 0
-    width: int = 288
-    height: int = 192
-    camera: str = "pinhole"       # "pinhole" (near-orthographic, the paper's) | "orthographic"
-    n_horizontal: int = 20
-    n_vertical: int = 12
+    width: int = checked(288, ge=11)  # 11: the SSIM window (arcsem.preflight.MIN_IMAGE_SIZE)
+    height: int = checked(192, ge=11)
+    camera: str = checked("pinhole", choices=("pinhole", "orthographic"))  # pinhole: near-orthographic, the paper's
+    n_horizontal: int = checked(20, ge=3)
+    n_vertical: int = checked(12, ge=3)
     substrate: bool = True
-    supersample: int = 2          # s x s samples on silhouette pixels
-    noise: float = 0.03           # per-pixel Gaussian scan noise (train images)
-    row_jitter: float = 0.015     # per-scan-line brightness noise (train images)
-    drift: float = 0.05           # per-image log-contrast / brightness drift, x(1 + 2 el/85) on the vertical arc
-    n_spines: int = 30
-    test_every: int = 4           # one test view in every 4th gap of each arc
-    specimen: str = "grain"       # "grain" (the built-in pollen grain) | "diatom" (arcsem.synthetic.diatom)
-    texture: float = 0.0          # amplitude of a surface texture on specimen and substrate (0 = none; 0.3 = SEM-like)
-    texture_scale: float = 0.05   # its coarsest lattice spacing, in units of the specimen's size (3 octaves finer)
+    supersample: int = checked(2, ge=1)  # s x s samples on silhouette pixels
+    noise: float = checked(0.03, ge=0.0)  # per-pixel Gaussian scan noise (train images)
+    row_jitter: float = checked(0.015, ge=0.0)  # per-scan-line brightness noise (train images)
+    drift: float = checked(0.05, ge=0.0)  # per-image log-contrast / brightness drift, x(1 + 2 el/85) on the vertical arc
+    n_spines: int = checked(30, ge=0)
+    test_every: int = checked(4, ge=1)  # one test view in every 4th gap of each arc
+    specimen: str = checked("grain", choices=("grain", "diatom"))  # the built-in pollen grain | arcsem.synthetic.diatom
+    texture: float = checked(0.0, ge=0.0, lt=1.0)  # surface texture amplitude on specimen and substrate (0.3: SEM-like)
+    texture_scale: float = checked(0.05, gt=0.0)  # its coarsest lattice spacing, in specimen sizes (3 octaves finer)
 
     @classmethod
     def from_transforms(cls, meta: dict) -> SceneParams:

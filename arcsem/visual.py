@@ -56,7 +56,7 @@ def render_layers(backbone, cams: Cameras, alpha_min: float = 0.5, normals: bool
     if normals:
         n = out.get("normal")
         n = torch.nn.functional.normalize(n.float(), dim=-1) if n is not None else depth_normals(
-            cams.to(dtype=depth.dtype), torch.where(valid, depth, torch.zeros_like(depth)))
+            cams.to(device=depth.device, dtype=depth.dtype), torch.where(valid, depth, torch.zeros_like(depth)))
         layers["normal"] = torch.where(valid[..., None], n, torch.zeros_like(n))
     return {k: v.detach().cpu() for k, v in layers.items()}
 

@@ -123,7 +123,7 @@ class Guidance:
         :meth:`targets` gathers from during training (compute every view's matches first), the grey views and the
         extractor (a module)."""
         self.ref_color = [t.to(device) for t in self.ref_color]
-        self.ref_means, self.gray = self.ref_means.to(device), self.gray.to(device)
+        self.ref_means, self.gray, self.ref_rgb = self.ref_means.to(device), self.gray.to(device), self.ref_rgb.to(device)
         if self._ref_gray is not None:
             self._ref_gray = [t.to(device) for t in self._ref_gray]
         if self.geometry is not None:

@@ -42,7 +42,7 @@ class SceneParams:
     height: int = checked(192, ge=11)
     camera: str = checked("pinhole", choices=("pinhole", "orthographic"))  # pinhole: near-orthographic, the paper's
     n_horizontal: int = checked(20, ge=3)
-    n_vertical: int = checked(12, ge=3)
+    n_vertical: int = checked(12, ge=2)
     substrate: bool = True
     supersample: int = checked(2, ge=1)  # s x s samples on silhouette pixels
     noise: float = checked(0.03, ge=0.0)  # per-pixel Gaussian scan noise (train images)

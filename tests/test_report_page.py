@@ -104,6 +104,10 @@ def test_report_of_a_real_run_in_chromium(tmp_path):
         problems = page_problems(browser)
         assert any(p.startswith("self-check: broken") for p in problems) and any(".png" in p for p in problems)
         assert browser.evaluate("document.getElementById('check').textContent").startswith("This page is incomplete")
+        # a table wider than the window (the files table of a stage=all run was, at 1400 px) is caught too
+        page.write_text(text.replace('<table class="files">', '<table class="files" style="width:3000px">'))
+        browser.open(page.as_uri(), settle=1.0)
+        assert "table wider than the window: files" in browser.evaluate("document.getElementById('check').textContent")
     assert rows > 10
 
 

@@ -23,7 +23,8 @@ STYLE = """body{font-family:sans-serif;max-width:1200px;margin:2em auto;padding:
 table{border-collapse:collapse;margin:1em 0}th,td{padding:3px 8px;border-bottom:1px solid #ccc}
 td{text-align:right}td:first-child,th:first-child{text-align:left}th{background:#f3f3f3}
 img{max-width:100%;border:1px solid #ddd}figure{display:inline-block;margin:4px}video{max-width:380px}.notes{font-size:90%;color:#444}
-.broken{background:#fdd;border:1px solid #c00;padding:6px}code{background:#f3f3f3;padding:0 3px}"""
+.broken{background:#fdd;border:1px solid #c00;padding:6px}code{background:#f3f3f3;padding:0 3px}
+table.files{table-layout:fixed;width:100%;font-size:85%}table.files td,table.files th{overflow-wrap:anywhere;text-align:left}"""
 
 CHECK = """<script>
 window.addEventListener('load', function () {
@@ -33,6 +34,8 @@ window.addEventListener('load', function () {
   });
   document.querySelectorAll('table').forEach(function (t) {
     if (t.querySelectorAll('td').length === 0) bad.push('empty table: ' + (t.id || 'unnamed'));
+    if (t.getBoundingClientRect().right > document.documentElement.clientWidth + 1)
+      bad.push('table wider than the window: ' + (t.className || t.id || 'unnamed'));
   });
   document.body.dataset.check = bad.length ? 'broken' : 'ok';
   if (bad.length) {

@@ -182,7 +182,7 @@ def _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo: Surface
     key = pseudo_key(depth_src, carried, refs.names, cc.radius, cc.radius_factor, masks, split.cameras)
 
     def compute():
-        depths = render_depths(backbone, split) if cc.depth == "model" else split.depths
+        depths = geo.value[0] if cc.depth == "model" else split.depths  # one render of every view serves both
         return pseudo_colors(split.cameras, depths, masks, ridx, carried, cc.radius, cc.radius_factor,
                              progress=cc.progress)
 

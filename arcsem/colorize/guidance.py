@@ -241,6 +241,7 @@ class Guidance:
             pts = F.interpolate(points.permute(0, 3, 1, 2).float(), size=grid, mode="nearest")
             pts = pts.permute(0, 2, 3, 1).reshape(N, -1, 3)
             cols, keep = [], []
+            rgb = None if name == "ccm" else _flat(_pool_to(self.ref_rgb.permute(0, 3, 1, 2), grid))  # [R*h*w, 3]
             for v in range(N):
                 t, m = self.targets(v), self.matches(v)
                 if name == "ccm":
@@ -248,7 +249,6 @@ class Guidance:
                     keep.append(t["ccm_valid"].reshape(-1))
                 else:
                     b = int(name[3:])
-                    rgb = _flat(_pool_to(self.ref_rgb.permute(0, 3, 1, 2), grid))  # [R*h*w, 3]
                     cols.append(rgb[m[f"tcm_idx{b}"].reshape(-1)])
                     keep.append(t["tcm_valid"][b].reshape(-1) if "tcm_valid" in t else torch.ones(len(rgb) // len(
                         self.ref_indices), dtype=torch.bool))

@@ -144,7 +144,8 @@ def _check_stage(cfg: DictConfig, scene: Any, run_dir: Path) -> dict:
 def _scene_summary(scene: Any) -> dict:
     cams = scene.train.cameras
     return {"train_views": len(scene.train), "test_views": len(scene.test), "image_size": [cams.width, cams.height],
-            "camera_model": cams.model, "references": sorted(scene.references)}
+            "camera_model": cams.model, "references": sorted(scene.references),
+            **({"intensity": scene.intensity} if scene.intensity else {})}
 
 
 def _inputs(scene: Any) -> tuple[list[str], list[str]]:

@@ -48,6 +48,7 @@ def check_summary(cfg: Any, scene: Any, result: dict) -> str:
         f"  dataset    {cfg.dataset.kind}: {scene.root}",
         f"  views      {len(tr)} train + {len(te)} held-out, {cams.width}x{cams.height} px, {cams.model} cameras",
         f"  per view   ground truth: {_extras(tr)}",
+        *[f"  intensity  {r['levels']}: {r['views']} view(s)" for r in scene.intensity],
         f"  colour     {len(scene.references)} artist reference image(s); presets: {refs}",
         f"  bounds     {_box(scene.bounds)}",
         f"  errors     relative to the {scale_name}, {scale:.3g} scene units",

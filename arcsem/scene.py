@@ -88,6 +88,8 @@ class Scene:
         bounds_source: where ``bounds`` come from: ``"given"`` (the dataset's ``aabb``, or whoever built
             the scene), ``"points"`` (percentiles of the point cloud) or ``"cameras"`` (the frusta).
         warnings: what the reader noticed and decided (an alpha channel ignored, colour views), one line each.
+        intensity: the intensity ranges the image files were read over, one entry per distinct range
+            (``{"levels": "0..65535 (16-bit samples)", "views": 32, "first": path}``); empty for generated scenes.
     """
 
     root: str
@@ -102,6 +104,7 @@ class Scene:
     micrometres_per_unit: float | None = None
     bounds_source: str = "given"
     warnings: list[str] = field(default_factory=list)
+    intensity: list[dict] = field(default_factory=list)
 
     @property
     def extent(self) -> float:

@@ -44,6 +44,7 @@ class Case:
     absent: tuple[str, ...] = ()
     in_case_dir: bool = False  # run with the case folder as the working directory
     address_space_gb: float | None = None  # RLIMIT_AS above what the process uses while the case runs
+    tool: str = "arcsem"  # or calibrate: arcsem-calibrate <scene>/raw --out <case>/run <overrides as arguments>
 
 
 def _frame(**kw):
@@ -238,4 +239,10 @@ def _config() -> list[Case]:
     return cases
 
 
-CASES: list[Case] = [*_images(), *_json(), *_config()]
+def _tiff() -> list[Case]:
+    from hostile_tiff import tiff_cases
+
+    return tiff_cases()
+
+
+CASES: list[Case] = [*_images(), *_json(), *_config(), *_tiff()]

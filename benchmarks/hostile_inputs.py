@@ -1,7 +1,8 @@
 """Hostile-input audit: every config field of the stage presets and the Gaussian backbone, given a value of the
 wrong type and an out-of-range number, a set of broken transforms.json datasets, and issue 40's classes
 (benchmarks/hostile_cases.py: crafted image headers, alpha, colour views, symbolic links, JSON encodings and depth,
-intrinsics, synthetic-dataset keys, references, stage-2 sizes), each run as the console script would (in-process,
+intrinsics, synthetic-dataset keys, references, stage-2 sizes; benchmarks/hostile_tiff.py: TIFF views of every
+compression, layout and sample format, and raw SEM series for ``arcsem-calibrate`` with vendor-tag variants), each run as the console script would (in-process,
 for speed). Every case says what it must get: a clear error (exit 2, one ``error:`` line naming the file or key), a
 warning, or a run. Prints one row per case and the tally: answered as expected, tracebacks, silent (accepted where
 an error or a warning was due), unclear (an error without the names it must give), inputs changed, files written
@@ -25,6 +26,7 @@ import tempfile
 import traceback
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # tests.<module> imports
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -158,6 +160,31 @@ def _call(case: Case, folder: Path, overrides: list[str]) -> tuple[int | str, li
     return (code if isinstance(code, int) else 0), lines, out.getvalue(), warned.lines
 
 
+def _call_calibrate(case: Case, folder: Path, scene: Path) -> tuple[int | str, list[str], str, list[str]]:
+    """Run ``arcsem-calibrate <scene>/raw --out <folder>/run <case.overrides>`` as the console script does: ``(exit
+    code or "traceback", error lines, stdout, warnings)`` (Python warnings and the arcsem logger's)."""
+    import warnings
+
+    from arcsem.cli.calibrate import main
+
+    err, out, warned = io.StringIO(), io.StringIO(), _Warnings()
+    logger = logging.getLogger("arcsem")
+    logger.addHandler(warned)
+    try:
+        with (contextlib.redirect_stderr(err), contextlib.redirect_stdout(out),
+              warnings.catch_warnings(record=True) as caught):
+            warnings.simplefilter("always")
+            code = main([str(scene / "raw"), "--out", str(folder / "run"), *case.overrides])
+    except SystemExit as exc:  # argparse
+        code = exc.code if isinstance(exc.code, int) else 2
+    except Exception:  # noqa: BLE001 (a traceback is what this audit looks for)
+        return "traceback", [traceback.format_exc().strip().splitlines()[-1]], out.getvalue(), warned.lines
+    finally:
+        logger.removeHandler(warned)
+    lines = [ln for ln in err.getvalue().splitlines() if ln.startswith("error:")]
+    return code, lines, out.getvalue(), warned.lines + [str(w.message) for w in caught]
+
+
 def judge(case: Case, code: int | str, lines: list[str], out: str, warned: list[str]) -> tuple[str, str]:
     """``(outcome, verdict)``: what happened (clear error, unclear error, traceback, warned, accepted) and whether it
     is the answer the case expects (``pass``, else ``traceback``, ``silent`` or ``unclear``)."""
@@ -187,7 +214,10 @@ def run_case(tmp: Path, case: Case) -> dict:
     path_overrides = written if isinstance(written, list) else [f"dataset.path={scene}"]
     dataset = ["dataset=synthetic"] if case.dataset == "synthetic" else ["dataset=transforms", *path_overrides]
     before, entries = _hashes(folder), sorted(p.name for p in folder.iterdir())
-    code, lines, out, warned = _call(case, folder, [*dataset, f"stage={case.stage}", *case.overrides])
+    if case.tool == "calibrate":
+        code, lines, out, warned = _call_calibrate(case, folder, scene)
+    else:
+        code, lines, out, warned = _call(case, folder, [*dataset, f"stage={case.stage}", *case.overrides])
     outcome, verdict = judge(case, code, lines, out, warned)
     return {"case": case.name, "expect": case.expect, "outcome": outcome, "verdict": verdict,
             "message": (lines or [w for w in warned if all(n in w for n in case.needles)] or [""])[0][:200],

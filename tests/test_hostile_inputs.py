@@ -20,6 +20,8 @@ CASES = {c.name: c for c in hostile_inputs.all_cases()}
 def test_case_names_are_unique_and_the_table_grew():
     assert len(CASES) == len(hostile_inputs.all_cases())
     assert len(hostile_inputs.CASES) >= 60  # issue 40's classes and around them
+    tiff = [c for c in hostile_inputs.CASES if "TIFF" in c.name or c.tool == "calibrate"]
+    assert len(tiff) >= 60 and sum(c.tool == "calibrate" for c in tiff) >= 20  # real SEM files first
 
 
 @pytest.mark.parametrize("name", sorted(CASES))

@@ -134,3 +134,53 @@ def test_four_bit_palette_image_spans_the_grey_range(tmp_path):
     cmap[:, :16] = np.arange(16) * 4369
     im = read_sem_image(write(tmp_path / "p.tif", idx, photometric="palette", colormap=cmap, bitspersample=4))
     np.testing.assert_array_equal(im.pixels, np.round(idx.astype(float) * 4369 / 65535 * 255).astype(np.uint8))
+
+
+def test_min_is_white_is_read_inverted(tmp_path):
+    """PhotometricInterpretation 0 (min-is-white): the smallest sample is white; it was read as black."""
+    grey8 = np.round(ramp() * 255).astype(np.uint8)
+    im, grey = both(write(tmp_path / "w.tif", grey8, photometric="miniswhite"))
+    np.testing.assert_array_equal(im.pixels, 255 - grey8)
+    np.testing.assert_allclose(grey, (255 - grey8) / 255.0, atol=1e-6)
+    assert "min-is-white" in im.levels.source
+    plain, _ = both(write(tmp_path / "b.tif", grey8))
+    np.testing.assert_array_equal(plain.pixels, grey8)
+
+
+def test_more_than_four_samples_per_pixel_is_one_clear_error(tmp_path):
+    from arcsem.errors import DataError
+
+    path = write(tmp_path / "many.tif", np.zeros((16, 24, 32), np.uint8), planarconfig="separate",
+                 photometric="minisblack")
+    with pytest.raises(DataError, match=r"many.tif: an image of 16 samples per pixel"):
+        read_image(path)
+
+
+def test_the_intensity_range_is_recorded_in_metrics_json(tmp_path):
+    """A dataset of float32 TIFF views holding raw counts: the range each file was read over (the data's
+    percentiles) is printed by stage=check and recorded in metrics.json (dataset.intensity)."""
+    import contextlib
+    import io
+    import json
+
+    from conftest import write_transforms_scene
+    from hydra import compose, initialize_config_module
+
+    from arcsem import app
+
+    scene = write_transforms_scene(tmp_path / "scene", n=4, w=32, h=24).parent
+    frames = json.loads((scene / "transforms.json").read_text())
+    for i, f in enumerate(frames["frames"]):
+        write(scene / f"v{i}.tif", (ramp(24, 32) * 50000 + 1000 * i).astype(np.float32))
+        f["file_path"] = f"v{i}.tif"
+    (scene / "transforms.json").write_text(json.dumps(frames))
+    overrides = ["dataset=transforms", f"dataset.path={scene}", "stage=check"]
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), initialize_config_module("arcsem.conf", version_base="1.3"):
+        app.run(compose("config", overrides=overrides), run_dir=tmp_path / "run", overrides=overrides)
+    ranges = json.loads((tmp_path / "run" / "metrics.json").read_text())["dataset"]["intensity"]
+    assert len(ranges) == 4 and all(r["views"] == 1 for r in ranges)
+    first = next(r for r in ranges if r["first"].endswith("v0.tif"))
+    lo, hi = np.percentile(ramp(24, 32) * 50000, (0.1, 99.9))
+    assert first["levels"] == f"{lo:.6g}..{hi:.6g} (the data's 0.1/99.9 percentiles)"
+    assert f"intensity  {first['levels']}: 1 view(s)" in out.getvalue()

@@ -20,7 +20,7 @@ from ..errors import DataError
 from ..registry import plain, validate_config
 from ..scene import Scene, Split
 from .headers import check_declared_size, check_image_budget, image_header
-from .io import grey_if_equal_channels, read_array, read_image, read_mask, resize
+from .io import grey_if_equal_channels, read_array, read_image, read_image_levels, read_mask, resize
 from .names import view_names
 
 __all__ = [
@@ -153,7 +153,7 @@ def _read_view(v: ViewSpec, size: tuple[int, int]) -> dict[str, np.ndarray | Non
     An alpha channel that is 0 everywhere (an exporter that never set it) is ignored: the colour channels are
     the image and alpha gives no mask (``out["notes"]`` says ``alpha0``). An RGB image of grey content is read as
     grey (:func:`~arcsem.data.io.grey_if_equal_channels`); one of colour content is kept and noted ``colour``."""
-    img, alpha = read_image(v.image)
+    img, alpha, lv = read_image_levels(v.image)
     notes = []
     if alpha is not None and not alpha.any():
         alpha = None
@@ -173,7 +173,7 @@ def _read_view(v: ViewSpec, size: tuple[int, int]) -> dict[str, np.ndarray | Non
             arr = v.undistort(arr)
         return resize(arr, size, nearest)
 
-    out: dict[str, np.ndarray | list | None] = {"notes": notes}
+    out: dict[str, np.ndarray | list | None] = {"notes": notes, "levels": lv.describe()}
     if alpha is not None:  # RGBA -> RGB over a black background; alpha is the mask unless one is given
         img = img * alpha[..., None]
     out["image"] = fit(img, v.image)
@@ -202,11 +202,11 @@ def _stack(items: list[np.ndarray | None], name: str, views: list[ViewSpec]) -> 
 def _load_split(views: list[ViewSpec], size: tuple[int, int], factor: float, train: bool,
                 model: str) -> tuple[Split, dict[str, torch.Tensor], dict[str, list[Path]]]:
     """The split of ``views`` at ``size``, its reference images by view name, and the image files of each
-    reading note of :func:`_read_view` (``{"alpha0": [...], "colour": [...]}``)."""
+    reading note of :func:`_read_view` (``{"alpha0": [...], "colour": [...], "levels <range>": [...]}``)."""
     data = [_read_view(v, size) for v in views]
     notes: dict[str, list[Path]] = {}
     for v, d in zip(views, data):
-        for note in d["notes"]:
+        for note in [*d["notes"], f"levels {d['levels']}"]:
             notes.setdefault(note, []).append(v.image)
     w, h = (views[0].width, views[0].height) if views else size
     w2c = torch.from_numpy(np.stack([v.w2c for v in views])).float() if views else torch.zeros(0, 4, 4)
@@ -232,9 +232,18 @@ def _reading_warnings(notes: dict[str, list[Path]]) -> list[str]:
                       "the images to grey if they are SEM images"}
     out = []
     for note, files in notes.items():
+        if note.startswith("levels "):
+            continue
         more = f" and {len(files) - 1} more" if len(files) > 1 else ""
         out.append(f"{files[0]}{more}: {text[note]}")
     return out
+
+
+def intensity_ranges(notes: dict[str, list[Path]]) -> list[dict]:
+    """The intensity ranges the views' files were read over (:func:`~arcsem.data.io.read_image_levels`), one
+    entry per distinct range: ``{"levels": "lo..hi (source)", "views": count, "first": file}``."""
+    return [{"levels": note.removeprefix("levels "), "views": len(files), "first": str(files[0])}
+            for note, files in notes.items() if note.startswith("levels ")]
 
 
 def _common_size(views: list[ViewSpec]) -> tuple[int, int, str]:
@@ -317,7 +326,7 @@ def assemble_scene(root: Path, views: list[ViewSpec], opts: ReaderOptions, *, bo
     to_t = lambda a: None if a is None else torch.as_tensor(np.asarray(a, dtype=np.float32))
     return Scene(str(root), train, test, box, points=to_t(points), point_colors=to_t(point_colors),
                  references=refs, reference_sets=sets, specimen_size=specimen_size, bounds_source=source,
-                 warnings=_reading_warnings(notes))
+                 warnings=_reading_warnings(notes), intensity=intensity_ranges(notes))
 
 
 def _check_headers(views: list[ViewSpec], downscale: float) -> None:

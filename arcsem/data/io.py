@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError
+from ..sem.image import Levels, levels, orient, read_tiff, to_levels
 from .ply import read_points, write_points
 
 __all__ = [
@@ -18,6 +19,7 @@ __all__ = [
     "grey_if_equal_channels",
     "read_array",
     "read_image",
+    "read_image_levels",
     "read_mask",
     "read_ply",
     "resize",
@@ -71,13 +73,13 @@ def _cv2():
     return cv2
 
 
-def _read_pixels(path: Path) -> tuple[np.ndarray, bool]:
-    """The stored array of an image and whether its channels are BGR (OpenCV) rather than RGB (TIFF)."""
+def _read_pixels(path: Path) -> tuple[np.ndarray, bool, Levels]:
+    """The stored array of an image (uint8/uint16, or float within [0, 1]), whether its channels are BGR (OpenCV)
+    rather than RGB (TIFF), and the intensity range of the file that was mapped to it
+    (:func:`arcsem.sem.image.levels`: a float or 32-bit image of raw counts is not clipped to white)."""
     if Path(path).suffix.lower() in (".tif", ".tiff"):  # every compression, the Orientation tag applied
-        from ..sem.image import orient, read_tiff
-
         tiff = read_tiff(Path(path), [])  # uint8/uint16 over the file's intensity range (its levels)
-        return orient(tiff.pixels, tiff.orientation), False
+        return orient(tiff.pixels, tiff.orientation), False, tiff.levels
     from .headers import check_declared_size, image_header
 
     check_declared_size(Path(path), image_header(Path(path)))  # a decompression bomb is refused before decoding
@@ -88,27 +90,32 @@ def _read_pixels(path: Path) -> tuple[np.ndarray, bool]:
         raise DataError(f"{path}: cannot decode the image (OpenCV: {last})") from None
     if img is None:
         raise DataError(f"{path}: cannot read image (missing, corrupt or unsupported format)")
-    return img, True
+    alpha = img.ndim == 3 and img.shape[-1] in (2, 4)
+    if img.dtype.kind == "f":
+        _finite(img, path)
+    lv = levels(img[..., :-1] if alpha else img)
+    if (lv.lo, lv.hi) != (0.0, 1.0) or img.dtype.kind != "f":  # floats within [0, 1] are kept as they are
+        img = to_levels(img, lv, alpha)
+    return img, True, lv
 
 
-def read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
-    """8/16-bit or float PNG/TIFF/JPEG -> ``[H, W, 3]`` float32 in [0, 1] and alpha ``[H, W]`` or None.
+def _finite(img: np.ndarray, path: Path) -> None:
+    bad = ~np.isfinite(img)
+    if bad.any():
+        y, x = np.argwhere(bad)[0][:2]
+        raise DataError(f"{path}: {int(bad.sum())} pixel value(s) are NaN or infinite (first at x={x}, y={y})")
 
-    Grey images become three equal channels; colour images are returned as RGB. TIFFs are read with tifffile
-    (:func:`arcsem.sem.image.read_tiff`: any compression, first page), the rest with OpenCV.
-    """
-    img, bgr = _read_pixels(path)
+
+def read_image_levels(path: Path) -> tuple[np.ndarray, np.ndarray | None, Levels]:
+    """:func:`read_image` and the intensity range of the file mapped to ``[0, 1]`` (``Levels``: black and white
+    level, and where they came from: the file's tags, its sample type, or the data's own percentiles)."""
+    img, bgr, lv = _read_pixels(path)
     if img.dtype == np.uint8:
         img = img.astype(np.float32) / 255.0
     elif img.dtype == np.uint16:
         img = img.astype(np.float32) / 65535.0
     else:
-        img = img.astype(np.float32)
-        bad = ~np.isfinite(img)
-        if bad.any():
-            y, x = np.argwhere(bad)[0][:2]
-            raise DataError(f"{path}: {int(bad.sum())} pixel value(s) are NaN or infinite (first at x={x}, y={y})")
-        img = np.clip(img, 0.0, 1.0)
+        img = np.clip(img.astype(np.float32), 0.0, 1.0)
     if img.ndim == 2:
         img = img[..., None]
     alpha = None
@@ -120,7 +127,18 @@ def read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
         raise DataError(f"{path}: unsupported channel count {img.shape[-1]}")
     elif bgr:
         img = img[..., ::-1]  # BGR -> RGB
-    return np.ascontiguousarray(img), alpha
+    return np.ascontiguousarray(img), alpha, lv
+
+
+def read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """8/16/32-bit or float PNG/TIFF/JPEG/EXR -> ``[H, W, 3]`` float32 in [0, 1] and alpha ``[H, W]`` or None.
+
+    Grey images become three equal channels; colour images are returned as RGB. TIFFs are read with tifffile
+    (:func:`arcsem.sem.image.read_tiff`: any compression, first page), the rest with OpenCV. Samples are mapped
+    from the file's intensity range (:func:`read_image_levels`), so raw detector counts are not clipped.
+    """
+    img, alpha, _ = read_image_levels(path)
+    return img, alpha
 
 
 def grey_if_equal_channels(img: np.ndarray) -> tuple[np.ndarray, float]:

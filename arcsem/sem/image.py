@@ -205,6 +205,8 @@ def read_tiff(path: Path, notes: list[str]) -> Tiff:
             if "palette image: colour map applied" in notes:  # 8-bit luminance now, whatever the index depth
                 tags = {258: 8}
             alpha = arr.ndim == 3 and arr.shape[-1] in (2, 4) and bool(page.extrasamples)
+            white0 = page.photometric == tifffile.PHOTOMETRIC.MINISWHITE
+            samples = int(page.samplesperpixel)
             orientation = int(page.tags[274].value) if 274 in page.tags else 1
             meta = None
             for code, parse in _TAGS.items():
@@ -216,11 +218,19 @@ def read_tiff(path: Path, notes: list[str]) -> Tiff:
         if "imagecodecs" in why:  # a codec this installation lacks: say what to install
             why += "; install it with pip install imagecodecs (a dependency of arcsem: reinstall with make setup)"
         raise DataError(f"{path}: cannot read TIFF ({why})") from None
+    if arr.ndim > 3 or (arr.ndim == 3 and arr.shape[-1] > 4):
+        raise DataError(f"{path}: an image of {samples} samples per pixel (stored shape {arr.shape}); arcsem reads "
+                        "grey, grey+alpha, RGB and RGBA images")
     _finite_check(arr, path)
     if arr.dtype.kind == "b":  # bilevel
         tags[258], arr = 8, arr.astype(np.uint8) * np.uint8(255)
     lv = levels(arr[..., :-1] if alpha else arr, tags)
-    return Tiff(to_levels(arr, lv, alpha), orientation, meta, lv)
+    pixels = to_levels(arr, lv, alpha)
+    if white0:  # PhotometricInterpretation 0: the smallest sample is white
+        colour = pixels[..., :-1] if alpha else pixels
+        colour[...] = np.iinfo(pixels.dtype).max - colour
+        lv = Levels(lv.lo, lv.hi, f"{lv.source}; min-is-white, inverted")
+    return Tiff(pixels, orientation, meta, lv)
 
 
 def _read_other(path: Path) -> np.ndarray:

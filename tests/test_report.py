@@ -116,10 +116,10 @@ def test_nan_lpips_na_mean_std_and_features(ref_sweep, tmp_path):
     assert "**26.50 ± 0.71**" in lines["5"] and "24.00" in lines["2"]
     cells = [c.strip() for c in lines["5"].split("|")[2:-1]]
     assert cells[2] == "n/a" and cells[5] == "n/a"  # LPIPS train / held-out
-    assert lines["1"].count("missing") == 7  # six metrics and the features column
+    assert lines["1"].count("missing") == 8  # six metrics, the features and the validated-target columns
     assert "LPIPS: n/a: weights missing (missing: alexnet-owt-7be5be79.pth not in torch hub cache)" in md
     assert "TCM/CCM features: random." in md and "RANDOM weights in every run that uses them" in md
-    assert cells[-1] == "random"  # the features column
+    assert cells[-2:] == ["random", "as configured"]  # the features and validated-target columns
     assert md.count("missing job:") == 3  # five/seed=1 is done; two/seed=1, one/seed=0, one/seed=1 are not
     csv = pd.read_csv(out / "reference_count.csv")
     five = csv[csv["row"] == "five"].iloc[0]
@@ -235,7 +235,7 @@ def test_runs_of_no_study_get_a_table_and_grids(tmp_path):
     md = (tmp_path / "rep" / "runs.md").read_text()
     assert "| 2026-01-01/12-00-00 | 33.00 | 0.900 | n/a | 31.00 |" in md
     assert "LPIPS: n/a: weights missing (missing: no alexnet weights)" in md
-    assert "TCM/CCM features: imagenet." in md and md.splitlines()[4].endswith("| imagenet |")
+    assert "TCM/CCM features: imagenet." in md and md.splitlines()[4].endswith("| imagenet | as configured |")
     grids = sorted(p.name for p in (tmp_path / "rep" / "grids").iterdir())
     assert grids == ["runs_color.png", "runs_gray.png"]  # no depth files -> no depth grid
     assert 'src="grids/runs_color.png"' in page.read_text()
@@ -286,7 +286,7 @@ def test_sweep_with_no_finished_job(tmp_path):
     sweep = _sweep(tmp_path / "s", "colorization_ablation", "ablation", ["full", "no_tcm"])
     _job(sweep, 0, ["experiment=colorization_ablation", "ablation=full"], None)
     t = build_table(collect([sweep]), "colorization_ablation")
-    assert t.labels == ["full", "w/o TCM"] and len(t.columns) == len(LAYOUTS["colorization_ablation"]) == 10
+    assert t.labels == ["full", "w/o TCM"] and len(t.columns) == len(LAYOUTS["colorization_ablation"]) == 11
     assert all(cell == ("missing", False) for row in t.cells for cell in row)
     assert sum(n.startswith("missing job:") for n in t.notes) == 2 and not any("LPIPS" in n for n in t.notes)
 
@@ -381,3 +381,31 @@ def test_colour_grid_shows_held_out_views_and_marks_references(tmp_path):
     tile_h = marked.shape[0] // 2  # v0, v1: the reference's row label has a second line, "(reference)"
     row_label = lambda r: int((marked[r * tile_h: (r + 1) * tile_h, :90] < 128).any(-1).any(-1).sum())
     assert row_label(1) > 1.5 * row_label(0)
+
+
+def test_the_validated_stage2_target_is_a_column_of_the_colour_tables(tmp_path):
+    """Stage 2's leave-one-reference-out choice (metrics.json stage2.validation) reaches the report: the target it
+    trained towards, its gain over the pseudo-colours alone, and the guided losses kept; 'as configured' without."""
+    from arcsem.report.collect import stage2_choice
+    from arcsem.report.tables import build_table
+
+    validation = {"references": 5, "surface": "fill", "shading": "auto", "time_s": 2.0,
+                  "target_mse": {"fill/auto": 0.01, "fill/off": 0.02, "off/auto": 0.015, "off/off": 0.04},
+                  "tcm": {"guidance": 0.002, "target": 0.03, "keep": True},
+                  "ccm": {"guidance": 0.09, "target": 0.05, "keep": False}}
+    for name, val in (("five", validation), ("one", None)):
+        run = tmp_path / "sweep" / name
+        run.mkdir(parents=True)
+        stage2 = {"test": {"psnr": 27.0, "ssim": 0.9, "lpips": 0.2}, **({"validation": val} if val else {})}
+        metrics = {"seed": 0, "overrides": ["experiment=demo"], "stages": {"color": {"stage2": stage2}}}
+        (run / "metrics.json").write_text(json.dumps(metrics))
+    coll = collect([tmp_path / "sweep"])
+    choice = dict(zip(coll.runs["run_dir"].map(lambda p: Path(p).name), coll.runs["stage2_choice"]))
+    assert choice == {"five": "surface+shading (+6.0 dB) +TCM", "one": "as configured"}
+    table = build_table(coll, "runs")
+    col = [c.key for c in table.columns].index("stage2_choice")
+    assert sorted(row[col][0] for row in table.cells) == ["as configured", "surface+shading (+6.0 dB) +TCM"]
+    assert any("validated target" in n for n in table.notes)
+    off = {"stage2.validation.surface": "off", "stage2.validation.shading": "off",
+           "stage2.validation.target_mse.off/off": 0.04}
+    assert stage2_choice(off) == "pseudo-colours (+0.0 dB)"

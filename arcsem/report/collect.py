@@ -208,7 +208,29 @@ def read_run(run: Path) -> dict[str, Any]:
     for stage, alias in (("gray", "stage1"), ("color", "stage2")):  # results not wrapped in stage1/2
         if alias not in metrics and isinstance(stages.get(stage), dict):
             rec.update(flatten(stages[stage].get(alias, stages[stage]), f"{alias}."))
+    if any(k.startswith("stage2.") for k in rec):
+        rec["stage2_choice"] = stage2_choice(rec)
     return rec
+
+
+def stage2_choice(rec: dict[str, Any]) -> str:
+    """What stage 2 trained towards, from a run's flattened record: the pseudo-colour target chosen by the
+    leave-one-reference-out validation (``stage2.validation``: surface spread, shading, both or neither) and the
+    guided losses it kept (TCM, CCM), with the chosen target's held-out error beside the pseudo-colours' alone;
+    ``as configured`` when the run did not validate (one reference, ``colorize.validate=off``)."""
+    v = {k.removeprefix("stage2.validation."): x for k, x in rec.items() if k.startswith("stage2.validation.")}
+    if "surface" not in v:
+        return "as configured"
+    parts = [n for n, on in (("surface", v["surface"] != "off"), ("shading", v.get("shading") != "off")) if on]
+    target = "+".join(parts) or "pseudo-colours"
+    kept = [n.upper() for n in ("tcm", "ccm") if v.get(f"{n}.keep")]
+    chosen, plain = v.get(f"target_mse.{v['surface']}/{v.get('shading')}"), v.get("target_mse.off/off")
+    err = ""
+    if isinstance(chosen, (int, float)) and isinstance(plain, (int, float)) and chosen > 0 and plain > 0:
+        import math
+
+        err = f" ({10 * math.log10(plain / chosen):+.1f} dB)"
+    return f"{target}{err}" + "".join(f" +{k}" for k in kept)
 
 
 def find_runs(paths: list[Path], exclude: Path | None = None) -> list[Path]:

@@ -54,6 +54,7 @@ DEPTH_ABS = "stage1.depth.test_mae|stage1.depth.median_abs"
 CHAMFER = Column("mesh", "Chamfer %", "stage1.mesh.gt.chamfer_pct", "min", 2)  # built-in scene only
 
 FEATURES = Column("TCM/CCM", "features", "features", None, 0, text=True)
+CHOICE = Column("stage 2", "validated target", "stage2_choice", None, 0, text=True)
 
 
 def _coverage(group: str, prefix: str) -> list[Column]:
@@ -64,7 +65,7 @@ def _coverage(group: str, prefix: str) -> list[Column]:
 
 
 COLOUR = (_ims("non-ref. train views", "stage2.train_nonref") + _ims("held-out", "stage2.test")
-          + _coverage("held-out", "stage2.test") + [FEATURES])
+          + _coverage("held-out", "stage2.test") + [FEATURES, CHOICE])
 TABLE1_PROTOCOL = "train views: own ACT, observed images (Table 1 protocol)"
 HELD_OUT = "held-out"
 LAYOUTS: dict[str, list[Column]] = {
@@ -78,7 +79,7 @@ LAYOUTS: dict[str, list[Column]] = {
     "runs": _ims("grey train (Table 1 protocol)", "stage1.train_paper") + _ims("grey held-out", "stage1.test") + [
         Column("depth", "err. %", DEPTH_PCT, "min", 2), CHAMFER]
     + _ims("colour non-ref.", "stage2.train_nonref") + _ims("colour held-out", "stage2.test")
-    + _coverage("colour held-out", "stage2.test") + [FEATURES],
+    + _coverage("colour held-out", "stage2.test") + [FEATURES, CHOICE],
 }
 ROW_HEADER = {"grayscale_comparison": "Model", "colorization_ablation": "Variant",
               "reference_count": "References", "feature_comparison": "References, features",
@@ -242,6 +243,12 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
             notes.append("PSNR in / out cov.: held-out colour PSNR pooled over the specimen pixels that pseudo-colours "
                          "reach (a reference point within the search radius) and over the rest, which only TCM, "
                          "CCM and the model's own interpolation colour; coverage: the covered share.")
+    if any(c.key == CHOICE.key for c in columns):
+        notes.append("validated target: what stage 2 trained towards, chosen per run by holding each artist reference "
+                     "out in turn (colorize.validate=auto, two or more references): the pseudo-colours spread over "
+                     "the surface and/or carried with the SEM shading, or the pseudo-colours alone; in brackets the "
+                     "chosen target's gain over the pseudo-colours alone on the held-out references; +TCM/+CCM: the "
+                     "guided losses it kept. 'as configured': no validation (one reference, or validate=off).")
     seeds = sorted({str(s) for s in df["seed"].dropna()}) if "seed" in df else []
     if seeds:
         notes.append(f"seeds: {', '.join(seeds)}; several runs per row are shown as mean ± std.")

@@ -157,10 +157,34 @@ def test_tiny_scene_end_to_end(tiny_scene, tmp_path, capsys):
     assert scene.micrometres_per_unit == pytest.approx(1.0) and scene.train.masks is not None
     assert rotation_errors(truth, scene).max() < 0.5
     rec = pycolmap.Reconstruction(str(tmp_path / "ds" / "sparse" / "0"))
-    assert rec.num_images() == len(scene.train) + len(scene.test) and rec.num_points3D() == len(scene.points)
+    assert rec.num_images() == len(scene.train) + len(scene.test)
+    assert rec.num_points3D() == report["tracks"] and len(scene.points) > rec.num_points3D()  # + the dense start
+    _dense_start_lies_on_the_surface(tiny_scene, tmp_path / "ds", report)
     for name in ("residuals.png", "report.md"):
         assert (tmp_path / "ds" / "report" / name).is_file()
     assert len(list((tmp_path / "ds" / "report").glob("overlay_*.png"))) == 2
+
+
+def _dense_start_lies_on_the_surface(truth, calibrated, report: dict) -> None:
+    """The dense start (arcsem.calib.dense) holds several times the adjustment's points, and they lie on the true
+    surface as closely as the adjustment's own (both carried into the true frame by the similarity between the two
+    camera sets, benchmarks/calib_training.frame_similarity)."""
+    from scipy.spatial import cKDTree
+
+    from arcsem.data.ply import read_points
+    from tests.test_calib_benchmark import _bench
+
+    s, Q, d = _bench().frame_similarity(truth, calibrated)
+    X = (read_points(calibrated / "points3d.ply")[0] - d) @ Q / s        # calibrated -> true frame
+    n_sparse = report["tracks"]
+    assert report["dense"]["points"] == len(X) - n_sparse >= 3 * n_sparse
+    tree = cKDTree(read_points(truth / "points3d.ply")[0])
+    sparse, dense = tree.query(X[:n_sparse])[0], tree.query(X[n_sparse:])[0]
+    px = 2.5 / (0.9 * 160)  # world units per pixel
+    print("distance to the surface, median / 90th percentile, sparse:", np.percentile(sparse, [50, 90]),
+          "dense:", np.percentile(dense, [50, 90]), "world units per pixel:", px)
+    assert np.median(dense) < max(1.5 * np.median(sparse), px), (np.median(sparse), np.median(dense))
+    assert np.percentile(dense, 90) < max(2 * np.percentile(sparse, 90), 4 * px)
 
 
 @pytest.mark.slow

@@ -53,6 +53,7 @@ class CalibrationOptions:
     flip_depth: bool = False        # the mirrored relief (microscopes that tilt the other way; .init, .frame)
     camera: str = "orthographic"    # orthographic | perspective (a far pinhole refined from it: .perspective)
     focal_px: float | None = None   # perspective: hold this focal length (pixels); None: estimate it
+    dense_features: int = 12000     # keypoints per view of the dense start (.dense; 0: the sparse points only)
 
 
 @dataclass
@@ -69,6 +70,8 @@ class Calibration:
     stats: dict
     masks: list[np.ndarray] | None = None
     timings: dict = field(default_factory=dict)
+    dense: np.ndarray | None = None         # [P, 3] the dense start's points (.dense), not in the adjustment
+    dense_colors: np.ndarray | None = None  # [P] their grey in [0, 1]
 
 
 def _feature_scale(opts: CalibrationOptions, size: tuple[int, int]) -> float:
@@ -264,12 +267,31 @@ def calibrate(series: Series, opts: CalibrationOptions | None = None, log=print)
         f"{stats['tracks']} tracks ({timings['adjustment_s']:.1f} s)")
     cal = Calibration(views, X, _point_colors(feats, obs_final), obs_final, frame,
                       "micrometre" if p_ref else "pixel", splits, stats, timings=timings)
+    if opts.dense_features and isinstance(views, OrthoViews):
+        _densify(series, cal, opts, fscale, log)
     if opts.masks:
         t3 = time.perf_counter()
         cal.masks = _masks(series, cal)
         timings["masks_s"] = time.perf_counter() - t3
     timings["total_s"] = time.perf_counter() - t0
     return cal
+
+
+def _densify(series: Series, cal: Calibration, opts: CalibrationOptions, fscale: float, log) -> None:
+    """The dense start (:mod:`.dense`: more keypoints, then the surface fill) into ``cal.dense`` and
+    ``cal.dense_colors``, its figures into the statistics."""
+    from .dense import dense_points, surface_fill
+
+    t0 = time.perf_counter()
+    pixels = [series.pixels(i) for i in range(len(series))]
+    Xk, gk, info = dense_points(pixels, cal.views, opts.dense_features, fscale, ratio=opts.ratio,
+                                reject_px=opts.reject_px, max_deg=opts.max_angle, root=opts.root_sift)
+    Xf, gf, fill = surface_fill(pixels, cal.views, cal.X, cal.obs, max_deg=opts.max_angle)
+    cal.dense, cal.dense_colors = np.concatenate([Xk, Xf]), np.concatenate([gk, gf])
+    cal.timings["dense_s"] = time.perf_counter() - t0
+    cal.stats["dense"] = {**info, "keypoint_points": info["points"], "points": len(cal.dense), "fill": fill}
+    log(f"dense start: {info['points']} points from {info['pairs']} view pairs' keypoints, {fill['kept']} of "
+        f"{fill['lifted']} lifted onto the surface ({cal.timings['dense_s']:.1f} s)")
 
 
 def _point_colors(feats: list[Features], obs: Observations) -> np.ndarray:

@@ -122,6 +122,10 @@ def write_report(folder: Path, series: Series, cal, options: dict, command: str)
             f"(mean length {stats['mean_track_length']:.1f}); {stats['rejected_observations']} observations rejected "
             f"as outliers; {stats['pairs']} verified image pairs."), "",
             f"Initialisation: {stats['init']['method']}. World unit: one {cal.unit}. Crop: {series.crop.describe()}.",
+            *(["", (f"Dense start: {stats['dense']['points']} more points for training (points3d.ply), triangulated "
+                   f"with these cameras from {stats['dense']['pairs']} view pairs of "
+                   f"{stats['dense']['features_per_view']:.0f} keypoints per view (not in the adjustment).")]
+              if stats.get("dense", {}).get("points") else []),
             "", _camera_line(cal),
             "", "Tilt axes (between consecutive views):", *axis_lines, "", *[f"- {n}" for n in cal.frame.notes], "",
             _table(stats["per_view"], cal.splits, series.tilts), "",

@@ -99,13 +99,18 @@ def _world_to_cam(views, X: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarr
 
 
 def write_dataset(out, names, images, masks, views, X, colors, obs, *, size, splits, pixel_size_um,
-                  aabb, extra: dict) -> None:
+                  aabb, extra: dict, dense=(None, None)) -> None:
     """Write the dataset folder ``out`` (module docstring) of orthographic or pinhole ``views``; ``images``
-    uint8/uint16 ``[h, w]`` (cropped)."""
+    uint8/uint16 ``[h, w]`` (cropped); ``dense``: ``(points [P, 3], grey [P])`` of the dense start or None,
+    written to ``points3d.ply`` after the adjustment's points ``X`` (the COLMAP model keeps ``X``'s tracks)."""
     import cv2
 
     (out / "images").mkdir(parents=True, exist_ok=True)
-    w2c, K, model = _world_to_cam(views, X, size)
+    if dense[0] is not None and len(dense[0]):
+        every, every_grey = np.concatenate([X, dense[0]]), np.concatenate([colors, dense[1]])
+    else:
+        every, every_grey = X, colors
+    w2c, K, model = _world_to_cam(views, every, size)
     c2w = _c2w_opengl(w2c)
     frames = []
     for i, name in enumerate(names):
@@ -118,7 +123,7 @@ def write_dataset(out, names, images, masks, views, X, colors, obs, *, size, spl
             cv2.imwrite(str(out / "masks" / f"{name}.png"), masks[i].astype(np.uint8) * 255)
             frame["mask_path"] = f"masks/{name}.png"
         frames.append({**frame, **extra.get("frames", [{}] * len(names))[i]})
-    write_points(out / "points3d.ply", X, np.repeat(colors[:, None], 3, 1))
+    write_points(out / "points3d.ply", every, np.repeat(every_grey[:, None], 3, 1))
     write_colmap_model(out / "sparse" / "0", names, views, size, X, colors, obs)
     meta = {"camera_model": model, "w": size[0], "h": size[1], "cx": float(K[0, 0, 2]), "cy": float(K[0, 1, 2]),
             "aabb": np.asarray(aabb).tolist(), "ply_file_path": "points3d.ply"}

@@ -51,6 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--flip-depth", action="store_true", help="take the mirrored relief (a microscope that tilts "
                     "the other way; a factorised series with the substrate on the wrong side)")
     ap.add_argument("--features", type=int, default=O.max_features, help="SIFT keypoints per image")
+    ap.add_argument("--dense-features", type=int, default=O.dense_features, help="keypoints per image of the dense "
+                    "start: points triangulated with the calibrated cameras for training to start from (0: the "
+                    "adjustment's sparse points only)")
     ap.add_argument("--feature-scale", type=float, help="compute features on a copy scaled by this (default: "
                     "longest side 1600 px)")
     ap.add_argument("--masks", help="folder of specimen masks (same file stems as the images) to use instead of "
@@ -102,6 +105,9 @@ def _check_camera(args) -> None:
 
     from ..errors import ConfigError
 
+    for flag, value, least in (("--features", args.features, 16), ("--dense-features", args.dense_features, 0)):
+        if value < least:
+            raise ConfigError(f"{flag} {value}: must be at least {least} keypoints per image")
     if args.focal_px is None:
         return
     if args.camera != "perspective":
@@ -142,8 +148,7 @@ def _write(out: Path, series, cal, args, opts) -> None:
         for name in OUTPUTS:
             p = out / name
             shutil.rmtree(p) if p.is_dir() else p.unlink(missing_ok=True)
-    spec = cal.X[specimen_points(cal.frame.substrate, cal.frame.height, len(cal.X))]
-    lo, hi = np.percentile(spec, 1, axis=0), np.percentile(spec, 99, axis=0)
+    lo, hi = _box(cal, specimen_points(cal.frame.substrate, cal.frame.height, len(cal.X)))
     pad = 0.1 * (hi - lo)
     extra = {"world_unit": cal.unit,
              "frames": [{"stage_tilt_deg": t, "stage_rotation_deg": r, "stage_angles_from": ts, "pixel_size_from": ps,
@@ -156,9 +161,21 @@ def _write(out: Path, series, cal, args, opts) -> None:
     command = "arcsem-calibrate " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     with protect(allowed_roots(out) + [Path(tempfile.gettempdir())], input_dirs=[series.folder], own=[out]):
         write_dataset(out, series.names, [series.pixels(i) for i in range(len(series))], cal.masks, cal.views,
-                      cal.X, cal.colors, cal.obs, size=series.size, splits=cal.splits,
+                      cal.X, cal.colors, cal.obs, size=series.size, splits=cal.splits, dense=(cal.dense, cal.dense_colors),
                       pixel_size_um=p_um, aabb=np.stack([lo - pad, hi + pad]), extra=extra)
         write_report(out, series, cal, {k: v for k, v in vars(opts).items()}, command)
+
+
+def _box(cal, specimen):
+    """``(lo, hi)`` ``[3]`` of the dataset's box before padding: the specimen points' 1-99 percentiles, grown to
+    the 0.5-99.5 percentiles of every point (sparse and dense: the substrate and debris each view shows)."""
+    import numpy as np
+
+    spec = cal.X[specimen]
+    lo, hi = np.percentile(spec, 1, axis=0), np.percentile(spec, 99, axis=0)
+    everything = cal.X if cal.dense is None or not len(cal.dense) else np.concatenate([cal.X, cal.dense])
+    return (np.minimum(lo, np.percentile(everything, 0.5, axis=0)),
+            np.maximum(hi, np.percentile(everything, 99.5, axis=0)))
 
 
 def _join_negative_values(argv: list[str]) -> list[str]:
@@ -190,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         _check_angles(series, args)
         _check_camera(args)
-        opts = CalibrationOptions(max_features=args.features, angle_sigma=args.angle_sigma, feature_scale=args.feature_scale, init=args.init,
+        opts = CalibrationOptions(max_features=args.features, dense_features=args.dense_features, angle_sigma=args.angle_sigma, feature_scale=args.feature_scale, init=args.init,
                                   per_view_scale=args.per_view_scale, holdout=args.holdout,
                                   camera=args.camera, focal_px=args.focal_px, flip_depth=args.flip_depth,
                                   masks=not args.no_masks and not args.masks)

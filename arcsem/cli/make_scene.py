@@ -13,6 +13,7 @@ __all__ = ["build_parser", "main"]
 
 def build_parser() -> argparse.ArgumentParser:
     from ..synthetic import SceneParams as P  # the defaults are the built-in scene's
+    from ..synthetic.write import SPECIMENS
 
     ap = argparse.ArgumentParser(prog="arcsem-make-scene", description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=None, help="scene folder (default: the cache, reused if complete)")
@@ -25,7 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--no-substrate", action="store_true", help="render the grain without the substrate plane")
     ap.add_argument("--supersample", type=int, default=P.supersample, help="s x s samples on silhouette pixels (1 = off)")
     ap.add_argument("--noise", type=float, default=P.noise, help="Gaussian scan noise of the training images")
-    ap.add_argument("--specimen", choices=("grain", "diatom"), default=P.specimen)
+    ap.add_argument("--specimen", choices=SPECIMENS, default=P.specimen)
     ap.add_argument("--texture", type=float, default=P.texture,
                     help="surface texture amplitude on specimen and substrate (0 = none; 0.3 = SEM-like)")
     ap.add_argument("--force", action="store_true", help="with --out: regenerate even if the folder is complete")

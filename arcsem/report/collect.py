@@ -50,6 +50,8 @@ class Study:
 
 
 _REFERENCES = {"one": "1", "two": "2", "three": "3", "four": "4", "five": "5"}
+_COLOUR_SCENES = (("synthetic", "grain"), ("diatom", "diatom"), ("parts", "parts"), ("public_fox", "fox"),
+                  ("public_chair", "chair (held out)"))  # colorization_benchmark's datasets; the held-out one last
 _EXTRACTORS = ("vgg16", "vgg19", "daisy", "learned", "auto")  # colorize.features, in table order
 
 
@@ -63,7 +65,7 @@ STUDIES: dict[str, Study] = {
         Study("feature_comparison", "colorize.references",  # before reference_count: it has both keys
               {f"{r}/{f}": f"{n}, {f}" for r, n in _REFERENCES.items() for f in _EXTRACTORS}, also=("colorize.features",)),
         Study("colorization_benchmark", "dataset",  # before reference_count: it has its key
-              {f"{d}/{r}/{a}": f"{dn}, {n}, {an}" for d, dn in (("synthetic", "grain"), ("diatom", "diatom"))
+              {f"{d}/{r}/{a}": f"{dn}, {n}, {an}" for d, dn in _COLOUR_SCENES
                for r, n in (("one", "1"), ("three", "3"), ("five", "5"))
                for a, an in (("full", "default"), ("pseudo_only", "pseudo-colours"))},
               also=("colorize.references", "ablation")),

@@ -4,7 +4,7 @@
 ``ensure_scene(path=None, ...)`` returns a cached one (generating it once). Modules: ``sdf``
 (geometry), ``cameras`` (arcs), ``trace`` (sphere tracing), ``shading`` (SEM contrast), ``albedo``
 (colour), ``render`` (views), ``write`` (dataset, PLY), ``colmap``, ``sheet`` (contact sheet),
-``cache``.
+``cache``; further specimens: ``diatom`` (a frustule), ``parts`` (coloured by part).
 """
 from .cache import ensure_scene
 from .write import SceneParams, generate_scene, reference_sets

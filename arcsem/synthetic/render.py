@@ -116,7 +116,7 @@ def shade(g: Grain, kind: Tensor, pts: Tensor, u: Tensor, det: Tensor, cfg: Rend
         else:
             nrm = torch.tensor([0.0, 0.0, 1.0]).expand_as(p)
             lap = torch.zeros(len(p))
-            albedo = torch.tensor(SUBSTRATE_ALBEDO).expand_as(p)
+            albedo = torch.tensor(getattr(g, "substrate_albedo", SUBSTRATE_ALBEDO)).expand_as(p)  # parts: its own
             gain = cfg.shading.substrate_gain
         vis = detector_shadow(g.sdf, p, nrm, dd) if cls == GRAIN else ellipsoid_shadow(p, dd, g.radii)
         gr = gain * sem_grey(nrm, uu, dd, lap, vis, cfg.shading)

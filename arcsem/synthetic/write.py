@@ -31,6 +31,7 @@ __all__ = ["GENERATOR_VERSION", "SPECIMENS", "SceneParams", "generate_scene", "m
 
 GENERATOR_VERSION = 2  # bump when the output of the same parameters changes (invalidates caches)
 FLIP = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV <-> OpenGL camera axes
+SPECIMENS = ("grain", "diatom", "parts")  # the built-in specimens (``dataset.specimen``)
 
 
 @dataclass(frozen=True)
@@ -50,7 +51,7 @@ class SceneParams:
     drift: float = checked(0.05, ge=0.0)  # per-image log-contrast / brightness drift, x(1 + 2 el/85) on the vertical arc
     n_spines: int = checked(30, ge=0)
     test_every: int = checked(4, ge=1)  # one test view in every 4th gap of each arc
-    specimen: str = checked("grain", choices=("grain", "diatom"))  # the built-in pollen grain | arcsem.synthetic.diatom
+    specimen: str = checked("grain", choices=SPECIMENS)  # the pollen grain | arcsem.synthetic.diatom | .parts
     texture: float = checked(0.0, ge=0.0, lt=1.0)  # surface texture amplitude on specimen and substrate (0.3: SEM-like)
     texture_scale: float = checked(0.05, gt=0.0)  # its coarsest lattice spacing, in specimen sizes (3 octaves finer)
 
@@ -60,9 +61,6 @@ class SceneParams:
         if "synthetic" not in meta:
             raise ValueError("transforms.json has no 'synthetic' block: not a scene of the built-in generator")
         return cls(**{k: v for k, v in meta["synthetic"].items() if k in cls.__dataclass_fields__})
-
-
-SPECIMENS = ("grain", "diatom")
 
 
 def params_record(p: SceneParams) -> dict:
@@ -78,13 +76,18 @@ def params_record(p: SceneParams) -> dict:
 
 
 def make_specimen(p: SceneParams):
-    """The specimen of ``p``: :func:`~arcsem.synthetic.sdf.make_grain` or :func:`~arcsem.synthetic.diatom.make_diatom`."""
+    """The specimen of ``p``: :func:`~arcsem.synthetic.sdf.make_grain`, :func:`~arcsem.synthetic.diatom.make_diatom`
+    or :func:`~arcsem.synthetic.parts.make_parts`."""
     if p.specimen == "grain":
         return make_grain(p.seed, p.n_spines)
     if p.specimen == "diatom":
         from .diatom import make_diatom
 
         return make_diatom(p.seed)
+    if p.specimen == "parts":
+        from .parts import make_parts
+
+        return make_parts(p.seed)
     from ..errors import ConfigError
 
     raise ConfigError(f"synthetic scene: unknown specimen '{p.specimen}'; available: {', '.join(SPECIMENS)}")
@@ -234,13 +237,19 @@ def _progress(items: list, show: bool):
     return tqdm(items, desc="synthetic scene", unit="group")
 
 
+_OTHER_SPECIMEN = {  # the README's first lines for a specimen other than the grain
+    "diatom": "Specimen: a centric diatom frustule (arcsem.synthetic.diatom); 'grain' below means this specimen,\n"
+              "whose substrate plane lies at z = -0.6.\n",
+    "parts": "Specimen: a body with pores, spines and debris, coloured by part (arcsem.synthetic.parts); 'grain'\n"
+             "below means this specimen, whose substrate plane (sand-coloured) lies at z = -0.85.\n",
+}
+
+
 def _readme(p: SceneParams) -> str:
     colmap = ("colmap/sparse/0: COLMAP model (PINHOLE) of the same cameras and the point cloud.\n"
               if p.camera == "pinhole" else
               "No COLMAP model: COLMAP has no orthographic camera model; use transforms.json.\n")
-    other = ("" if p.specimen == "grain" else
-             "Specimen: a centric diatom frustule (arcsem.synthetic.diatom); 'grain' below means this specimen,\n"
-             "whose substrate plane lies at z = -0.6.\n")
+    other = _OTHER_SPECIMEN.get(p.specimen, "")
     return other + (
         "Synthetic SEM scene written by arcsem.synthetic (arcsem-make-scene).\n"
         f"Parameters: {json.dumps(params_record(p))}\n\n"

@@ -1,0 +1,53 @@
+"""experiment=colorization_benchmark composes with every colour scene (built-in and public; no training)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+from hydra import compose, initialize_config_module
+
+from arcsem.data import check_dataset_config
+from arcsem.report.collect import STUDIES
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+SWEEP = yaml.safe_load((CONF / "experiment/colorization_benchmark.yaml").read_text())["hydra"]["sweeper"]["params"]
+SCENES = SWEEP["dataset"].split(",")
+PUBLIC = {"public_fox": "fox", "public_chair": "chair"}  # dataset option -> folder under benchmark_root
+
+
+def _compose(*overrides: str):
+    from arcsem.schemas import setup
+
+    setup()
+    with initialize_config_module("arcsem.conf", version_base="1.3"):
+        return compose("config", overrides=["experiment=colorization_benchmark", *overrides])
+
+
+def test_the_benchmark_sweeps_five_scenes_and_lists_the_held_out_one_on_its_own():
+    assert SCENES == ["synthetic", "diatom", "parts", "public_fox", "public_chair"]
+    labels = list(STUDIES["colorization_benchmark"].rows.items())
+    held = [k for k, v in labels if "held out" in v]
+    assert held and all(k.startswith("public_chair/") for k in held)
+    assert [k for k, _ in labels[-len(held):]] == held  # its rows come last, as a group of their own
+    rows = {f"{d}/{r}/{a}" for d in SCENES for r in SWEEP["colorize.references"].split(",")
+            for a in SWEEP["ablation"].split(",")}
+    assert rows <= set(STUDIES["colorization_benchmark"].rows)
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_the_benchmark_composes_with_every_scene(scene):
+    cfg = _compose(f"dataset={scene}", "benchmark_root=/data/colour")
+    check_dataset_config(cfg.dataset)  # keys and generator parameters valid for the dataset kind
+    assert cfg.stage == "all" and cfg.share_stage1 and cfg.act.enabled
+    if scene in PUBLIC:
+        assert cfg.dataset.kind == "transforms" and cfg.dataset.path == f"/data/colour/{PUBLIC[scene]}"
+    else:
+        assert cfg.dataset.kind == "synthetic"
+        assert cfg.dataset.get("specimen", "grain") == {"synthetic": "grain"}.get(scene, scene)
+
+
+def test_a_public_scene_defaults_to_the_scenes_folder_outside_the_benchmark():
+    with initialize_config_module("arcsem.conf", version_base="1.3"):
+        cfg = compose("config", overrides=["dataset=public_chair"])
+    assert cfg.dataset.path == "/work/exp/colour_scenes/chair"

@@ -29,12 +29,11 @@ from ..registry import plain, validate_config
 from .config import ColorizeConfig
 from .guidance import Guidance
 from .masks import specimen_masks
-from .pseudocolor import cached_pseudo_colors, pseudo_colors, pseudo_key
+from .pseudocolor import cached_pseudo_colors, pseudo_colors, pseudo_key, render_depths
 from .references import References, load_references
 from .shading import fit_shading, shade
 
-__all__ = ["ColorTargetHook", "check_stage1_model", "colorize_config", "colorize_losses", "find_stage1", "render_depths",
-           "run_stage2"]
+__all__ = ["ColorTargetHook", "check_stage1_model", "colorize_config", "colorize_losses", "find_stage1", "run_stage2"]
 
 log = logging.getLogger(__name__)
 
@@ -97,18 +96,6 @@ def _resize_images(x: torch.Tensor, h: int, w: int) -> torch.Tensor:
     if x.shape[1:3] == (h, w):
         return x
     return F.interpolate(x.permute(0, 3, 1, 2).float(), size=(h, w), mode="area").permute(0, 2, 3, 1)
-
-
-def render_depths(backbone, split, alpha_min: float = 0.5) -> torch.Tensor:
-    """z-depth ``[N, H, W]`` of every view from the model (median depth if provided); 0 where alpha < alpha_min."""
-    out = []
-    with torch.no_grad():
-        for i in range(len(split)):
-            r = backbone.render(split.cameras[i:i + 1])
-            d = r.get("median_depth", r["depth"])[0, ..., 0]
-            a = r["alpha"][0, ..., 0] if "alpha" in r else torch.ones_like(d)
-            out.append(torch.where(a >= alpha_min, d, torch.zeros_like(d)).cpu())
-    return torch.stack(out)
 
 
 class ColorTargetHook:

@@ -21,9 +21,8 @@ import torch
 from omegaconf import OmegaConf
 
 from arcsem.colorize.coverage import coverage_masks
-from arcsem.colorize.pseudocolor import pseudo_colors
+from arcsem.colorize.pseudocolor import pseudo_colors, render_depths
 from arcsem.colorize.references import load_references
-from arcsem.colorize.pseudocolor import render_depths
 from arcsem.colorize.surface import surface_colors
 from arcsem.configs import SurfaceConfig
 from arcsem.data import load_scene

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError
-from .ply import read_points, write_points
+from ..ply import read_points, write_points
 
 __all__ = [
     "GREY_TOLERANCE",
@@ -25,7 +25,7 @@ __all__ = [
     "write_ply",
 ]
 
-read_ply, write_ply = read_points, write_points  # the point-cloud names the readers use (arcsem.data.ply)
+read_ply, write_ply = read_points, write_points  # the point-cloud names the readers use (arcsem.ply)
 
 IMAGE_EXTS = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".exr")
 

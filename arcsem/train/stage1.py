@@ -30,21 +30,14 @@ from ..metrics import metric_convention
 from ..plugins import BACKBONES
 from ..registry import plain, validate_config
 from ..scene import Scene
+from ..video import write_video
+from ..visual import DEPTH_SPAN, to_uint8
 from .checkpoint import load_checkpoint, load_module_state
-from .evaluate import (
-    DEPTH_SPAN,
-    PROTOCOLS,
-    evaluate_split,
-    mean_metrics,
-    resolve_protocol,
-    to_uint8,
-    write_views_csv,
-)
+from .evaluate import PROTOCOLS, evaluate_split, mean_metrics, resolve_protocol, write_views_csv
 from .loop import LoopConfig, loss_trend_warning, train
 from .losses import build_losses
 from .products import write_products
 from .sampling import resize_scene
-from .video import write_video
 
 __all__ = [
     "NON_SEMANTIC_KEYS",

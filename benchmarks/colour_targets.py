@@ -27,8 +27,8 @@ from arcsem.colorize.surface import surface_colors
 from arcsem.configs import SurfaceConfig
 from arcsem.data import load_scene
 from arcsem.metrics import psnr
+from arcsem.runs import load_stage1
 from arcsem.train.sampling import resize_scene
-from arcsem.train.stage1 import load_stage1
 from arcsem.visual import render_layers
 
 

@@ -53,11 +53,11 @@ def colorize_losses(cc: ColorizeConfig, backbone: Any):
 
 def check_stage1_model(cfg: Any, cc: ColorizeConfig, scene, run_dir: Path) -> Path:
     """The stage-1 checkpoint :func:`find_stage1` finds, after checking it was trained on ``scene``'s dataset."""
+    from ..runs import saved_config
     from ..scene import scene_fingerprint
-    from ..train.checkpoint import load_checkpoint
 
     ckpt = find_stage1(cfg, cc, run_dir)
-    saved = (load_checkpoint(ckpt).get("config") or {}).get("dataset_fingerprint")
+    saved = saved_config(ckpt).get("dataset_fingerprint")
     here = scene_fingerprint(scene)
     if saved is None:
         raise DataError(f"colorize.stage1: {ckpt} records no dataset fingerprint (an older arcsem); retrain stage 1")
@@ -146,10 +146,10 @@ class ColorTargetHook:
 
 def _prepare_scene(scene, ckpt: Path, cc: ColorizeConfig):
     """The scene at the colourisation resolution (stage 1's unless ``colorize.downscale/width`` say otherwise)."""
-    from ..train.checkpoint import load_checkpoint
+    from ..runs import saved_config
     from ..train.sampling import resize_scene
 
-    saved = (load_checkpoint(ckpt).get("config") or {}).get("train") or {}
+    saved = saved_config(ckpt).get("train") or {}
     down, width = (cc.downscale, cc.width) if (cc.downscale != 1.0 or cc.width) else \
         (float(saved.get("downscale", 1.0)), saved.get("width"))
     return resize_scene(scene, down, width)
@@ -306,8 +306,9 @@ def _pseudo_quality(split, masks, refs, colors, valid, name: str = "coverage") -
 
 def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     """Colour the stage-1 model; returns ``{"stage2": {...}, "features": <extractor label>|"unused"}``."""
+    from ..runs import load_stage1
     from ..share import cache_root
-    from ..train import LoopConfig, load_stage1, train
+    from ..train import LoopConfig, train
     from ..train.loop import loss_trend_warning
     from .coverage import coverage_metrics
     from .outputs import evaluate_colour, write_colored_products, write_outputs

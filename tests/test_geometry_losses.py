@@ -79,6 +79,7 @@ def test_depth_normals_equal_the_display_ones_but_for_their_turn_to_the_camera(m
     for bit, except where the display's turns a normal to face the camera (random pinhole depth: a few pixels),
     which the loss must not do (its target keeps the orientation of the depth map). Merge them only with a flag."""
     from arcsem.losses.geometry import depth_normals
+
     from arcsem.visual import depth_normals as display_normals
 
     c = cams(model)

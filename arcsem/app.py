@@ -172,7 +172,7 @@ def _run_stages(cfg: DictConfig, scene: Any, run_dir: Path, stages: tuple[str, .
         try:
             result = func(cfg, scene, run_dir) or {}
         except BaseException as exc:
-            from .cli.errors import one_line
+            from .errors import one_line
 
             metrics["status"] = "interrupted" if isinstance(exc, (KeyboardInterrupt, Interrupted)) else "failed"
             metrics["failed_stage"], metrics["error"] = name, one_line(exc)

@@ -6,7 +6,8 @@ shows the traceback instead).
 """
 from __future__ import annotations
 
-__all__ = ["ArcsemError", "ConfigError", "DataError", "Interrupted", "OutputError", "PluginError", "TrainingError"]
+__all__ = ["ArcsemError", "ConfigError", "DataError", "Interrupted", "OutputError", "PluginError", "TrainingError",
+           "config_error_types", "one_line"]
 
 
 class ArcsemError(Exception):
@@ -35,3 +36,23 @@ class OutputError(ArcsemError):
 
 class Interrupted(ArcsemError):
     """The user stopped the run (Ctrl-C); says what was saved. The CLI exits with code 130."""
+
+
+def config_error_types() -> tuple[type[BaseException], ...]:
+    """The errors a user causes through the config: ours, Hydra's and OmegaConf's (imported on use)."""
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    return ArcsemError, HydraException, OmegaConfBaseException
+
+
+def one_line(exc: BaseException) -> str:
+    """The message of ``exc`` on one line (Hydra's multi-line messages joined with ``; ``)."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    cause = exc.__cause__
+    if not lines and cause is not None:
+        return one_line(cause)
+    msg = "; ".join(lines) or type(exc).__name__
+    if cause is not None and isinstance(cause, config_error_types()) and str(cause).strip() not in msg:
+        msg += f" ({'; '.join(ln.strip() for ln in str(cause).splitlines() if ln.strip())})"
+    return msg

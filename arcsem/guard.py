@@ -1,7 +1,7 @@
 """The write guard: while a run is active, no file outside its run and cache folders is written, and no
 input file is written at all.
 
-Output names are made safe where they are formed (:func:`arcsem.data.names.view_names`,
+Output names are made safe where they are formed (:func:`arcsem.names.view_names`,
 :func:`out_path`); this module is the backstop under them. :func:`protect` installs a Python audit
 hook (PEP 578) that sees every file the process opens for writing, renames, removes or creates a
 folder for through Python (``open``, ``os.replace``, ``os.mkdir``, ``np.save``, ``imageio``, ``torch.save``

@@ -1,11 +1,13 @@
-"""Lazy package attributes (PEP 562): ``import arcsem.backbones.gs2d`` imports nothing heavy until a name is used."""
+"""Lazy package attributes (PEP 562): ``import arcsem.backbones.gs2d`` imports nothing heavy until a name is used;
+names that moved stay importable from their old module for one release, with a DeprecationWarning."""
 from __future__ import annotations
 
 import importlib
+import warnings
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["lazy_getattr"]
+__all__ = ["lazy_getattr", "moved_getattr"]
 
 
 def lazy_getattr(package: str, where: dict[str, str]) -> Callable[[str], Any]:
@@ -15,5 +17,19 @@ def lazy_getattr(package: str, where: dict[str, str]) -> Callable[[str], Any]:
         if name in where:
             return getattr(importlib.import_module(f".{where[name]}", package), name)
         raise AttributeError(f"module {package!r} has no attribute {name!r}")
+
+    return __getattr__
+
+
+def moved_getattr(module: str, moved: dict[str, str]) -> Callable[[str], Any]:
+    """A module ``__getattr__`` for ``module``'s names that moved to the module ``moved[name]``: each use of the
+    old path warns (DeprecationWarning, naming the new one) and returns the object from its new home."""
+
+    def __getattr__(name: str) -> Any:
+        if name in moved:
+            warnings.warn(f"{module}.{name} moved to {moved[name]}.{name}; import it from there (the old path goes "
+                          "in the next release)", DeprecationWarning, stacklevel=2)
+            return getattr(importlib.import_module(moved[name]), name)
+        raise AttributeError(f"module {module!r} has no attribute {name!r}")
 
     return __getattr__

@@ -11,7 +11,10 @@ evaluation renders and the report:
   blue), pixels outside ``valid`` in a flat background colour;
 * :func:`normal_rgb` shows camera-space normals (``(n_x, -n_y, -n_z)`` mapped to RGB: a surface
   facing the camera is blue);
-* :func:`colour_bar` draws a labelled horizontal bar of the same map.
+* :func:`depth_display` shows a depth map and its ground truth alike (the same pixels, one range of
+  :data:`DEPTH_SPAN` x the specimen's size below the nearest ground-truth point);
+* :func:`colour_bar` draws a labelled horizontal bar of the same map;
+* :func:`to_uint8` turns an image in [0, 1] into bytes.
 """
 from __future__ import annotations
 
@@ -21,9 +24,13 @@ from torch import Tensor
 
 from .cameras import Cameras
 
-__all__ = ["BACKGROUND", "colour_bar", "depth_normals", "depth_rgb", "normal_rgb", "render_layers", "to_uint8"]
+__all__ = ["BACKGROUND", "DEPTH_SPAN", "colour_bar", "depth_display", "depth_normals", "depth_rgb", "normal_rgb",
+           "render_layers", "to_uint8"]
 
 BACKGROUND = (255, 255, 255)  # RGB of pixels with no surface in depth and normal images
+DEPTH_SPAN = 0.5
+"""Depth images span ``0 .. DEPTH_SPAN x length_scale`` below the nearest ground-truth point (half the
+specimen's diameter: the depth of the hemisphere a view sees)."""
 
 
 def to_uint8(img: Tensor) -> np.ndarray:
@@ -78,6 +85,22 @@ def depth_rgb(depth: Tensor, valid: Tensor, lo: float | None = None, hi: float |
     mapped = cv2.applyColorMap((x * 255 + 0.5).astype(np.uint8), cv2.COLORMAP_TURBO)[..., ::-1]
     out[v] = mapped[v]
     return out
+
+
+def depth_display(depth: Tensor, gt: Tensor | None, mask: Tensor | None,
+                  valid: Tensor, span: float) -> tuple[np.ndarray, np.ndarray | None, float]:
+    """Depth ``[H, W]`` (and its ground truth) as images that compare: turbo colour map of the depth
+    below the nearest ground-truth point, ``0 .. span`` scene units (near red, far blue).
+
+    Both images show the same pixels: the ground truth's (``gt > 0`` inside ``mask``) where there is a
+    ground truth, else the render's ``valid`` ones. Returns ``(render, gt or None, lo)`` with ``lo``
+    the depth shown as 0.
+    """
+    shown = valid.bool() if gt is None else (gt > 0) & (mask.bool() if mask is not None else True)
+    ref = depth if gt is None else gt
+    lo = float(ref[shown].min()) if bool(shown.any()) else 0.0
+    pred = depth_rgb(depth, shown & torch.isfinite(depth), lo, lo + span)
+    return pred, (None if gt is None else depth_rgb(gt, shown, lo, lo + span)), lo
 
 
 def normal_rgb(normal: Tensor, cams: Cameras, valid: Tensor | None = None,

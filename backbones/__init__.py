@@ -1,2 +1,3 @@
-"""Backbone plugins (one folder each) and the shared Gaussian machinery."""
+"""Backbone plugins (one folder each), the shared Gaussian machinery (``gaussians/``) and what every backbone
+may use (``sh.py``: spherical harmonics)."""
 __all__: list[str] = []

@@ -102,7 +102,7 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=1)
     args = p.parse_args()
     torch.set_num_threads(args.threads)
-    from arcsem.export.runs import load_run
+    from arcsem.runs import load_run
 
     m = load_run(args.run, colored=False)
     with tempfile.TemporaryDirectory() as tmp:

@@ -26,9 +26,9 @@ import time
 
 import torch
 from arcsem.backbones.gaussians.fused import sh_colors
-from arcsem.backbones.gaussians.sh import eval_sh
 from arcsem.backbones.gs2d.render import render_2dgs
 from arcsem.backbones.gs3d.render import render_3dgs
+from arcsem.backbones.sh import eval_sh
 
 from arcsem.cameras import Cameras
 

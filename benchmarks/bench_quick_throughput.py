@@ -23,9 +23,10 @@ import torch
 from omegaconf import OmegaConf
 
 from arcsem.data import load_scene
+from arcsem.runs import load_stage1
 from arcsem.train import LoopConfig, build_losses, train
 from arcsem.train.checkpoint import load_checkpoint
-from arcsem.train.stage1 import load_stage1, prepare_scene, train_config
+from arcsem.train.stage1 import prepare_scene, train_config
 
 
 def seconds_per_step(backbone, act, split, impl: str, steps: int) -> float:

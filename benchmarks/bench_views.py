@@ -25,7 +25,8 @@ def render_part(run: Path, repeats: int, passes: int) -> None:
     from torch.profiler import ProfilerActivity, profile
 
     from arcsem.data import load_scene
-    from arcsem.train.stage1 import load_stage1, prepare_scene, train_config
+    from arcsem.runs import load_stage1
+    from arcsem.train.stage1 import prepare_scene, train_config
 
     cfg = OmegaConf.load(run / ".hydra" / "config.yaml")
     scene = load_scene(cfg.dataset)

@@ -58,7 +58,7 @@ def frame_similarity(true_dir: Path, cal_dir: Path):
 
 def scene_points_dataset(scene: Path, calibrated: Path, out: Path) -> Path:
     """``out``: the calibrated dataset (links) with the scene's points carried into its frame."""
-    from arcsem.data.ply import read_points, write_points
+    from arcsem.ply import read_points, write_points
 
     s, Q, d = frame_similarity(scene, calibrated)
     X, colors = read_points(scene / "points3d.ply")

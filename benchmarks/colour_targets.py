@@ -21,15 +21,14 @@ import torch
 from omegaconf import OmegaConf
 
 from arcsem.colorize.coverage import coverage_masks
-from arcsem.colorize.pseudocolor import pseudo_colors
+from arcsem.colorize.pseudocolor import pseudo_colors, render_depths
 from arcsem.colorize.references import load_references
-from arcsem.colorize.stage2 import render_depths
 from arcsem.colorize.surface import surface_colors
 from arcsem.configs import SurfaceConfig
 from arcsem.data import load_scene
 from arcsem.metrics import psnr
+from arcsem.runs import load_stage1
 from arcsem.train.sampling import resize_scene
-from arcsem.train.stage1 import load_stage1
 from arcsem.visual import render_layers
 
 

@@ -22,8 +22,9 @@ from arcsem.data import load_scene
 from arcsem.errors import DataError
 from arcsem.report.collect import collect
 from arcsem.report.paired import describe, pair, summary
+from arcsem.runs import load_stage1
 from arcsem.train.evaluate import evaluate_split
-from arcsem.train.stage1 import load_stage1, prepare_scene, train_config
+from arcsem.train.stage1 import prepare_scene, train_config
 
 
 def observed_scores(run: Path) -> dict[str, float]:

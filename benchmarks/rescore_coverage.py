@@ -26,8 +26,8 @@ def rescore(run: Path) -> dict:
     from arcsem.colorize.references import load_references
     from arcsem.colorize.stage2 import _prepare_scene, _pseudo, _resize_images, colorize_config
     from arcsem.data import load_scene
+    from arcsem.runs import load_stage1
     from arcsem.share import cache_root
-    from arcsem.train import load_stage1
     from arcsem.train.checkpoint import load_checkpoint, load_module_state
 
     cfg = OmegaConf.load(run / "config.yaml")

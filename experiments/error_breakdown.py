@@ -31,9 +31,10 @@ from omegaconf import OmegaConf
 
 from arcsem.data import load_scene
 from arcsem.errors import ArcsemError
+from arcsem.runs import load_stage1
 from arcsem.train.checkpoint import load_checkpoint
 from arcsem.train.evaluate import render_view
-from arcsem.train.stage1 import load_stage1, prepare_scene, train_config
+from arcsem.train.stage1 import prepare_scene, train_config
 
 
 def bands(mask: torch.Tensor, px: int = 2) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -27,7 +27,7 @@ def sphere_params(n: int = 3000, seed: int = 0) -> tuple[torch.Tensor, torch.Ten
 
 
 def _set_sphere(backbone, colours: torch.Tensor) -> None:
-    from arcsem.backbones.gaussians.sh import rgb_to_sh
+    from arcsem.backbones.sh import rgb_to_sh
 
     pts, _ = sphere_params()
     m = backbone.model

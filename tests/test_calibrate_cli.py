@@ -171,7 +171,7 @@ def _dense_start_lies_on_the_surface(truth, calibrated, report: dict) -> None:
     camera sets, benchmarks/calib_training.frame_similarity)."""
     from scipy.spatial import cKDTree
 
-    from arcsem.data.ply import read_points
+    from arcsem.ply import read_points
     from tests.test_calib_benchmark import _bench
 
     s, Q, d = _bench().frame_similarity(truth, calibrated)

@@ -13,9 +13,10 @@ from trainer_util import TinyImage, tiny_scene  # noqa: F401  (registers _tiny_i
 from arcsem.errors import TrainingError
 from arcsem.plugins import BACKBONES, Backbone
 from arcsem.rotations import quat_to_rotmat, rotmat_to_quat
-from arcsem.train import load_stage1, run_stage1
+from arcsem.runs import load_stage1
+from arcsem.train import run_stage1
 from arcsem.train.evaluate import depth_error, evaluate_split
-from arcsem.train.video import arc_path
+from arcsem.video import arc_path
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tiny tensors: one torch thread
 

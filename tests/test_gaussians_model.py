@@ -8,7 +8,7 @@ import pytest
 import torch
 from arcsem.backbones.gaussians.init import init_gaussians, knn_scales
 from arcsem.backbones.gaussians.model import active_sh_degree_at
-from arcsem.backbones.gaussians.sh import C0, eval_sh
+from arcsem.backbones.sh import C0, eval_sh
 
 from arcsem.act import ACT
 from arcsem.cameras import Cameras, look_at

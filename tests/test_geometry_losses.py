@@ -71,3 +71,20 @@ def test_distortion_is_mean_and_defaults_are_the_papers():
     assert (nc.weight, nc.start_step) == (0.05, 7000)
     d = torch.tensor([[[[1.0], [3.0]]]])
     assert cls(cfg)({"distortion": d}, None, 0).item() == 2.0
+
+
+@pytest.mark.parametrize("model", ["pinhole", "orthographic"])
+def test_depth_normals_equal_the_display_ones_but_for_their_turn_to_the_camera(model):
+    """Two implementations (issue 41 kept both): the loss's normals equal :func:`arcsem.visual.depth_normals` bit
+    for bit, except where the display's turns a normal to face the camera (random pinhole depth: a few pixels),
+    which the loss must not do (its target keeps the orientation of the depth map). Merge them only with a flag."""
+    from arcsem.losses.geometry import depth_normals
+
+    from arcsem.visual import depth_normals as display_normals
+
+    c = cams(model)
+    depth = 4 + torch.rand(1, 20, 24, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    ours, shown = depth_normals(depth[..., None], c), display_normals(c, depth)
+    turned = (ours * shown).sum(-1) < 0
+    assert torch.equal(ours[~turned], shown[~turned]) and torch.equal(ours[turned], -shown[turned])
+    assert bool(turned.any()) == (model == "pinhole")

@@ -6,12 +6,12 @@ import math
 import numpy as np
 import pytest
 import torch
-from arcsem.backbones.gaussians.sh import C0
 from arcsem.backbones.plenoxels import Plenoxels
 from arcsem.backbones.plenoxels.grid import build_index, dense_values, occupied_coords
 from arcsem.backbones.plenoxels.render import GridData, render_grid
 from arcsem.backbones.plenoxels.tv import tv_sparse
 from arcsem.backbones.plenoxels.upsample import dilate, prune, resample
+from arcsem.backbones.sh import C0
 
 from arcsem.cameras import Cameras, look_at
 from arcsem.plugins import LOSSES

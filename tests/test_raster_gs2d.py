@@ -194,3 +194,12 @@ def test_means2d_grad_is_screen_position_gradient(ortho):
             losses.append((render_2dgs(*s.params(2), c)["rgb"] * wgt).sum())
     fd = (losses[0] - losses[1]) / (2 * eps)
     torch.testing.assert_close(out["means2d"].grad[..., 0].sum(), fd, rtol=1e-5, atol=1e-8)
+
+
+def test_rotate_by_quat_old_path_warns():
+    """``rotate_by_quat`` moved to the gaussians package (issue 41); its old public path works, with a warning."""
+    import arcsem.backbones.gs2d.reference as old
+    from arcsem.backbones.gaussians.dense import rotate_by_quat
+
+    with pytest.warns(DeprecationWarning, match="moved to arcsem.backbones.gaussians.dense.rotate_by_quat"):
+        assert old.rotate_by_quat is rotate_by_quat

@@ -345,7 +345,7 @@ def test_report_videos_get_a_poster_of_their_middle_frame(tmp_path):
 
     from arcsem.report.html import _section, copy_videos
     from arcsem.report.tables import Table
-    from arcsem.train.video import write_video
+    from arcsem.video import write_video
 
     run = tmp_path / "r"
     run.mkdir()

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import torch
 
-from arcsem.data.names import view_names
 from arcsem.errors import OutputError, TrainingError
 from arcsem.guard import out_path, protect
+from arcsem.names import view_names
 
 
 @pytest.mark.parametrize("files,names", [

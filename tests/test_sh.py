@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from arcsem.backbones.gaussians.sh import C0, RGB2SH, SH2RGB, eval_sh, sh_basis
+from arcsem.backbones.sh import C0, RGB2SH, SH2RGB, eval_sh, sh_basis
 from scipy.special import sph_harm_y
 
 
@@ -80,3 +80,17 @@ def test_rgb_sh_round_trip():
     rgb = torch.rand(10, 3, dtype=torch.float64)
     torch.testing.assert_close(SH2RGB(RGB2SH(rgb)), rgb)
     assert RGB2SH(torch.tensor(0.5)) == 0
+
+
+def test_old_import_path_warns_and_gives_the_same_objects():
+    """``arcsem.backbones.gaussians.sh`` (before issue 41) still works for plugin authors, with a DeprecationWarning."""
+    import arcsem.backbones.gaussians.sh as old
+    from arcsem.backbones import sh
+
+    with pytest.warns(DeprecationWarning, match=r"gaussians\.sh\.eval_sh moved to arcsem\.backbones\.sh\.eval_sh"):
+        assert old.eval_sh is sh.eval_sh
+    with pytest.warns(DeprecationWarning, match="C0 moved"):
+        from arcsem.backbones.gaussians.sh import C0 as old_c0
+    assert old_c0 == sh.C0
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        old.nope  # noqa: B018

@@ -55,7 +55,7 @@ def test_adaptive_resolution():
 
 
 def test_session_sends_previews_then_one_full_frame(tmp_path):
-    from arcsem.export.runs import load_run
+    from arcsem.runs import load_run
     from arcsem.viewer.server import render_mode
 
     m = load_run(make_run(tmp_path, "gs3d", colored=False), colored=False)

@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..cameras import opengl_to_opencv
-from ..data.ply import write_points
 from ..files import write_json_atomic
+from ..ply import write_points
 
 __all__ = ["PAPER_FOCAL_PER_PX", "colmap_cameras", "ortho_world_to_cam", "write_colmap_model", "write_dataset"]
 

@@ -19,10 +19,10 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
-from ..errors import ArcsemError, Interrupted
+from ..errors import Interrupted, config_error_types, one_line
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_USER_ERROR", "call_reporting_errors", "debug_requested", "describe",
-           "exit_code", "one_line", "with_error_handling"]
+           "exit_code", "with_error_handling"]
 
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report Ctrl-C
@@ -46,34 +46,15 @@ def debug_requested(argv: list[str] | None = None) -> bool:
     return any(a.lstrip("+~").lower() in ("debug=true", "debug=1", "debug=yes") or a == "--debug" for a in argv)
 
 
-def _config_error_types() -> tuple[type[BaseException], ...]:
-    from hydra.errors import HydraException
-    from omegaconf.errors import OmegaConfBaseException
-
-    return ArcsemError, HydraException, OmegaConfBaseException
-
-
 def exit_code(exc: BaseException) -> int | None:
     """The exit code of an error the user can cause or fix, or None for a bug (keep the traceback)."""
     if isinstance(exc, (KeyboardInterrupt, Interrupted)):
         return EXIT_INTERRUPTED
-    if isinstance(exc, _config_error_types()):
+    if isinstance(exc, config_error_types()):
         return EXIT_USER_ERROR
     if isinstance(exc, OSError) and exc.errno in _ENV_ERRNOS:
         return EXIT_USER_ERROR
     return None
-
-
-def one_line(exc: BaseException) -> str:
-    """The message of ``exc`` on one line (Hydra's multi-line messages joined with ``; ``)."""
-    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
-    cause = exc.__cause__
-    if not lines and cause is not None:
-        return one_line(cause)
-    msg = "; ".join(lines) or type(exc).__name__
-    if cause is not None and isinstance(cause, _config_error_types()) and str(cause).strip() not in msg:
-        msg += f" ({'; '.join(ln.strip() for ln in str(cause).splitlines() if ln.strip())})"
-    return msg
 
 
 def _unknown_schema_key(exc: BaseException) -> str | None:

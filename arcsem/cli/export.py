@@ -20,8 +20,8 @@ __all__ = ["export_run", "main"]
 def export_run(run: str | Path, out: str | Path | None, mesh: bool, viewer: bool,
                overrides: dict | None = None) -> dict:
     """Export the grey (and, where present, coloured) model of ``run``; returns what was written."""
-    from arcsem.export.runs import has_colour, load_run
     from arcsem.mesh import export_mesh, mesh_config
+    from arcsem.runs import has_colour, load_run
 
     run = Path(run)
     out = Path(out) if out is not None else run / "export"

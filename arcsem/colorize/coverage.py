@@ -18,7 +18,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from .pseudocolor import query_view, reference_cloud
+from .pseudocolor import query_view, reference_cloud, render_depths
 
 __all__ = ["RULE", "coverage_masks", "coverage_metrics", "split_psnr"]
 
@@ -82,8 +82,6 @@ def coverage_metrics(backbone, scene, refs, masks: Tensor, valid: Tensor, cc) ->
     model's, as the pseudo-colours use it (``coverage_depth: model``; ``valid`` ``[N, H, W]`` for training
     views; ``masks``: the stage-2 masks of the training views).
     """
-    from .stage2 import render_depths
-
     out: dict[str, dict] = {}
     train, test = scene.train, scene.test
     ref_idx = refs.indices.tolist()

@@ -57,7 +57,7 @@ def _png(folder: Path, name: str, img: torch.Tensor) -> None:
     import imageio.v2 as imageio
 
     from ..guard import out_path
-    from ..train.evaluate import to_uint8
+    from ..visual import to_uint8
 
     imageio.imwrite(out_path(folder, name, ".png"), to_uint8(img))
 

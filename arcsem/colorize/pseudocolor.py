@@ -33,10 +33,23 @@ __all__ = [
     "pseudo_key",
     "query_view",
     "reference_cloud",
+    "render_depths",
     "save_pseudo",
 ]
 
 log = logging.getLogger(__name__)
+
+
+def render_depths(backbone, split, alpha_min: float = 0.5) -> torch.Tensor:
+    """z-depth ``[N, H, W]`` of every view from the model (median depth if provided); 0 where alpha < alpha_min."""
+    out = []
+    with torch.no_grad():
+        for i in range(len(split)):
+            r = backbone.render(split.cameras[i:i + 1])
+            d = r.get("median_depth", r["depth"])[0, ..., 0]
+            a = r["alpha"][0, ..., 0] if "alpha" in r else torch.ones_like(d)
+            out.append(torch.where(a >= alpha_min, d, torch.zeros_like(d)).cpu())
+    return torch.stack(out)
 
 
 def pixel_footprint(cams: Cameras, depth: Tensor) -> Tensor:

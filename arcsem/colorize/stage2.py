@@ -29,12 +29,11 @@ from ..registry import plain, validate_config
 from .config import ColorizeConfig
 from .guidance import Guidance
 from .masks import specimen_masks
-from .pseudocolor import cached_pseudo_colors, pseudo_colors, pseudo_key
+from .pseudocolor import cached_pseudo_colors, pseudo_colors, pseudo_key, render_depths
 from .references import References, load_references
 from .shading import fit_shading, shade
 
-__all__ = ["ColorTargetHook", "check_stage1_model", "colorize_config", "colorize_losses", "find_stage1", "render_depths",
-           "run_stage2"]
+__all__ = ["ColorTargetHook", "check_stage1_model", "colorize_config", "colorize_losses", "find_stage1", "run_stage2"]
 
 log = logging.getLogger(__name__)
 
@@ -54,11 +53,11 @@ def colorize_losses(cc: ColorizeConfig, backbone: Any):
 
 def check_stage1_model(cfg: Any, cc: ColorizeConfig, scene, run_dir: Path) -> Path:
     """The stage-1 checkpoint :func:`find_stage1` finds, after checking it was trained on ``scene``'s dataset."""
+    from ..runs import saved_config
     from ..scene import scene_fingerprint
-    from ..train.checkpoint import load_checkpoint
 
     ckpt = find_stage1(cfg, cc, run_dir)
-    saved = (load_checkpoint(ckpt).get("config") or {}).get("dataset_fingerprint")
+    saved = saved_config(ckpt).get("dataset_fingerprint")
     here = scene_fingerprint(scene)
     if saved is None:
         raise DataError(f"colorize.stage1: {ckpt} records no dataset fingerprint (an older arcsem); retrain stage 1")
@@ -97,18 +96,6 @@ def _resize_images(x: torch.Tensor, h: int, w: int) -> torch.Tensor:
     if x.shape[1:3] == (h, w):
         return x
     return F.interpolate(x.permute(0, 3, 1, 2).float(), size=(h, w), mode="area").permute(0, 2, 3, 1)
-
-
-def render_depths(backbone, split, alpha_min: float = 0.5) -> torch.Tensor:
-    """z-depth ``[N, H, W]`` of every view from the model (median depth if provided); 0 where alpha < alpha_min."""
-    out = []
-    with torch.no_grad():
-        for i in range(len(split)):
-            r = backbone.render(split.cameras[i:i + 1])
-            d = r.get("median_depth", r["depth"])[0, ..., 0]
-            a = r["alpha"][0, ..., 0] if "alpha" in r else torch.ones_like(d)
-            out.append(torch.where(a >= alpha_min, d, torch.zeros_like(d)).cpu())
-    return torch.stack(out)
 
 
 class ColorTargetHook:
@@ -159,10 +146,10 @@ class ColorTargetHook:
 
 def _prepare_scene(scene, ckpt: Path, cc: ColorizeConfig):
     """The scene at the colourisation resolution (stage 1's unless ``colorize.downscale/width`` say otherwise)."""
-    from ..train.checkpoint import load_checkpoint
+    from ..runs import saved_config
     from ..train.sampling import resize_scene
 
-    saved = (load_checkpoint(ckpt).get("config") or {}).get("train") or {}
+    saved = saved_config(ckpt).get("train") or {}
     down, width = (cc.downscale, cc.width) if (cc.downscale != 1.0 or cc.width) else \
         (float(saved.get("downscale", 1.0)), saved.get("width"))
     return resize_scene(scene, down, width)
@@ -319,8 +306,9 @@ def _pseudo_quality(split, masks, refs, colors, valid, name: str = "coverage") -
 
 def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     """Colour the stage-1 model; returns ``{"stage2": {...}, "features": <extractor label>|"unused"}``."""
+    from ..runs import load_stage1
     from ..share import cache_root
-    from ..train import LoopConfig, load_stage1, train
+    from ..train import LoopConfig, train
     from ..train.loop import loss_trend_warning
     from .coverage import coverage_metrics
     from .outputs import evaluate_colour, write_colored_products, write_outputs

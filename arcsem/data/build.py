@@ -17,11 +17,11 @@ import torch
 from ..cameras import Cameras
 from ..configs import ReaderOptions
 from ..errors import DataError
+from ..names import view_names
 from ..registry import plain, validate_config
 from ..scene import Scene, Split
 from .headers import check_declared_size, check_image_budget, image_header
 from .io import grey_if_equal_channels, read_array, read_image, read_image_levels, read_mask, resize
-from .names import view_names
 
 __all__ = [
     "ReaderOptions",

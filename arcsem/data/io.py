@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError
+from ..ply import read_points, write_points
 from ..sem.image import Levels, levels, orient, read_tiff, to_levels
-from .ply import read_points, write_points
 
 __all__ = [
     "GREY_TOLERANCE",
@@ -27,7 +27,7 @@ __all__ = [
     "write_ply",
 ]
 
-read_ply, write_ply = read_points, write_points  # the point-cloud names the readers use (arcsem.data.ply)
+read_ply, write_ply = read_points, write_points  # the point-cloud names the readers use (arcsem.ply)
 
 IMAGE_EXTS = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".exr")
 

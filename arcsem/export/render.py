@@ -103,9 +103,9 @@ def _depth_video(frames: dict) -> tuple[list[np.ndarray], list[float]]:
 def render_orbit(run_dir: str | Path, out_dir: str | Path, rc: RenderConfig, progress: bool = True) -> dict:
     """Render the orbit videos of the run ``run_dir`` into ``out_dir``; returns paths and settings."""
     from ..orbit import orbit_cameras
-    from ..train.video import write_video
+    from ..runs import has_colour, load_run
+    from ..video import write_video
     from ..visual import normal_rgb
-    from .runs import has_colour, load_run
 
     out_dir = Path(out_dir)
     t0 = time.perf_counter()

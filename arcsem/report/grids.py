@@ -173,7 +173,7 @@ def _pick(dirs: list[Path], folders: tuple[str, ...], suffix: str) -> tuple[str,
 
 
 def depth_scale(run: Path) -> tuple[float, str] | None:
-    """``(span, unit)`` of the run's depth images (:func:`arcsem.train.evaluate.depth_display`:
+    """``(span, unit)`` of the run's depth images (:func:`arcsem.visual.depth_display`:
     ``0 .. span`` below the nearest ground-truth point): micrometres where the dataset gives a pixel
     size, else scene units; None when the run did not record it."""
     import json

@@ -66,7 +66,7 @@ def _image(scene, name: str, kind: str) -> np.ndarray | None:
         if kind == "depth":
             if split.depths is None:
                 return None
-            from ..train.evaluate import DEPTH_SPAN, depth_display  # the trainer's colouring: tiles compare
+            from ..visual import DEPTH_SPAN, depth_display  # the evaluation renders' colouring: tiles compare
 
             gt = split.depths[i]
             mask = split.masks[i] if split.masks is not None else None

@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data.names import view_names
 from ..errors import DataError
+from ..names import view_names
 from .crop import Crop, detect_crop
 from .image import IMAGE_SUFFIXES, SemImage, read_sem_image
 from .metadata import problem

@@ -1,4 +1,4 @@
-"""Signed distance function of a procedural pollen grain (echinate, tricolpate, oblate).
+"""Signed distance function of a procedural pollen grain (echinate, tricolpate, oblate), and its albedo.
 
 World axes of the synthetic scene: ``z`` is up and is the grain's polar axis; the grain is centred
 at the origin; the optional substrate is the plane ``z = Grain.substrate_z`` below it. The grain
@@ -29,6 +29,7 @@ __all__ = [
     "body_sdf",
     "ellipsoid",
     "furrow_profile",
+    "grain_albedo",
     "grain_sdf",
     "make_grain",
     "nearest_spine",
@@ -92,9 +93,7 @@ class Grain:
         return grain_sdf(self, p)[0]
 
     def albedo(self, p: Tensor) -> Tensor:
-        """RGB albedo ``[N, 3]`` of surface points (:func:`arcsem.synthetic.albedo.grain_albedo`)."""
-        from .albedo import grain_albedo
-
+        """RGB albedo ``[N, 3]`` of surface points (:func:`grain_albedo`)."""
         return grain_albedo(self, p)
 
 
@@ -277,3 +276,36 @@ def grain_sdf(g: Grain, p: Tensor) -> tuple[Tensor, Tensor]:
     d = smooth_min(d_body, d_spine.clamp(max=1e3), g.blend)
     height = float(g.spine_len.max()) + g.spine_r1 + 0.05
     return torch.minimum(d, torch.maximum(others, d_body - height)), d_body
+
+
+# The grain's ground-truth colour (albedo); :mod:`arcsem.synthetic.albedo` turns it into pixels.
+RED = (0.80, 0.10, 0.07)
+YELLOW = (0.96, 0.78, 0.16)
+SPINE = (1.00, 0.93, 0.62)
+OUTLINE = (0.16, 0.07, 0.03)
+FURROW = (0.10, 0.55, 0.58)
+
+
+def _rgb(c, ref: Tensor) -> Tensor:
+    return torch.tensor(c, dtype=ref.dtype, device=ref.device)
+
+
+def _mix(a: Tensor, b: Tensor, w: Tensor) -> Tensor:
+    return a + (b - a) * w[:, None]
+
+
+def grain_albedo(g: Grain, p: Tensor) -> Tensor:
+    """RGB albedo ``[N, 3]`` in [0, 1] of grain surface points ``p [N, 3]``, in an artist's spirit: the body red
+    around the poles (the centre of the top view) fading to yellow towards the equator; spines pale yellow,
+    with a dark outline around each spine base; furrows (colpi) teal."""
+    q = p / g.radii.to(p)
+    polar = (q[:, 2].abs() / q.norm(dim=-1).clamp_min(1e-9)).clamp(0, 1)  # |cos| of the polar angle
+    body = _mix(_rgb(YELLOW, p).expand(len(p), 3), _rgb(RED, p).expand(len(p), 3), _smoothstep(0.25, 0.95, polar))
+    body = _mix(body, _rgb(FURROW, p).expand(len(p), 3), _smoothstep(0.25, 0.6, furrow_profile(g, p)))
+    # spines: how far the point stands out of the body; outline: ring around the nearest base
+    height = body_sdf(g, p)
+    col = _mix(body, _rgb(SPINE, p).expand(len(p), 3), _smoothstep(0.015, 0.05, height))
+    base = g.spine_base.to(p)
+    dist = torch.cdist(p, base).min(-1).values
+    ring = torch.exp(-(((dist - 1.15 * g.spine_r0) / 0.022) ** 2)) * (1 - _smoothstep(0.02, 0.06, height))
+    return _mix(col, _rgb(OUTLINE, p).expand(len(p), 3), 0.85 * ring)

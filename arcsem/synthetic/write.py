@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from PIL import Image
 
-from ..data.ply import write_points
+from ..ply import write_points
 from ..registry import checked
 from .cameras import ViewSpec, arc_cameras, arc_views
 from .render import RenderConfig, ViewImages, render_views

@@ -1,7 +1,7 @@
 """Training: the generic loop (stage 1 and 2), optimisers, samplers, loss sets, checkpoints, evaluation.
 
 ``run_stage1(cfg, scene, run_dir)`` trains and evaluates stage 1; ``train(...)`` is the loop the
-colourisation stage reuses (``stage="color"``, its own losses and ``batch_hook``); ``load_stage1``
+colourisation stage reuses (``stage="color"``, its own losses and ``batch_hook``); :func:`arcsem.runs.load_stage1`
 rebuilds a trained ``(backbone, act)`` from ``run_dir/checkpoints/last.pt``.
 """
 from .checkpoint import load_checkpoint, save_checkpoint
@@ -9,7 +9,7 @@ from .evaluate import evaluate_split
 from .loop import LoopConfig, TrainResult, render_batch, train
 from .losses import LossSet, build_losses
 from .optim import GroupSchedule, OptimConfig
-from .stage1 import EvalConfig, TrainConfig, build_model, evaluate, load_stage1, prepare_scene, run_stage1
+from .stage1 import EvalConfig, TrainConfig, build_model, evaluate, prepare_scene, run_stage1
 
 __all__ = [
     "EvalConfig",
@@ -24,7 +24,6 @@ __all__ = [
     "evaluate",
     "evaluate_split",
     "load_checkpoint",
-    "load_stage1",
     "prepare_scene",
     "render_batch",
     "run_stage1",

@@ -29,9 +29,10 @@ import torch
 from torch import nn
 
 from ..scene import Split
+from ..visual import DEPTH_SPAN, depth_display, to_uint8
 
-__all__ = ["PROTOCOLS", "depth_display", "depth_error", "evaluate_split", "mean_metrics", "render_view",
-           "resolve_protocol", "to_uint8", "write_views_csv"]
+__all__ = ["PROTOCOLS", "depth_error", "evaluate_split", "mean_metrics", "render_view", "resolve_protocol",
+           "write_views_csv"]
 
 METRICS = ("psnr", "ssim", "lpips")
 PROTOCOLS = {
@@ -50,16 +51,6 @@ def resolve_protocol(split: Split, protocol: str) -> str:
     if protocol == "clean" and split.clean is None:
         raise ValueError("evaluation protocol 'clean' needs noise-free images (split.clean)")
     return protocol
-DEPTH_SPAN = 0.5
-"""Depth images span ``0 .. DEPTH_SPAN x length_scale`` below the nearest ground-truth point (half the
-specimen's diameter: the depth of the hemisphere a view sees)."""
-
-
-def to_uint8(img: torch.Tensor) -> np.ndarray:
-    """``[H,W,3]`` in [0,1] -> uint8 array."""
-    return (img.detach().clamp(0, 1).cpu().numpy() * 255.0 + 0.5).astype(np.uint8)
-
-
 def depth_error(pred: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
     """Absolute depth errors ``[P]`` over the valid pixels (``gt > 0``, inside ``mask``) of ``[H,W]`` maps."""
     valid = (gt > 0) & torch.isfinite(pred)
@@ -102,7 +93,7 @@ def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test
         summary: means over views (NaN-aware), pooled-median depth error, ``lpips_weights``.
         errors: the per-view absolute depth errors (for pooling across calls).
     Writes ``out_dir/renders/<split_name>/<name>.png``, ``<name>_depth.png`` and the ground truth
-    ``<name>_gt.png`` / ``<name>_depth_gt.png`` when ``out_dir`` is set (depth: :func:`depth_display`,
+    ``<name>_gt.png`` / ``<name>_depth_gt.png`` when ``out_dir`` is set (depth: :func:`arcsem.visual.depth_display`,
     ``0 .. DEPTH_SPAN x length_scale`` below the nearest ground-truth point, the same pixels in both).
     """
     n = len(split)
@@ -134,24 +125,6 @@ def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test
         summary["depth_mae_pct"] = 100.0 * summary["depth_mae"] / length_scale
     summary["lpips_weights"] = min(weights) if len(weights) == 1 else "; ".join(sorted(weights))
     return rows, summary, errors
-
-
-def depth_display(depth: torch.Tensor, gt: torch.Tensor | None, mask: torch.Tensor | None,
-                  valid: torch.Tensor, span: float) -> tuple[np.ndarray, np.ndarray | None, float]:
-    """Depth ``[H, W]`` (and its ground truth) as images that compare: turbo colour map of the depth
-    below the nearest ground-truth point, ``0 .. span`` scene units (near red, far blue).
-
-    Both images show the same pixels: the ground truth's (``gt > 0`` inside ``mask``) where there is a
-    ground truth, else the render's ``valid`` ones. Returns ``(render, gt or None, lo)`` with ``lo``
-    the depth shown as 0.
-    """
-    from ..visual import depth_rgb
-
-    shown = valid.bool() if gt is None else (gt > 0) & (mask.bool() if mask is not None else True)
-    ref = depth if gt is None else gt
-    lo = float(ref[shown].min()) if bool(shown.any()) else 0.0
-    pred = depth_rgb(depth, shown & torch.isfinite(depth), lo, lo + span)
-    return pred, (None if gt is None else depth_rgb(gt, shown, lo, lo + span)), lo
 
 
 def _write_view(render_dir: Path, split: Split, i: int, out: dict, target: torch.Tensor, depth: torch.Tensor | None,

@@ -4,7 +4,7 @@
 returned dict into ``metrics.json``). It writes into ``run_dir``:
 
 * ``checkpoints/last.pt``: the stage-1 checkpoint (resumed automatically, see ``train.resume``);
-  :func:`load_stage1` rebuilds ``(backbone, act)`` from it for the colourisation stage;
+  :func:`arcsem.runs.load_stage1` rebuilds ``(backbone, act)`` from it for the colourisation stage;
 * ``model.ply`` (Gaussians) / ``model.npz`` (grids): ``backbone.export``;
 * ``mesh.ply`` / ``mesh.glb`` (TSDF fusion, ``mesh`` config) and ``viewer/`` (Gaussians: the folder
   layout 3DGS viewers load): :func:`arcsem.train.products.write_products`;
@@ -22,29 +22,19 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from omegaconf import OmegaConf
 
 from ..configs import EvalConfig, TrainConfig
-from ..errors import TrainingError
 from ..metrics import metric_convention
 from ..plugins import BACKBONES
 from ..registry import plain, validate_config
 from ..scene import Scene
-from .checkpoint import load_checkpoint, load_module_state
-from .evaluate import (
-    DEPTH_SPAN,
-    PROTOCOLS,
-    evaluate_split,
-    mean_metrics,
-    resolve_protocol,
-    to_uint8,
-    write_views_csv,
-)
+from ..video import write_video
+from ..visual import DEPTH_SPAN, to_uint8
+from .evaluate import PROTOCOLS, evaluate_split, mean_metrics, resolve_protocol, write_views_csv
 from .loop import LoopConfig, loss_trend_warning, train
 from .losses import build_losses
 from .products import write_products
 from .sampling import resize_scene
-from .video import write_video
 
 __all__ = [
     "NON_SEMANTIC_KEYS",
@@ -54,7 +44,6 @@ __all__ = [
     "backbone_config",
     "build_model",
     "evaluate",
-    "load_stage1",
     "prepare_scene",
     "run_stage1",
     "stage1_config",
@@ -247,24 +236,3 @@ def _write_history(path: Path, history: list[dict]) -> None:
     if history:
         path.parent.mkdir(parents=True, exist_ok=True)
         write_views_csv(path, history)
-
-
-def load_stage1(path: str | Path, scene: Scene, cfg: Any = None):
-    """Rebuild ``(backbone, act)`` from a stage-1 checkpoint (``run_dir/checkpoints/last.pt``).
-
-    The backbone and ACT are built from the config stored in the checkpoint (``cfg`` is used only for
-    ``device`` and for checkpoints without a stored config); ``scene`` provides the training cameras.
-    Returns the models in eval mode; ``act`` is None when stage 1 ran without ACT.
-    """
-    state = load_checkpoint(path)
-    saved = state.get("config") or {}
-    if not saved.get("backbone") and cfg is None:
-        raise TrainingError(f"{path}: checkpoint has no stored config; pass the stage-1 cfg")
-    base = OmegaConf.create({**(saved or stage1_config(cfg)), "device": str((cfg or {}).get("device", "cpu"))})
-    tc = train_config(base)
-    backbone, act = build_model(base, prepare_scene(scene, tc), tc)
-    load_module_state(backbone, state["model"])
-    if act is not None and state.get("act") is not None:
-        load_module_state(act, state["act"])
-    backbone.eval()
-    return backbone, act

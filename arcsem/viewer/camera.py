@@ -42,7 +42,7 @@ def wxyz_to_rotmat(q) -> np.ndarray:
 
 def rotmat_to_wxyz(R: np.ndarray) -> np.ndarray:
     """Rotation matrix ``[3, 3]`` -> unit quaternion ``(w, x, y, z)`` with ``w >= 0``."""
-    from ..train.video import rotmat_to_quat
+    from ..rotations import rotmat_to_quat
 
     return rotmat_to_quat(torch.as_tensor(R, dtype=torch.float64)[None])[0].numpy()
 

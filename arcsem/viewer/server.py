@@ -52,8 +52,8 @@ class Viewer:
     """The server: ``Viewer(run_dir).start()``; :attr:`sessions` holds one :class:`Session` per client."""
 
     def __init__(self, run_dir: str | Path, cfg: ViewerConfig | None = None):
-        from ..export.runs import has_colour, load_run
         from ..orbit import orbit_frame
+        from ..runs import has_colour, load_run
 
         self.cfg = cfg or ViewerConfig()
         grey = load_run(run_dir, colored=False)

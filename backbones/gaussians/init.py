@@ -15,7 +15,7 @@ import torch
 from scipy.spatial import cKDTree
 from torch import Tensor
 
-from .sh import num_sh_coeffs, rgb_to_sh
+from ..sh import num_sh_coeffs, rgb_to_sh
 
 __all__ = ["init_gaussians", "knn_scales", "random_points"]
 

@@ -33,8 +33,8 @@ from torch import Tensor
 
 from arcsem.cameras import Cameras
 
+from ..sh import C0
 from .ply import write_ply
-from .sh import C0
 
 __all__ = ["THIN_RATIO", "bake_act", "camera_entries", "three_scales", "write_viewer_folder"]
 

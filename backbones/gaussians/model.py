@@ -26,7 +26,7 @@ from torch import Tensor, nn
 from arcsem.cameras import Cameras
 from arcsem.rotations import quat_to_rotmat
 
-from .sh import eval_sh, num_sh_coeffs
+from ..sh import eval_sh, num_sh_coeffs
 
 if TYPE_CHECKING:
     from arcsem.act import ACT

@@ -19,8 +19,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from arcsem.data.ply import read_vertices, write_vertices
 from arcsem.errors import DataError
+from arcsem.ply import read_vertices, write_vertices
 
 __all__ = ["ply_properties", "read_ply", "write_ply"]
 

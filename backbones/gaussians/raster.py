@@ -43,6 +43,7 @@ __all__ = [
     "composite_kept",
     "composited_mask",
     "effective_cutoff2",
+    "raster_impl",
     "rasterize",
     "screen_position_leaf",
     "tile_rects",
@@ -74,6 +75,16 @@ class Binning:
     tile: int
     TX: int
     TY: int
+
+
+def raster_impl(impl: str) -> str:
+    """The path ``impl`` takes (2DGS and 3DGS alike): ``torch`` stays here; ``cpp`` / ``auto`` go through the
+    fused-kernel loader (:func:`arcsem.backbones.gaussians.fused.resolve_impl`, which validates)."""
+    if impl == "torch":
+        return impl
+    from arcsem.backbones.gaussians.fused import resolve_impl
+
+    return resolve_impl(impl)
 
 
 def effective_cutoff2(opacities: Tensor) -> Tensor:

@@ -10,38 +10,29 @@ is a definition rather than maths to check.
 from __future__ import annotations
 
 import torch
+from arcsem.backbones.gaussians.dense import rotate_by_quat as _rotate_by_quat
+from arcsem.backbones.gaussians.dense import tile_mask
 from arcsem.backbones.gaussians.raster import MAX_ALPHA, MIN_ALPHA, MIN_T
 from arcsem.backbones.gs2d.render import LOWPASS_SIGMA, distortion_depth, footprint_2dgs, splat_homographies
 from torch import Tensor
 
 from arcsem.cameras import Cameras
+from arcsem.lazy import moved_getattr
 
-__all__ = ["render_2dgs_dense", "rotate_by_quat"]
+__all__ = ["render_2dgs_dense"]
 
-
-def rotate_by_quat(quats: Tensor, v: Tensor) -> Tensor:
-    """Rotate ``v [3]`` by each unit quaternion ``[N, 4]`` (w, x, y, z): ``q v q*`` -> ``[N, 3]``."""
-    q = quats / quats.norm(dim=-1, keepdim=True)
-    w, r = q[:, :1], q[:, 1:]
-    v = v.expand_as(r)
-    t = 2 * torch.cross(r, v, dim=-1)
-    return v + w * t + torch.cross(r, t, dim=-1)
-
-
-def _tile_mask(rects: Tensor, W: int, H: int, tile: int) -> Tensor:
-    """``[N, 4]`` tile rectangles -> ``[H*W, N]`` bool: the pixel's tile is inside the splat's rectangle."""
-    ys, xs = torch.meshgrid(torch.arange(H), torch.arange(W), indexing="ij")
-    tx, ty = (xs.reshape(-1, 1) // tile), (ys.reshape(-1, 1) // tile)
-    return (tx >= rects[:, 0]) & (tx < rects[:, 1]) & (ty >= rects[:, 2]) & (ty < rects[:, 3])
+# rotate_by_quat moved to arcsem.backbones.gaussians.dense (gs3d's reference uses it too); imported above as
+# _rotate_by_quat so that the old public path goes through moved_getattr and warns
+__getattr__ = moved_getattr(__name__, {"rotate_by_quat": "arcsem.backbones.gaussians.dense"})
 
 
 def _one_camera(means, quats, scales, opac, colors, cam: Cameras, rects, radius, tile, dist_depth=None,
                 lowpass_sigma=LOWPASS_SIGMA):
     N = means.shape[0]
     eye = torch.eye(3, dtype=means.dtype)
-    tu = rotate_by_quat(quats, eye[0]) * scales[:, :1]
-    tv = rotate_by_quat(quats, eye[1]) * scales[:, 1:]
-    n = rotate_by_quat(quats, eye[2])
+    tu = _rotate_by_quat(quats, eye[0]) * scales[:, :1]
+    tv = _rotate_by_quat(quats, eye[1]) * scales[:, 1:]
+    n = _rotate_by_quat(quats, eye[2])
     toward = cam.forward[0] if cam.is_ortho else means - cam.centers[0]
     n = torch.where((n * toward).sum(-1, keepdim=True) > 0, -n, n)
     o, d = cam.rays()
@@ -57,7 +48,7 @@ def _one_camera(means, quats, scales, opac, colors, cam: Cameras, rects, radius,
     z = torch.where(rho3d <= rho2d, uvs[..., 2], cz.expand(P, N))
     c0, c1, c2 = dist_depth or distortion_depth("ndc")
     m = c0 + c1 * z + c2 / z
-    mask = _tile_mask(rects, cam.width, cam.height, tile) & (radius > 0)
+    mask = tile_mask(rects, cam.width, cam.height, tile) & (radius > 0)
     return _composite_loop(alpha, mask, z, m, colors, n, torch.argsort(cz[0], stable=True))
 
 

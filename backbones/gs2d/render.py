@@ -14,6 +14,7 @@ from arcsem.backbones.gaussians.raster import (
     bin_tiles,
     composite_kept,
     effective_cutoff2,
+    raster_impl,
     rasterize,
     screen_position_leaf,
     tile_rects,
@@ -196,7 +197,7 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
         means2d ``[C, N, 2]``: projected centres, a leaf whose ``.grad`` after backward is the gradient
         w.r.t. the splats' screen positions (for densification).
     """
-    impl = _resolve(impl)
+    impl = raster_impl(impl)
     C, N, Hh, W = len(cams), means.shape[0], cams.height, cams.width
     cams = cams.to(dtype=means.dtype)
     mcoef = tuple(float(c) for c in (dist_depth or distortion_depth("ndc")))
@@ -249,15 +250,6 @@ def _render_2dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
         "rgb": rgb, "alpha": alpha, "depth": depth, "median_depth": med, "normal": normal, "distortion": dist,
         "radii": lists.radii.view(C, N), "visible": lists.visible.view(C, N), "means2d": leaf,
     }
-
-
-def _resolve(impl: str) -> str:
-    """``torch`` stays here; ``cpp`` / ``auto`` go through the fused-kernel loader (which validates)."""
-    if impl == "torch":
-        return impl
-    from arcsem.backbones.gaussians.fused import resolve_impl
-
-    return resolve_impl(impl)
 
 
 def _outputs(out: Tensor, background: Tensor | None, radius: Tensor, rects: Tensor) -> dict[str, Tensor]:

@@ -8,8 +8,8 @@ projection is taken by autograd through ``Cameras.project`` (kept differentiable
 from __future__ import annotations
 
 import torch
+from arcsem.backbones.gaussians.dense import rotate_by_quat, tile_mask
 from arcsem.backbones.gaussians.raster import MAX_ALPHA, MIN_ALPHA, MIN_T
-from arcsem.backbones.gs2d.reference import _tile_mask, rotate_by_quat
 from arcsem.backbones.gs3d.render import COV2D_BLUR, footprint_3dgs, project_gaussians
 from torch import Tensor
 
@@ -53,7 +53,7 @@ def _one_camera_grad(means, quats, scales, opac, colors, cam: Cameras, rects, ra
     d = pix - c2d  # [P, N, 2]
     power = -0.5 * torch.einsum("pni,nij,pnj->pn", d, conic, d)
     alpha = torch.where(power > 0, torch.zeros_like(power), opac * torch.exp(power)).clamp(max=MAX_ALPHA)
-    mask = _tile_mask(rects, cam.width, cam.height, tile) & (radius > 0)
+    mask = tile_mask(rects, cam.width, cam.height, tile) & (radius > 0)
     P = pix.shape[0]
     T, done = alpha.new_ones(P), torch.zeros(P, dtype=torch.bool)
     rgb, acc, wz = alpha.new_zeros(P, 3), alpha.new_zeros(P), alpha.new_zeros(P)

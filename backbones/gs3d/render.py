@@ -13,12 +13,12 @@ from arcsem.backbones.gaussians.raster import (
     bin_tiles,
     composite_kept,
     effective_cutoff2,
+    raster_impl,
     rasterize,
     screen_position_leaf,
     tile_rects,
 )
 from arcsem.backbones.gaussians.raster_camera import pixel_projection
-from arcsem.backbones.gs2d.render import _resolve
 from torch import Tensor
 from torch.profiler import record_function as region
 
@@ -107,7 +107,7 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
         radii ``[C, N]`` long, visible ``[C, N]`` bool, means2d ``[C, N, 2]`` (a leaf whose ``.grad`` after
         backward is the gradient w.r.t. the screen positions, as in 2DGS).
     """
-    impl = _resolve(impl)
+    impl = raster_impl(impl)
     C, N, H, W = len(cams), means.shape[0], cams.height, cams.width
     cams = cams.to(dtype=means.dtype)
     if impl == "cpp":

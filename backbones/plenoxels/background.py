@@ -28,7 +28,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..gaussians.sh import sh_basis
+from ..sh import sh_basis
 
 __all__ = ["Background", "ConstantBackground", "MSIBackground", "PlaneBackground", "build_background", "plane_normal"]
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ..gaussians.sh import sh_basis
+from ..sh import sh_basis
 from .grid import cell_occupancy, corners, occupied_coords, trilinear, voxel_size
 
 __all__ = ["GridData", "box_scale", "composite", "distortion", "ray_aabb", "render_grid", "sample_segments"]

@@ -25,7 +25,8 @@ from omegaconf import OmegaConf
 from arcsem.act import ACT
 from arcsem.data import load_scene
 from arcsem.metrics import psnr
-from arcsem.train.stage1 import load_stage1, prepare_scene, train_config
+from arcsem.runs import load_stage1
+from arcsem.train.stage1 import prepare_scene, train_config
 
 
 def neighbour_act(act: ACT, train_dirs: torch.Tensor, d: torch.Tensor, k: int) -> ACT:

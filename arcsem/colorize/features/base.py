@@ -30,8 +30,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 __all__ = ["DEFAULT_WITHOUT_IMAGENET", "FEATURES", "ColourSpace", "Extractor", "SceneContext", "announce_features",
-           "build_extractor", "grey_channel", "imagenet_vgg_available", "no_grad_features", "resolve_features",
-           "space_label", "tcm_space"]
+           "grey_channel", "imagenet_vgg_available", "no_grad_features", "resolve_features", "space_label", "tcm_space"]
 
 log = logging.getLogger(__name__)
 
@@ -111,7 +110,7 @@ def resolve_features(name: str) -> str:
 
 def announce_features(name: str) -> str:
     """:func:`resolve_features`, logging what ``auto`` chose and why. The job's config check calls it (once per
-    job, so each job's log says what it used); :func:`build_extractor` resolves silently."""
+    job, so each job's log says what it used); :func:`.build.build_extractor` resolves silently."""
     chosen = resolve_features(name)
     if name == "auto":
         if imagenet_vgg_available("vgg16"):
@@ -134,30 +133,6 @@ def tcm_space(choice: str, extractor: Extractor):
     if choice == "features" or (choice == "auto" and extractor.differentiable):
         return extractor
     return ColourSpace(extractor.strides)
-
-
-def build_extractor(name: str, ctx: SceneContext | None = None) -> Extractor:
-    """The extractor ``name`` (``auto`` resolved); ``learned`` is trained on ``ctx`` (or read from its cache)."""
-    from ...errors import ConfigError
-
-    name = resolve_features(name)
-    if name in ("vgg16", "vgg19"):
-        import copy
-
-        from ..vgg import get_vgg
-
-        return copy.deepcopy(get_vgg(name))  # the run's own, free to move to its device; the weights load once
-    if name == "daisy":
-        from .daisy import DaisyFeatures
-
-        return DaisyFeatures()
-    if name == "learned":
-        from .learned import learned_extractor
-
-        if ctx is None:
-            raise ConfigError("colorize.features=learned needs the scene (grey views, stage-1 depth, cameras)")
-        return learned_extractor(ctx)
-    raise ConfigError(f"colorize.features: unknown extractor '{name}'; available: {', '.join(FEATURES)}")
 
 
 def grey_channel(images: Tensor) -> Tensor:

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataError
-from ..files import atomic_open
+from .errors import DataError
+from .files import atomic_open
 
 __all__ = ["read_points", "read_vertices", "write_points", "write_vertices"]
 

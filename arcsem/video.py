@@ -15,8 +15,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..cameras import Cameras
-from ..rotations import quat_to_rotmat, rotmat_to_quat
+from .cameras import Cameras
+from .rotations import quat_to_rotmat, rotmat_to_quat
 
 __all__ = ["arc_path", "slerp", "write_video"]
 

@@ -1,5 +1,10 @@
 """Open a finished run folder again: its config, its dataset, its grey or coloured model.
 
+The one module that loads what runs left (stage 2, ``arcsem-export``, ``stage=render`` and ``arcsem-view`` use
+it): :func:`load_stage1` rebuilds a stage-1 model from its checkpoint, :func:`saved_config` reads the config a
+checkpoint was trained with, :func:`find_checkpoint` / :func:`has_colour` find a run's models, :func:`load_run`
+opens a run folder.
+
 A run folder (what ``arcsem`` writes) holds ``config.yaml`` (the resolved config), the stage-1
 checkpoint ``checkpoints/last.pt`` (or ``stage1/checkpoints/last.pt``, a link to a shared stage-1
 model) and, after stage 2, ``colorize/checkpoints/last.pt`` (the coloured model: the same backbone
@@ -11,9 +16,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..errors import DataError
+from .errors import DataError, TrainingError
 
-__all__ = ["RunModel", "find_checkpoint", "has_colour", "load_run", "read_run_config"]
+__all__ = ["RunModel", "find_checkpoint", "has_colour", "load_run", "load_stage1", "read_run_config", "saved_config"]
 
 STAGE1 = ("checkpoints/last.pt", "stage1/checkpoints/last.pt")
 STAGE2 = "colorize/checkpoints/last.pt"
@@ -67,9 +72,9 @@ def load_run(run_dir: str | Path, colored: bool | None = None, device: str = "cp
     the run has it (``None``), with the run's dataset at the training resolution."""
     from omegaconf import OmegaConf
 
-    from ..data import load_scene
-    from ..train.checkpoint import load_checkpoint, load_module_state
-    from ..train.stage1 import load_stage1, prepare_scene, train_config
+    from .data import load_scene
+    from .train.checkpoint import load_checkpoint, load_module_state
+    from .train.stage1 import prepare_scene, train_config
 
     run_dir = Path(run_dir)
     cfg = read_run_config(run_dir)
@@ -88,3 +93,36 @@ def load_run(run_dir: str | Path, colored: bool | None = None, device: str = "cp
         steps = int(s2.get("step", 0))
         backbone.eval()
     return RunModel(run_dir, cfg, scene, backbone, bool(colored), steps)
+
+
+def saved_config(checkpoint: str | Path) -> dict:
+    """The config stored in a checkpoint (what it was trained with; ``{}`` when it stores none)."""
+    from .train.checkpoint import load_checkpoint
+
+    return load_checkpoint(checkpoint).get("config") or {}
+
+
+def load_stage1(path: str | Path, scene: Any, cfg: Any = None):
+    """Rebuild ``(backbone, act)`` from a stage-1 checkpoint (``run_dir/checkpoints/last.pt``).
+
+    The backbone and ACT are built from the config stored in the checkpoint (``cfg`` is used only for
+    ``device`` and for checkpoints without a stored config); ``scene`` provides the training cameras.
+    Returns the models in eval mode; ``act`` is None when stage 1 ran without ACT.
+    """
+    from omegaconf import OmegaConf
+
+    from .train.checkpoint import load_checkpoint, load_module_state
+    from .train.stage1 import build_model, prepare_scene, stage1_config, train_config
+
+    state = load_checkpoint(path)
+    saved = state.get("config") or {}
+    if not saved.get("backbone") and cfg is None:
+        raise TrainingError(f"{path}: checkpoint has no stored config; pass the stage-1 cfg")
+    base = OmegaConf.create({**(saved or stage1_config(cfg)), "device": str((cfg or {}).get("device", "cpu"))})
+    tc = train_config(base)
+    backbone, act = build_model(base, prepare_scene(scene, tc), tc)
+    load_module_state(backbone, state["model"])
+    if act is not None and state.get("act") is not None:
+        load_module_state(act, state["act"])
+    backbone.eval()
+    return backbone, act

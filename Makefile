@@ -9,7 +9,7 @@ CPP     := $(wildcard backbones/gaussians/cpp/*.cpp backbones/gaussians/cpp/*.h 
 JOBS    ?= 2
 export PIP_DISABLE_PIP_VERSION_CHECK=1
 
-.PHONY: setup demo test clean-venv browser slurm
+.PHONY: setup demo test lint clean-venv browser slurm
 
 setup: $(EXT)
 
@@ -46,7 +46,11 @@ slurm:
 	  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $(SLURM_PKGS) >/dev/null; } || \
 	  echo "slurm not installed: the slurm tests will be skipped (apt-get install $(SLURM_PKGS))"
 
-test: $(EXT) browser slurm
+# ruff (pinned in constraints.txt, part of the test extra) checks the whole tree before any test runs
+lint: $(STAMP)
+	$(BIN)/ruff check .
+
+test: lint $(EXT) browser slurm
 	$(BIN)/python -m pytest -q -rs -n $(JOBS) --dist loadgroup
 
 clean-venv:

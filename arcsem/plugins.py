@@ -21,12 +21,9 @@ from torch import Tensor, nn
 
 from .cameras import Cameras
 from .configs import GroupSchedule
-from .registry import Registry
+from .registry import BACKBONES, LOSSES  # made without torch: arcsem.schemas reads Configs at start-up
 
 __all__ = ["BACKBONES", "LOSSES", "Backbone", "Batch", "ColorTargets", "Loss", "RenderOutput"]
-
-BACKBONES = Registry("backbone", "arcsem.backbones")
-LOSSES = Registry("loss", "arcsem.losses")
 
 RenderOutput = dict[str, Tensor]
 

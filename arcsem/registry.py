@@ -1,16 +1,27 @@
-"""Plugin registries: a decorator to register, entry points to discover, dataclasses to validate.
+"""Plugin registries: entry points to discover, a decorator for in-memory classes, dataclasses to validate.
 
-In-tree and third-party plugins take the same path: a module declared under an entry-point group
-(``arcsem.backbones`` / ``arcsem.losses``) registers its class with ``@REGISTRY.register(name)``
-when imported. ``get(name)`` looks in memory first, then loads only the entry point of that name.
+In-tree and third-party plugins take the same path: an entry point of the registry's group names the plugin.
+
+* **Backbones** (group ``arcsem.backbones``): one entry point per backbone, naming a module that defines
+  ``CONFIG``, the backbone's ``Config`` dataclass (importable without torch: :mod:`arcsem.schemas` stores every
+  installed backbone's ``CONFIG`` as a Hydra schema at start-up) and ``BACKBONE``, the class (whose ``Config`` is
+  ``CONFIG``; read only when the backbone is used, so make it a lazy attribute: :func:`arcsem.lazy.lazy_getattr`).
+  That entry point is the backbone's only registration; its name is the backbone's name. Until arcsem 0.3 the old
+  way still loads with a :class:`PluginDeprecationWarning`: a module that runs ``@BACKBONES.register(name)`` when
+  imported, with its Config in the entry-point group ``arcsem.backbone_configs``.
+* **Losses** (group ``arcsem.losses``): the entry point names a module that registers its classes with
+  ``@LOSSES.register(name)`` when imported (one module may hold several losses).
+
+``get(name)`` looks in memory first, then loads only the entry point of that name. ``register(name)`` also puts a
+class in memory directly (test doubles, scripts).
 
 Example::
 
-    @BACKBONES.register("my_backbone")
-    class MyBackbone(Backbone):
-        @dataclass
-        class Config:
-            lr: float = 1e-3
+    # my_plugin/__init__.py, declared as  [project.entry-points."arcsem.backbones"] my_backbone = "my_plugin"
+    from arcsem.lazy import lazy_getattr
+
+    __getattr__ = lazy_getattr(__name__, {"CONFIG": "config:MyConfig", "BACKBONE": "backbone:MyBackbone"})
+
     model = BACKBONES.build({"name": "my_backbone", "lr": 0.1}, scene=scene)
 """
 from __future__ import annotations
@@ -18,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import typing
+import warnings
 from collections.abc import Callable
 from importlib import metadata
 from typing import Any
@@ -27,7 +39,8 @@ from omegaconf.errors import OmegaConfBaseException
 
 from .errors import ConfigError, PluginError
 
-__all__ = ["Registry", "check_fields", "checked", "plain", "validate_config"]
+__all__ = ["BACKBONES", "CONFIG_ATTR", "LEGACY_UNTIL", "LOSSES", "PluginDeprecationWarning", "Registry", "check_fields",
+           "checked", "plain", "validate_config"]
 
 
 def plain(cfg: Any) -> Any:
@@ -43,52 +56,136 @@ def plain(cfg: Any) -> Any:
     return cfg
 
 
-class Registry:
-    """Name -> class map for one plugin kind, backed by an entry-point group."""
+LEGACY_UNTIL = "0.3"  # the release that stops reading backbones registered the old way
+CONFIG_ATTR = "CONFIG"  # the module attribute that holds a backbone's Config dataclass
 
-    def __init__(self, kind: str, group: str):
+
+class PluginDeprecationWarning(DeprecationWarning):
+    """A plugin registered the old way, read until arcsem :data:`LEGACY_UNTIL` (the arcsem CLI shows these)."""
+
+
+class Registry:
+    """Name -> class map for one plugin kind, backed by an entry-point group.
+
+    ``class_attr``: entry points name modules that define the class as ``<class_attr>`` and its Config dataclass as
+    ``CONFIG`` (backbones; see the module docstring); None: modules register with :meth:`register` when imported.
+    ``legacy_config_group``: the old group of ``name = "module:ConfigClass"`` entry points, still read (warned)."""
+
+    def __init__(self, kind: str, group: str, *, class_attr: str | None = None,
+                 legacy_config_group: str | None = None):
         self.kind, self.group = kind, group
+        self.class_attr, self.legacy_config_group = class_attr, legacy_config_group
         self._classes: dict[str, type] = {}
         self._origin: dict[str, str] = {}
 
     def register(self, name: str) -> Callable[[type], type]:
-        """Class decorator; a second, different class under the same name raises."""
+        """Class decorator putting a class in memory under ``name``; a second, different class under the same name
+        raises. (Backbones declared as entry points do not use it: their entry point registers them.)"""
 
         def deco(cls: type) -> type:
-            old = self._classes.get(name)
-            # the same class defined again (a module re-executed) is allowed; any other class is not
-            if old is not None and (old.__module__, old.__qualname__) != (cls.__module__, cls.__qualname__):
-                raise PluginError(f"{self.kind} '{name}' registered twice: {old} and {cls}")
-            cls.name = name
-            self._classes[name] = cls
+            self._add(name, cls)
             self._origin.setdefault(name, f"{cls.__module__} (imported)")
             return cls
 
         return deco
 
-    def _entry_points(self) -> dict[str, metadata.EntryPoint]:
-        return {ep.name: ep for ep in metadata.entry_points(group=self.group)}
+    def _add(self, name: str, cls: type) -> None:
+        old = self._classes.get(name)
+        # the same class defined again (a module re-executed) is allowed; any other class is not
+        if old is not None and (old.__module__, old.__qualname__) != (cls.__module__, cls.__qualname__):
+            raise PluginError(f"{self.kind} '{name}' registered twice: {old} and {cls}")
+        cls.name = name
+        self._classes[name] = cls
+
+    def _entry_points(self, group: str | None = None) -> dict[str, metadata.EntryPoint]:
+        return {ep.name: ep for ep in metadata.entry_points(group=group or self.group)}
 
     def names(self) -> list[str]:
         """Every known name: registered in memory or declared as an entry point."""
         return sorted(set(self._classes) | set(self._entry_points()))
 
+    def declared(self) -> list[str]:
+        """The names declared as entry points (the group's and, until :data:`LEGACY_UNTIL`, the old config group's)."""
+        legacy = self._entry_points(self.legacy_config_group) if self.legacy_config_group else {}
+        return sorted(set(self._entry_points()) | set(legacy))
+
+    def _entry_point(self, name: str) -> metadata.EntryPoint:
+        ep = self._entry_points().get(name)
+        if ep is None:
+            raise PluginError(f"unknown {self.kind} '{name}'; available: {', '.join(self.names()) or 'none'}")
+        return ep
+
     def get(self, name: str) -> type:
         """The class registered as ``name``; loads only that entry point if needed."""
         if name in self._classes:
             return self._classes[name]
-        ep = self._entry_points().get(name)
-        if ep is None:
-            raise PluginError(f"unknown {self.kind} '{name}'; available: {', '.join(self.names()) or 'none'}")
-        try:
-            ep.load()
-        except Exception as exc:  # a broken plugin must not hide behind a vague message
-            raise PluginError(f"{self.kind} '{name}' ({ep.value}) failed to load: {exc!r}") from exc
+        ep = self._entry_point(name)
+        module = self._module(ep)
         if name not in self._classes:
-            raise PluginError(f"entry point {self.group}:{name} = {ep.value} did not register '{name}'")
+            if self.class_attr is None:
+                raise PluginError(f"entry point {self.group}:{name} = {ep.value} did not register '{name}'")
+            self._add(name, self._declared_class(ep, module))
         dist = getattr(ep, "dist", None)
         self._origin[name] = f"{ep.value} [{dist.name if dist else 'entry point'}]"
         return self._classes[name]
+
+    def config(self, name: str) -> type:
+        """The Config dataclass of plugin ``name``, read without importing its class where the plugin allows it
+        (``CONFIG`` of its module; a Config declared in the old group warns)."""
+        if name in self._classes:
+            return self._classes[name].Config
+        legacy = self._entry_points(self.legacy_config_group).get(name) if self.legacy_config_group else None
+        if legacy is not None:
+            warnings.warn(f"{self._label(legacy)} declares its Config in the entry-point group "
+                          f"{self.legacy_config_group}, read only until arcsem {LEGACY_UNTIL}: define {CONFIG_ATTR} "
+                          f"(and {self.class_attr}) in the module of its {self.group} entry point and remove the "
+                          f"{self.legacy_config_group} entry point", PluginDeprecationWarning, stacklevel=2)
+            return legacy.load()
+        ep = self._entry_point(name)
+        module = self._module(ep)
+        if self.class_attr is None or name in self._classes:  # a module that registers its class when imported
+            return self.get(name).Config
+        try:
+            config = getattr(module, CONFIG_ATTR, None)
+        except Exception as exc:  # a lazy CONFIG whose module does not import
+            raise PluginError(f"{self.kind} '{name}' ({ep.value}) failed to load: {exc!r}") from exc
+        return config if config is not None else self.get(name).Config  # get names what is missing
+
+    def _label(self, ep: metadata.EntryPoint) -> str:
+        dist = getattr(ep, "dist", None)
+        return f"{self.kind} plugin '{ep.name}' ({ep.value}{f' [{dist.name}]' if dist else ''})"
+
+    def _module(self, ep: metadata.EntryPoint) -> Any:
+        """Import the module of ``ep`` (a failure names the plugin); warn if it registered itself the old way."""
+        try:
+            module = ep.load()
+        except Exception as exc:  # a broken plugin must not hide behind a vague message
+            raise PluginError(f"{self.kind} '{ep.name}' ({ep.value}) failed to load: {exc!r}") from exc
+        if self.class_attr and ep.name in self._classes:  # its import ran @register(name)
+            warnings.warn(f"{self._label(ep)} registers its class with @register when imported, read only until "
+                          f"arcsem {LEGACY_UNTIL}: let the module of its {self.group} entry point define "
+                          f"{CONFIG_ATTR} (the Config dataclass) and {self.class_attr} (the class, e.g. lazily with "
+                          f"arcsem.lazy.lazy_getattr) and remove the decorator", PluginDeprecationWarning,
+                          stacklevel=3)
+        return module
+
+    def _declared_class(self, ep: metadata.EntryPoint, module: Any) -> type:
+        """The module's ``<class_attr>``, checked: a ``CONFIG`` dataclass beside it, and its ``Config`` is ``CONFIG``."""
+        try:
+            cls, config = getattr(module, self.class_attr, None), getattr(module, CONFIG_ATTR, None)
+        except Exception as exc:  # the lazy import of the class failed
+            raise PluginError(f"{self.kind} '{ep.name}' ({ep.value}) failed to load: {exc!r}") from exc
+        where = f"{self.kind} '{ep.name}' ({ep.value})"
+        if cls is None and config is None:
+            raise PluginError(f"{where}: the module defines neither {self.class_attr} (the class) nor "
+                              f"{CONFIG_ATTR} (its Config dataclass)")
+        if config is None or not dataclasses.is_dataclass(config):
+            raise PluginError(f"{where}: the module has no Config: define {CONFIG_ATTR} = <its Config dataclass>")
+        if cls is None:
+            raise PluginError(f"{where}: the module has no {self.class_attr} (the class)")
+        if getattr(cls, "Config", None) is not config:
+            raise PluginError(f"{where}: {cls.__name__}.Config is not {CONFIG_ATTR} ({config.__name__})")
+        return cls
 
     def origin(self, name: str) -> str:
         self.get(name)
@@ -102,6 +199,11 @@ class Registry:
         name = cfg.pop("name")
         cls = self.get(name)
         return cls(validate_config(cls.Config, cfg, where=f"{self.kind} '{name}'"), **runtime)
+
+
+BACKBONES = Registry("backbone", "arcsem.backbones", class_attr="BACKBONE",
+                     legacy_config_group="arcsem.backbone_configs")
+LOSSES = Registry("loss", "arcsem.losses")
 
 
 def checked(default: Any = dataclasses.MISSING, *, default_factory: Any = dataclasses.MISSING,

@@ -1,7 +1,8 @@
 """Hydra set-up at start-up: config schemas in the ConfigStore, and third-party config folders on the search path.
 
-* **Schemas.** The core's dataclasses (:mod:`arcsem.configs`) and every backbone's ``Config`` (entry-point group
-  ``arcsem.backbone_configs``: light modules, no torch) are stored as ``<group>/<name>_schema``; each YAML of
+* **Schemas.** The core's dataclasses (:mod:`arcsem.configs`) and every installed backbone's ``Config`` (the
+  ``CONFIG`` of the module its ``arcsem.backbones`` entry point names: light, no torch; see :mod:`arcsem.registry`)
+  are stored as ``<group>/<name>_schema``; each YAML of
   the group lists its schema first in its defaults (``defaults: [gs2d_schema, _self_]``). So
   ``backbone.sh_degree=2`` works without ``+``, a mistyped key fails when the config is composed, and
   ``--cfg job`` and the run's ``config.yaml`` show every effective key.
@@ -22,15 +23,15 @@
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from importlib import metadata
 
 from hydra.core.config_search_path import ConfigSearchPath
 from hydra.plugins.search_path_plugin import SearchPathPlugin
 
-__all__ = ["CONFIG_GROUP", "CONF_GROUP", "SLURM_CPUS", "EntryPointSearchPath", "backbone_schema", "of_steps", "setup",
+__all__ = ["CONF_GROUP", "SLURM_CPUS", "EntryPointSearchPath", "backbone_schema", "of_steps", "setup",
            "slurm_cpus", "slurm_gpus"]
 
-CONFIG_GROUP = "arcsem.backbone_configs"  # backbone name -> "module:ConfigClass"
 CONF_GROUP = "arcsem.conf"  # plugin name -> "package.conf" (a package of config groups)
 SLURM_CPUS = 4  # cores a SLURM job asks for when ``threads`` is null
 _done = False
@@ -73,6 +74,21 @@ def slurm_gpus(device: str | None) -> int | None:
     return None
 
 
+def _store_backbone_schemas(cs) -> None:
+    """Store every installed backbone's Config as ``backbone/<name>_schema`` (a plugin registered the old way is
+    read too, and its :class:`~arcsem.registry.PluginDeprecationWarning` shown)."""
+    from .registry import BACKBONES, PluginDeprecationWarning
+
+    warnings.filterwarnings("default", category=PluginDeprecationWarning)  # hidden by default, as DeprecationWarning
+    for name in BACKBONES.declared():
+        try:
+            config = BACKBONES.config(name)
+        except Exception as exc:  # noqa: BLE001 (a broken plugin must not stop the others; named when used)
+            warnings.warn(f"arcsem: backbone config {name} does not load: {exc!r}", stacklevel=3)
+            continue
+        cs.store(group="backbone", name=f"{name}_schema", node=backbone_schema(name, config))
+
+
 def setup() -> None:
     """Store the schemas and register the search-path plugin (once per process)."""
     global _done
@@ -86,15 +102,7 @@ def setup() -> None:
     cs = ConfigStore.instance()
     for group, node in (("train", TrainConfig), ("colorize", ColorizeConfig), ("act", ActConfig)):
         cs.store(group=group, name=f"{group}_schema", node=node)
-    for ep in metadata.entry_points(group=CONFIG_GROUP):
-        try:
-            config = ep.load()
-        except Exception as exc:  # noqa: BLE001 (a broken plugin must not stop the others; named when used)
-            import warnings
-
-            warnings.warn(f"arcsem: backbone config {ep.name} = {ep.value} does not load: {exc!r}", stacklevel=2)
-            continue
-        cs.store(group="backbone", name=f"{ep.name}_schema", node=backbone_schema(ep.name, config))
+    _store_backbone_schemas(cs)
     Plugins.instance().register(EntryPointSearchPath)
     from omegaconf import OmegaConf
 
@@ -104,8 +112,6 @@ def setup() -> None:
     OmegaConf.register_new_resolver("of_steps", of_steps, replace=True)
     OmegaConf.register_new_resolver("slurm_cpus", slurm_cpus, replace=True)
     OmegaConf.register_new_resolver("slurm_gpus", slurm_gpus, replace=True)
-    import warnings
-
     # conf/hydra/launcher/submitit_slurm.yaml (every key, so it stands alone) is checked against the plugin's
     # schema of the same name, which Hydra calls deprecated on every sweep: the check is wanted, the notice is not
     warnings.filterwarnings("ignore", message=r"(?s).*'hydra/launcher/submitit_slurm' is validated against ConfigStore")

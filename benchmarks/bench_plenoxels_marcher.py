@@ -95,11 +95,14 @@ def calls(old, index, dens, sh, o, d, bounds, step):
         return old.backward(*args, *out, *g, big), out
 
     def run_new():
-        cell, block = new.live(index, coords, dens, fused.SKIP_SHIFT)
-        args = (o, d, index, cell, block, fused.SKIP_SHIFT, dens, sh, empty, empty, bounds, *common)
+        live = new.live(index, coords, dens, fused.SKIP_SHIFT)
+        args = fused.structs(o, d, index, live, bounds, dens, sh, empty, empty, shift=fused.SKIP_SHIFT, step=step,
+                             scale=1.0, stop=1e-4, degree=2, act=False)
         out = new.forward(*args)
         g_mom = torch.zeros(o.shape[0], 2)  # the distortion's moments (an output since 2026-11-25): unused here
-        return new.backward(*args, *out, *g, g_mom, fused.slots(dens.shape[0]))[:3], out[:3]  # sparse: rows, d, SH
+        grads = fused.struct("Marched", rgb=g[0], alpha=g[1], wt=g[2], mom=g_mom)
+        res = new.backward(*args, out, grads, fused.slots(dens.shape[0]))
+        return (res.rows, res.density, res.sh), (out.rgb, out.alpha, out.wt)  # sparse: rows, d, SH
 
     return run_old, run_new
 

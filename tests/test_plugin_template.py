@@ -24,11 +24,10 @@ tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
 TEMPLATE = Path(__file__).resolve().parent.parent / "plugin_template"
 
 
-def test_template_declares_its_three_entry_points():
+def test_template_declares_its_two_entry_points():
     eps = tomllib.loads((TEMPLATE / "pyproject.toml").read_text())["project"]["entry-points"]
-    assert eps["arcsem.backbones"] == {"constant": "arcsem_plugin_template.backbone"}
-    assert eps["arcsem.backbone_configs"] == {"constant": "arcsem_plugin_template.config:ConstantConfig"}
-    assert eps["arcsem.conf"] == {"arcsem-plugin-template": "arcsem_plugin_template.conf"}
+    assert eps == {"arcsem.backbones": {"constant": "arcsem_plugin_template"},  # CONFIG and BACKBONE: __init__.py
+                   "arcsem.conf": {"arcsem-plugin-template": "arcsem_plugin_template.conf"}}
     cfg = yaml.safe_load((TEMPLATE / "arcsem_plugin_template/conf/backbone/constant.yaml").read_text())
     assert cfg == {"defaults": ["constant_schema", "_self_"], "name": "constant"}
 
@@ -80,7 +79,7 @@ def test_template_installs_and_trains_both_stages(tmp_path, editable):
     assert typo.returncode == 2 and "backbone.valeu: unknown key; valid keys: value, depth, lr" in typo.stderr
     listing = subprocess.run([str(python), "-m", "arcsem.cli.plugins", "--kind", "backbone"], capture_output=True,
                              text=True, timeout=300, cwd=tmp_path, env=env, check=True).stdout
-    assert "arcsem_plugin_template.backbone [arcsem-plugin-template]" in listing
+    assert "arcsem_plugin_template [arcsem-plugin-template]" in listing
     assert "config: value=0.5, depth=1.0, lr=0.01" in listing
     sys.stdout.write(f"template ({'editable' if editable else 'normal'} install): {metrics['stage1']['steps']} + "
                      f"{metrics['stage2']['steps']} steps\n")

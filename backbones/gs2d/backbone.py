@@ -4,7 +4,7 @@ from __future__ import annotations
 from typing import ClassVar
 
 from arcsem.errors import ConfigError
-from arcsem.plugins import BACKBONES, RenderOutput
+from arcsem.plugins import RenderOutput
 
 from ..gaussians.base import GaussianBackbone
 from .config import GS2DConfig
@@ -12,7 +12,6 @@ from .config import GS2DConfig
 __all__ = ["GS2DBackbone"]
 
 
-@BACKBONES.register("gs2d")
 class GS2DBackbone(GaussianBackbone):
     """Surfels with two scales; renders colour, alpha, expected/median depth, normals and distortion."""
 

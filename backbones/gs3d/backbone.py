@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from arcsem.plugins import BACKBONES, RenderOutput
+from arcsem.plugins import RenderOutput
 
 from ..gaussians.base import GaussianBackbone
 from .config import GS3DConfig
@@ -11,7 +11,6 @@ from .config import GS3DConfig
 __all__ = ["GS3DBackbone"]
 
 
-@BACKBONES.register("gs3d")
 class GS3DBackbone(GaussianBackbone):
     """Anisotropic 3-D Gaussians (EWA splatting); renders colour, alpha and expected depth."""
 

@@ -16,7 +16,7 @@ from torch import Tensor, nn
 
 from ...configs import GroupSchedule
 from ...errors import ConfigError
-from ...plugins import BACKBONES, Backbone
+from ...plugins import Backbone
 from .background import build_background
 from .bounds import grid_bounds
 from .config import PlenoxelsConfig
@@ -46,7 +46,6 @@ def initial_density(cfg: Any, bounds: Tensor, reso: list[int], points: Tensor | 
     return torch.where(near, float(cfg.init_points_sigma), dens).reshape(-1)
 
 
-@BACKBONES.register("plenoxels")
 class Plenoxels(Backbone):
     """Sparse voxel grid of density ``[M]`` and SH ``[M, K, 3]`` with an index volume ``[X, Y, Z]``."""
 

@@ -7,7 +7,8 @@ stored corner of positive density (the only ones where ``ReLU(trilinear)`` is no
 blocks (``cpp/march.h``). The backward marches
 again and scatters gradients into density, SH and the per-ray ACT transform. :func:`arcsem.backbones.plenoxels.render.render_grid` with ``impl="torch"``
 is the reference: tests/test_plenoxels.py compares values and gradients of both paths.
-``load_extension()`` compiles once through :mod:`arcsem.cext` (the project's one extension loader) and
+The kernels take named argument structs (``cpp/api.h``: ``Rays``, ``VoxelGrid``, ``Field``, ``Marched``), as the
+Gaussian kernels do. ``load_extension()`` compiles once through :mod:`arcsem.cext` (the project's one extension loader) and
 returns None with one warning when no toolchain is available, so ``rasterizer: auto`` falls back to PyTorch.
 """
 from __future__ import annotations
@@ -20,9 +21,11 @@ from torch import Tensor
 
 from arcsem import cext
 
-__all__ = ["EXTENSION", "SKIP_SHIFT", "live_masks", "load_extension", "march", "max_weights", "resolve_impl"]
+__all__ = ["EXTENSION", "SKIP_SHIFT", "live_masks", "load_extension", "march", "max_weights", "resolve_impl",
+           "struct", "structs"]
 
-EXTENSION = cext.Extension(prefix="arcsem_plenoxels_fused", sources=(Path(__file__).parent / "cpp" / "render.cpp",),
+EXTENSION = cext.Extension(prefix="arcsem_plenoxels_fused",
+                           sources=tuple(Path(__file__).parent / "cpp" / f for f in ("render.cpp", "module.cpp")),
                            what="fused C++ Plenoxels ray marcher")
 # Empty-space skipping: blocks of 2^SKIP_SHIFT cells per axis (4: benchmarks/bench_plenoxels.py --shift).
 SKIP_SHIFT = int(os.environ.get("ARCSEM_PLX_SKIP_SHIFT", "2"))
@@ -50,6 +53,24 @@ def slots(m: int) -> Tensor:
     return _SLOTS[key]
 
 
+def struct(kind: str, **fields):
+    """The marcher's argument struct ``kind`` (``cpp/api.h``) with its fields set by name."""
+    s = getattr(load_extension(), kind)()
+    for k, v in fields.items():
+        setattr(s, k, v)
+    return s
+
+
+def structs(rays_o: Tensor, rays_d: Tensor, index: Tensor, live: tuple[Tensor, Tensor], bounds: Tensor,
+            density: Tensor, sh: Tensor, act_w: Tensor, act_b: Tensor, *, shift: int, step: float, scale: float,
+            stop: float, degree: int, act: bool) -> tuple:
+    """``(Rays, VoxelGrid, Field)`` of a march (shapes: :func:`march`; ``act_w``/``act_b`` empty without ACT)."""
+    rays = struct("Rays", origins=rays_o, directions=rays_d, step=float(step), scale=float(scale), stop=float(stop))
+    grid = struct("VoxelGrid", index=index, cell_live=live[0], block_dist=live[1], bounds=bounds, shift=int(shift))
+    field = struct("Field", density=density, sh=sh, degree=int(degree), act=bool(act), act_w=act_w, act_b=act_b)
+    return rays, grid, field
+
+
 def _sparse(rows: Tensor, values: Tensor, like: Tensor) -> Tensor:
     """Sparse COO gradient of ``like`` with rows ``rows [n]`` (sorted, unique) and ``values [n, ...]``."""
     return torch.sparse_coo_tensor(rows[None], values, like.shape, is_coalesced=True, check_invariants=False)
@@ -70,28 +91,29 @@ class _March(torch.autograd.Function):
     @staticmethod
     def forward(ctx, density, sh, act_w, act_b, rays_o, rays_d, index, cell_live, block_dist, bounds, consts):
         shift, step, scale, stop, degree, has_act, _ = consts
-        grid = (index, cell_live, block_dist, shift, density, sh, act_w, act_b, bounds, step, scale, stop, degree,
-                has_act)
-        rgb, alpha, wt, mom = load_extension().forward(rays_o, rays_d, *grid)
-        ctx.save_for_backward(density, sh, act_w, act_b, rays_o, rays_d, index, cell_live, block_dist, bounds, rgb,
-                              alpha, wt, mom)
+        args = structs(rays_o, rays_d, index, (cell_live, block_dist), bounds, density, sh, act_w, act_b, shift=shift,
+                       step=step, scale=scale, stop=stop, degree=degree, act=has_act)
+        out = load_extension().forward(*args)
+        ctx.save_for_backward(density, sh, act_w, act_b, rays_o, rays_d, index, cell_live, block_dist, bounds, out.rgb,
+                              out.alpha, out.wt, out.mom)
         ctx.consts = consts
-        return rgb, alpha, wt, mom
+        return out.rgb, out.alpha, out.wt, out.mom
 
     @staticmethod
     def backward(ctx, g_rgb, g_alpha, g_wt, g_mom):
         density, sh, act_w, act_b, rays_o, rays_d, index, cell_live, block_dist, bounds, rgb, alpha, wt, mom = \
             ctx.saved_tensors
         shift, step, scale, stop, degree, has_act, sparse = ctx.consts
-        rows, gd, gsh, gw, gb = load_extension().backward(
-            rays_o, rays_d, index, cell_live, block_dist, shift, density, sh, act_w, act_b, bounds, step, scale, stop,
-            degree, has_act, rgb, alpha, wt, mom, g_rgb.contiguous(), g_alpha.contiguous(), g_wt.contiguous(),
-            g_mom.contiguous(), slots(density.shape[0]),
-        )
-        gd, gsh = _sparse(rows, gd, density), _sparse(rows, gsh, sh)
+        args = structs(rays_o, rays_d, index, (cell_live, block_dist), bounds, density, sh, act_w, act_b, shift=shift,
+                       step=step, scale=scale, stop=stop, degree=degree, act=has_act)
+        fwd = struct("Marched", rgb=rgb, alpha=alpha, wt=wt, mom=mom)
+        grads = struct("Marched", rgb=g_rgb.contiguous(), alpha=g_alpha.contiguous(), wt=g_wt.contiguous(),
+                      mom=g_mom.contiguous())
+        g = load_extension().backward(*args, fwd, grads, slots(density.shape[0]))
+        gd, gsh = _sparse(g.rows, g.density, density), _sparse(g.rows, g.sh, sh)
         if not sparse:
             gd, gsh = gd.to_dense(), gsh.to_dense()
-        return gd, gsh, (gw if has_act else None), (gb if has_act else None), *([None] * 7)
+        return gd, gsh, (g.act_w if has_act else None), (g.act_b if has_act else None), *([None] * 7)
 
 
 def march(density: Tensor, sh: Tensor, index: Tensor, live: tuple[Tensor, Tensor], bounds: Tensor, rays_o: Tensor,
@@ -123,6 +145,9 @@ def max_weights(density: Tensor, index: Tensor, coords: Tensor, bounds: Tensor, 
     """``[M]`` largest rendering weight of each stored point over the rays ``[R, 3]`` (for pruning; the
     fused counterpart of :func:`~.upsample.max_weights` over ``render_grid(..., return_samples=True)``)."""
     dens = density.detach().contiguous()
-    cell, dist = live_masks(index, coords, dens)
-    return load_extension().max_weights(rays_o.to(dens.dtype).contiguous(), rays_d.to(dens.dtype).contiguous(),
-                                        index.contiguous(), cell, dist, SKIP_SHIFT, dens, bounds, step, scale, stop)
+    live = live_masks(index, coords, dens)
+    empty = dens.new_zeros(0)
+    args = structs(rays_o.to(dens.dtype).contiguous(), rays_d.to(dens.dtype).contiguous(), index.contiguous(), live,
+                   bounds, dens, empty, empty, empty, shift=SKIP_SHIFT, step=step, scale=scale, stop=stop, degree=0,
+                   act=False)
+    return load_extension().max_weights(*args)

@@ -8,14 +8,13 @@ import torch
 from torch import nn
 
 from arcsem.configs import GroupSchedule
-from arcsem.plugins import BACKBONES, Backbone
+from arcsem.plugins import Backbone
 
 from .config import ConstantConfig
 
 __all__ = ["ConstantBackbone"]
 
 
-@BACKBONES.register("constant")
 class ConstantBackbone(Backbone):
     """Renders one learnable colour: ``rgb [C,H,W,3]``, ``alpha`` 1, ``depth`` = ``Config.depth``."""
 

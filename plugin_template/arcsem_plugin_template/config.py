@@ -1,7 +1,8 @@
 """The ``constant`` backbone's settings: a plain dataclass, importable without torch.
 
-arcsem registers it (entry point ``arcsem.backbone_configs``) as the Hydra schema of ``conf/backbone/constant.yaml``
-at start-up, so ``backbone.value=0.25`` works without ``+`` and a mistyped key fails at once."""
+arcsem reads it as the package's ``CONFIG`` (entry point ``arcsem.backbones``) and stores it as the Hydra schema
+of ``conf/backbone/constant.yaml`` at start-up, so ``backbone.value=0.25`` works without ``+`` and a mistyped key
+fails at once."""
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -25,6 +25,7 @@
 
 #include "api.h"
 #include "common.h"
+#include "tiles.h"
 
 namespace arcsem {
 namespace c2d {
@@ -188,7 +189,7 @@ void gather(const Entry2<T>* ent, const int64_t* ids, const Grid& gr, int64_t ct
   }
 }
 
-// Per-tile pixel state, lane-major as in composite3d.cpp (fields used by the forward or the backward pass).
+// Per-tile pixel state, lane-major (tiles.h; fields used by the forward or the backward pass).
 template <typename T>
 struct Tile2 {
   int stride = 0;
@@ -199,7 +200,7 @@ struct Tile2 {
   std::vector<int32_t> last, medi;
   std::vector<int> row_live;
   void reset(int64_t tile) {
-    stride = int((tile + kLanes - 1) / kLanes * kLanes);
+    stride = lane_stride(tile);
     np = size_t(stride) * size_t(tile);
     for (auto* v : {&tr, &live, &wsum, &wz, &m1, &m2, &dist, &mref, &med, &s, &tf, &ga, &gd, &gm, &gdis})
       v->assign(np, T(0));
@@ -210,7 +211,7 @@ struct Tile2 {
     row_live.assign(size_t(tile), 0);
   }
   // component k of the K2-vectors (acc, go) of pixel (ly, lx) is at vec(ly, lx) + k * kLanes (blocks of kLanes pixels)
-  size_t vec(int ly, int lx) const { return size_t(ly * stride + lx / kLanes * kLanes) * K2 + lx % kLanes; }
+  size_t vec(int ly, int lx) const { return lane_vec<K2>(stride, ly, lx); }
 };
 
 }  // namespace c2d

@@ -8,11 +8,13 @@
 // Outputs per ray: rgb (no background), alpha = sum w, wt = sum w t, and the moments about the ray's entry
 // mom = (sum w u, sum w u^2), u = t - t_near (the distortion, alpha mom1 - mom0^2, is formed in Python). The
 // backward marches again and uses Q = g . outputs for the suffix sums, so nothing per sample is stored.
+// The entry points and their argument structs are declared in api.h (bound in module.cpp).
 #include <omp.h>
 #include <torch/extension.h>
 
 #include <vector>
 
+#include "api.h"
 #include "cell.h"
 #include "live.h"
 #include "march.h"
@@ -264,7 +266,8 @@ void with_degree(int64_t degree, F&& f) {
 
 // Live masks of the grid for density `dens` [M] (live.h): cell_live [X, Y, Z] and block_dist [BX, BY, BZ]
 // (uint8); `coords` [M, 3] long are the grid coordinates of the rows.
-std::vector<torch::Tensor> plx_live(torch::Tensor index, torch::Tensor coords, torch::Tensor dens, int64_t shift) {
+std::vector<at::Tensor> plx::live(const at::Tensor& index, const at::Tensor& coords, const at::Tensor& dens,
+                                  int64_t shift) {
   TORCH_CHECK(index.dim() == 3 && index.scalar_type() == torch::kInt32 && index.is_contiguous(), "index");
   const int64_t R[3] = {index.size(0), index.size(1), index.size(2)};
   const int64_t B[3] = {plx::num_blocks(R[0], int(shift)), plx::num_blocks(R[1], int(shift)),
@@ -286,88 +289,76 @@ std::vector<torch::Tensor> plx_live(torch::Tensor index, torch::Tensor coords, t
   return {cell, dist};
 }
 
-std::vector<torch::Tensor> plx_forward(torch::Tensor ro, torch::Tensor rd, torch::Tensor index,
-                                       torch::Tensor cell_live, torch::Tensor block_dist, int64_t shift,
-                                       torch::Tensor dens, torch::Tensor sh, torch::Tensor actW, torch::Tensor actB,
-                                       torch::Tensor bounds, double step, double scale, double stop, int64_t degree,
-                                       bool has_act) {
-  Params P = make_params(bounds, step, scale, stop, sh, has_act);
-  Grid G = make_grid(index, cell_live, block_dist, bounds, shift);
+plx::Marched plx::march_forward(const Rays& rays, const VoxelGrid& grid, const Field& f) {
+  const at::Tensor &ro = rays.origins, &rd = rays.directions;
+  Params P = make_params(grid.bounds, rays.step, rays.scale, rays.stop, f.sh, f.act);
+  Grid G = make_grid(grid.index, grid.cell_live, grid.block_dist, grid.bounds, grid.shift);
   int64_t R = ro.size(0);
-  auto rgb = torch::zeros({R, 3}, ro.options());
-  auto alpha = torch::zeros({R}, ro.options());
-  auto wt = torch::zeros({R}, ro.options());
-  auto mom = torch::zeros({R, 2}, ro.options());
+  Marched out;
+  out.rgb = torch::zeros({R, 3}, ro.options());
+  out.alpha = torch::zeros({R}, ro.options());
+  out.wt = torch::zeros({R}, ro.options());
+  out.mom = torch::zeros({R, 2}, ro.options());
   AT_DISPATCH_FLOATING_TYPES(ro.scalar_type(), "plx_forward", [&] {
-    with_degree(degree, [&](auto deg) {
+    with_degree(f.degree, [&](auto deg) {
       forward_impl<scalar_t, decltype(deg)::value>(
-          P, G, ro.data_ptr<scalar_t>(), rd.data_ptr<scalar_t>(), dens.data_ptr<scalar_t>(), sh.data_ptr<scalar_t>(),
-          has_act ? actW.data_ptr<scalar_t>() : nullptr, has_act ? actB.data_ptr<scalar_t>() : nullptr, R,
-          rgb.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(), wt.data_ptr<scalar_t>(), mom.data_ptr<scalar_t>());
+          P, G, ro.data_ptr<scalar_t>(), rd.data_ptr<scalar_t>(), f.density.data_ptr<scalar_t>(),
+          f.sh.data_ptr<scalar_t>(), f.act ? f.act_w.data_ptr<scalar_t>() : nullptr,
+          f.act ? f.act_b.data_ptr<scalar_t>() : nullptr, R, out.rgb.data_ptr<scalar_t>(),
+          out.alpha.data_ptr<scalar_t>(), out.wt.data_ptr<scalar_t>(), out.mom.data_ptr<scalar_t>());
     });
   });
-  return {rgb, alpha, wt, mom};
+  return out;
 }
 
-// Gradients of density and SH as (rows [n] long, sorted; gd [n]; gsh [n, Kstore, 3]) over the n rows the rays
-// touched, and the per-ray ACT gradients gW, gB [R, 3]. slots [B, M] int32 are -1 on entry and on return, one
-// row of them per thread (B = the number of OpenMP threads): each thread's rows and sums are its own (cell.h).
-std::vector<torch::Tensor> plx_backward(torch::Tensor ro, torch::Tensor rd, torch::Tensor index,
-                                        torch::Tensor cell_live, torch::Tensor block_dist, int64_t shift,
-                                        torch::Tensor dens, torch::Tensor sh, torch::Tensor actW, torch::Tensor actB,
-                                        torch::Tensor bounds, double step, double scale, double stop, int64_t degree,
-                                        bool has_act, torch::Tensor rgb, torch::Tensor alpha, torch::Tensor wt,
-                                        torch::Tensor mom, torch::Tensor g_rgb, torch::Tensor g_alpha,
-                                        torch::Tensor g_wt, torch::Tensor g_mom, torch::Tensor slots) {
-  Params P = make_params(bounds, step, scale, stop, sh, has_act);
-  Grid G = make_grid(index, cell_live, block_dist, bounds, shift);
+// The rows the rays touched, sorted, with their density and SH gradients; the per-ray ACT gradients. slots [B, M]
+// int32 are -1 on entry and on return, one row of them per thread (B = the number of OpenMP threads): each
+// thread's rows and sums are its own (cell.h).
+plx::FieldGrads plx::march_backward(const Rays& rays, const VoxelGrid& grid, const Field& f, const Marched& fwd,
+                                    const Marched& g, const at::Tensor& slots) {
+  const at::Tensor &ro = rays.origins, &rd = rays.directions, &dens = f.density, &sh = f.sh;
+  Params P = make_params(grid.bounds, rays.step, rays.scale, rays.stop, sh, f.act);
+  Grid G = make_grid(grid.index, grid.cell_live, grid.block_dist, grid.bounds, grid.shift);
   const int64_t R = ro.size(0), M = dens.numel();
   const int nt = std::max(1, omp_get_max_threads());
   TORCH_CHECK(slots.dim() == 2 && slots.size(0) == nt && slots.size(1) == M && slots.scalar_type() == torch::kInt32 &&
               slots.is_contiguous(), "backward: slots must be int32 [threads (", nt, "), M]");
-  auto gW = torch::zeros({R, 3}, ro.options());
-  auto gB = torch::zeros({R, 3}, ro.options());
-  torch::Tensor rows_t, gd, gsh;
+  FieldGrads out;
+  out.act_w = torch::zeros({R, 3}, ro.options());
+  out.act_b = torch::zeros({R, 3}, ro.options());
   AT_DISPATCH_FLOATING_TYPES(ro.scalar_type(), "plx_backward", [&] {
     std::vector<Sink<scalar_t>> sinks(nt);
     for (int b = 0; b < nt; ++b) {
       sinks[b].slot = slots.data_ptr<int32_t>() + b * M;
       sinks[b].width = 1 + P.stride;
     }
-    with_degree(degree, [&](auto deg) {
+    with_degree(f.degree, [&](auto deg) {
       backward_impl<scalar_t, decltype(deg)::value>(
           P, G, ro.data_ptr<scalar_t>(), rd.data_ptr<scalar_t>(), dens.data_ptr<scalar_t>(), sh.data_ptr<scalar_t>(),
-          has_act ? actW.data_ptr<scalar_t>() : nullptr, has_act ? actB.data_ptr<scalar_t>() : nullptr, R,
-          rgb.data_ptr<scalar_t>(), alpha.data_ptr<scalar_t>(), wt.data_ptr<scalar_t>(), mom.data_ptr<scalar_t>(),
-          g_rgb.data_ptr<scalar_t>(), g_alpha.data_ptr<scalar_t>(), g_wt.data_ptr<scalar_t>(),
-          g_mom.data_ptr<scalar_t>(), sinks, gW.data_ptr<scalar_t>(), gB.data_ptr<scalar_t>());
+          f.act ? f.act_w.data_ptr<scalar_t>() : nullptr, f.act ? f.act_b.data_ptr<scalar_t>() : nullptr, R,
+          fwd.rgb.data_ptr<scalar_t>(), fwd.alpha.data_ptr<scalar_t>(), fwd.wt.data_ptr<scalar_t>(),
+          fwd.mom.data_ptr<scalar_t>(), g.rgb.data_ptr<scalar_t>(), g.alpha.data_ptr<scalar_t>(),
+          g.wt.data_ptr<scalar_t>(), g.mom.data_ptr<scalar_t>(), sinks, out.act_w.data_ptr<scalar_t>(),
+          out.act_b.data_ptr<scalar_t>());
     });
     std::vector<int64_t> rows = touched_rows(sinks, M);
     const int64_t n = int64_t(rows.size());
-    rows_t = torch::from_blob(rows.data(), {n}, torch::kInt64).clone();
-    gd = torch::empty({n}, dens.options());
-    gsh = torch::empty({n, sh.size(1), sh.size(2)}, sh.options());
-    collect<scalar_t>(rows, sinks, P.stride, gd.data_ptr<scalar_t>(), gsh.data_ptr<scalar_t>());
+    out.rows = torch::from_blob(rows.data(), {n}, torch::kInt64).clone();
+    out.density = torch::empty({n}, dens.options());
+    out.sh = torch::empty({n, sh.size(1), sh.size(2)}, sh.options());
+    collect<scalar_t>(rows, sinks, P.stride, out.density.data_ptr<scalar_t>(), out.sh.data_ptr<scalar_t>());
   });
-  return {rows_t, gd, gsh, gW, gB};
+  return out;
 }
 
-torch::Tensor plx_max_weights(torch::Tensor ro, torch::Tensor rd, torch::Tensor index, torch::Tensor cell_live,
-                              torch::Tensor block_dist, int64_t shift, torch::Tensor dens, torch::Tensor bounds,
-                              double step, double scale, double stop) {
-  Params P = make_params(bounds, step, scale, stop, dens.view({-1, 1, 1}), false);
-  Grid G = make_grid(index, cell_live, block_dist, bounds, shift);
+at::Tensor plx::max_weights(const Rays& rays, const VoxelGrid& grid, const Field& f) {
+  const at::Tensor &ro = rays.origins, &rd = rays.directions, &dens = f.density;
+  Params P = make_params(grid.bounds, rays.step, rays.scale, rays.stop, dens.view({-1, 1, 1}), false);
+  Grid G = make_grid(grid.index, grid.cell_live, grid.block_dist, grid.bounds, grid.shift);
   auto best = torch::zeros_like(dens);
   AT_DISPATCH_FLOATING_TYPES(ro.scalar_type(), "plx_max_weights", [&] {
     max_weights_impl<scalar_t, 0>(P, G, ro.data_ptr<scalar_t>(), rd.data_ptr<scalar_t>(), dens.data_ptr<scalar_t>(),
                                   ro.size(0), best.data_ptr<scalar_t>(), dens.numel());
   });
   return best;
-}
-
-PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-  m.def("live", &plx_live, "Plenoxels live cells and block distances of a density");
-  m.def("forward", &plx_forward, "Plenoxels fused ray marching (forward)");
-  m.def("backward", &plx_backward, "Plenoxels fused ray marching (backward)");
-  m.def("max_weights", &plx_max_weights, "Plenoxels largest rendering weight per stored point (pruning)");
 }

@@ -14,15 +14,12 @@ import torch
 from arcsem.backbones.gs3d import GS3DBackbone
 from torch import Tensor
 
-from arcsem.plugins import BACKBONES
-
 from .config import MipConfig
 from .filter3d import apply_filter, filter_variance
 
 __all__ = ["MipGS3D"]
 
 
-@BACKBONES.register("gs3d_mip")
 class MipGS3D(GS3DBackbone):
     """3DGS with a 3-D smoothing filter per Gaussian (see the module docstring)."""
 

@@ -4,7 +4,7 @@ Stage 1: l1 0.8 + dssim 0.2, all geometry groups. Stage 2: reference_l1 + pseudo
 (VGG16 at 1/4 resolution; random weights here if the ImageNet file is missing: same cost), colour
 groups only. Pseudo-colours and guidance are prepared before timing (they are computed once per run).
 
-    .venv/bin/python benchmarks/bench_stage2_step.py [--width 128 --height 96 --steps 20 --backbone gs2d]
+    .venv/bin/python benchmarks/archive/bench_stage2_step.py [--width 128 --height 96 --steps 20 --backbone gs2d]
 """
 from __future__ import annotations
 

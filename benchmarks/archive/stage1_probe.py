@@ -5,7 +5,7 @@ step every 25 steps (with the primitive count), the training time, the held-out 
 (as ``metrics.json``'s ``stage1.test``), and, with ``--figure``, a PNG of two held-out views (ground truth,
 render, alpha, normalised depth per row). Used for the Plenoxels tuning runs in benchmarks/results/README.md:
 
-    .venv/bin/python benchmarks/stage1_probe.py backbone=plenoxels act=none threads=1 \\
+    .venv/bin/python benchmarks/archive/stage1_probe.py backbone=plenoxels act=none threads=1 \\
         backbone.background_model=plane --figure /tmp/plane.png
 """
 from __future__ import annotations

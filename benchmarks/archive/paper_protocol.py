@@ -7,7 +7,7 @@ Runs made since the trainer records both protocols carry this score as ``stage1.
 Usage (run folders with ``config.yaml`` and ``stage1/checkpoints/last.pt``; the dataset must be
 readable, e.g. the same ``ARCSEM_CACHE`` as the runs)::
 
-    .venv/bin/python benchmarks/paper_protocol.py SWEEP_OR_RUN [...] [--a gs2d --b gs2d_act]
+    .venv/bin/python benchmarks/archive/paper_protocol.py SWEEP_OR_RUN [...] [--a gs2d --b gs2d_act]
 """
 from __future__ import annotations
 

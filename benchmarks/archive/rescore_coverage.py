@@ -6,7 +6,7 @@ both parts.
 
 Usage::
 
-    ARCSEM_CACHE=... .venv/bin/python benchmarks/rescore_coverage.py RUN_OR_SWEEP [...] [--force]
+    ARCSEM_CACHE=... .venv/bin/python benchmarks/archive/rescore_coverage.py RUN_OR_SWEEP [...] [--force]
 """
 from __future__ import annotations
 

@@ -10,9 +10,10 @@ from .base import (
     SceneContext,
     announce_features,
     build_extractor,
+    check_features,
     resolve_features,
     tcm_space,
 )
 
 __all__ = ["DEFAULT_WITHOUT_IMAGENET", "FEATURES", "ColourSpace", "Extractor", "SceneContext", "announce_features",
-           "build_extractor", "resolve_features", "tcm_space"]
+           "build_extractor", "check_features", "resolve_features", "tcm_space"]

@@ -25,7 +25,8 @@ import torch.nn.functional as F
 from ..devices import run_device
 from ..errors import DataError
 from ..plugins import Batch, ColorTargets
-from ..registry import plain, validate_config
+from ..registry import plain
+from ..runconfig import run_config
 from .config import ColorizeConfig
 from .guidance import Guidance
 from .masks import specimen_masks
@@ -40,7 +41,8 @@ log = logging.getLogger(__name__)
 
 
 def colorize_config(cfg: Any) -> ColorizeConfig:
-    return validate_config(ColorizeConfig, dict(plain(cfg.get("colorize")) or {}), where="colorize")
+    """The validated ``colorize`` group of ``cfg`` (a run's :class:`~arcsem.runconfig.RunConfig`: validated once)."""
+    return run_config(cfg).colorize
 
 
 def colorize_losses(cc: ColorizeConfig, backbone: Any):
@@ -326,7 +328,8 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     from .outputs import evaluate_colour, write_colored_products, write_outputs
 
     run_dir = Path(run_dir)
-    cc = colorize_config(cfg)
+    rc = run_config(cfg)
+    cfg, cc = rc.cfg, rc.colorize
     ckpt = check_stage1_model(cfg, cc, scene, run_dir)
     refs = load_references(scene, cc.references)  # validated against the dataset's views
     backbone, _ = load_stage1(ckpt, scene, cfg)  # (resizes the scene as stage 1 did, internally)
@@ -368,7 +371,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     for part, extra in coverage_metrics(backbone, scene, refs, masks, pinfo["valid2d"], cc).items():
         result.setdefault(part, {}).update(extra)
     result.update(write_outputs(backbone, scene, run_dir, cc, pseudo, valid))
-    result.update(write_colored_products(cfg, backbone, scene, run_dir, res.steps, cc.progress))
+    result.update(write_colored_products(rc, backbone, scene, run_dir, res.steps, cc.progress))
     result.update(
         features=features, references=refs.names, losses=sorted(losses.terms), steps=res.steps, time_s=res.time_s,
         steps_per_s=res.steps_per_s, stage1_checkpoint=str(ckpt), image_size=[split.cameras.width, split.cameras.height],

@@ -12,11 +12,11 @@ from hydra import compose, initialize_config_module
 from omegaconf import OmegaConf
 
 from arcsem import app
-from arcsem.stages import STAGES
 from arcsem.data import KINDS, reader_options
 from arcsem.errors import PluginError
 from arcsem.plugins import BACKBONES
 from arcsem.registry import validate_config
+from arcsem.stages import STAGES
 
 DEFAULT_GROUPS = {next(iter(e)) for e in yaml.safe_load((CONF / "config.yaml").read_text())["defaults"]
                   if isinstance(e, dict)}
@@ -177,8 +177,8 @@ def test_quick_gaussian_schedule_scales_with_train_steps():
     """The quick preset's schedule is a fraction of the run: 1500 steps give the tuned values, 300 steps the same
     shape (the opacity resets at 60 and 120, not on the last step, which left 10 dB held-out); a schedule written
     by hand that resets in the run's last tenth is warned about."""
-    from arcsem.train.gray_stage import late_reset_warning
     from arcsem.registry import plain
+    from arcsem.train.gray_stage import late_reset_warning
 
     keys = ("sh_increase_every", "densify_from", "densify_until", "densify_every", "opacity_reset_every",
             "lr_position_max_steps")

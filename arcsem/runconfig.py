@@ -33,7 +33,8 @@ class RunConfig:
     and its groups as typed, checked dataclasses, each validated once, when first read.
 
     Fields: ``train`` (:class:`~arcsem.configs.TrainConfig`), ``act``, ``colorize``, ``mesh``, ``render``, and
-    ``backbone``: the plugin's validated ``Config`` (its class: ``backbone_class``, its name: ``backbone_name``).
+    ``backbone``: the plugin's validated ``Config`` (its class: ``backbone_class``, its name: ``backbone_name``);
+    the loss terms' ``Config``: :meth:`loss_configs`.
     """
 
     def __init__(self, cfg: Any):
@@ -75,6 +76,16 @@ class RunConfig:
     @cached_property
     def render(self) -> RenderConfig:
         return validated(RenderConfig, self.cfg.get("render"), where="render")
+
+    def loss_configs(self, where: str) -> dict:
+        """The cache of validated loss ``Config``s of ``where`` (``train.losses``, ``colorize.losses``) that
+        :func:`arcsem.train.losses.build_losses` fills and reads: a run validates each term once, however often its
+        checks and stages build the loss set."""
+        return self._loss_configs.setdefault(where, {})
+
+    @cached_property
+    def _loss_configs(self) -> dict:
+        return {}
 
     @property
     def device(self) -> str:

@@ -184,6 +184,9 @@ def test_a_whole_run_validates_each_group_once(tmp_path, monkeypatch):
     # which stage 2 rebuilds its model from (another input, read from disk)
     assert {k: calls[k] for k in ("train", "act", "backbone '_checked'", "colorize", "mesh", "render")} == {
         "train": 2, "act": 2, "backbone '_checked'": 2, "colorize": 1, "mesh": 1, "render": 0}, calls
+    # each loss term once, though the checks and the stages build the loss sets four times
+    assert {k: n for k, n in calls.items() if k.startswith("loss ")} == {
+        "loss 'l1'": 1, "loss 'dssim'": 1, "loss 'reference_l1'": 1, "loss 'pseudo_color'": 1}, calls
     assert CHECKS == {"config": 1, "scene": 1}  # listed by both stages, called once
 
 

@@ -31,7 +31,7 @@ def check_config(rc: Any) -> None:
     from .stage2 import colorize_losses
 
     cc = rc.colorize
-    losses = colorize_losses(cc, rc.backbone_class)
+    losses = colorize_losses(cc, rc.backbone_class, rc.loss_configs("colorize.losses"))
     if any(n in losses.terms for n in ("tcm", "ccm")):
         check_features(cc.features, cc.tcm_space)
     refs = cc.references

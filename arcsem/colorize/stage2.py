@@ -45,13 +45,14 @@ def colorize_config(cfg: Any) -> ColorizeConfig:
     return run_config(cfg).colorize
 
 
-def colorize_losses(cc: ColorizeConfig, backbone: Any):
-    """The stage-2 :class:`LossSet` (terms with weight 0 dropped), checked against ``backbone`` (class or model)."""
+def colorize_losses(cc: ColorizeConfig, backbone: Any, validated: dict | None = None):
+    """The stage-2 :class:`LossSet` (terms with weight 0 dropped), checked against ``backbone`` (class or model);
+    ``validated``: the run's cache of the terms' Configs (:meth:`arcsem.runconfig.RunConfig.loss_configs`)."""
     from ..train import build_losses
 
     terms = {k: v for k, v in (plain(cc.losses) or {}).items() if v is not None and float(v.get("weight", 1)) != 0}
     return build_losses(terms, backbone.provides, backbone.batch_mode, where="colorize.losses", backbone=backbone.name,
-                        batch_parts=frozenset({"color"}))
+                        batch_parts=frozenset({"color"}), validated=validated)
 
 
 def check_stage1_model(cfg: Any, cc: ColorizeConfig, scene, run_dir: Path) -> Path:
@@ -341,13 +342,14 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     cache_dir = Path(cc.cache_dir) if cc.cache_dir else cache_root(cfg) / "colorize"
     geo = SurfaceGeometry(backbone, split)
     extractor, space, finfo, make = None, None, None, None
-    if any(n in colorize_losses(cc, backbone).terms for n in ("tcm", "ccm")):
+    validated = rc.loss_configs("colorize.losses")
+    if any(n in colorize_losses(cc, backbone, validated).terms for n in ("tcm", "ccm")):
         extractor, space, finfo = _extractor(cc, cfg, ckpt, backbone, split, masks, cache_dir)
         make = _guide_factory(cc, extractor, space, split, geo, cache_dir)
     guidance = make(refs.indices.tolist(), refs.images) if make is not None else None
     cc, validation = _validate(cc, split, masks, refs, geo, guidance)
     pseudo, valid, pinfo = _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo)
-    losses = colorize_losses(cc, backbone)
+    losses = colorize_losses(cc, backbone, validated)
     if any(n in losses.terms for n in ("tcm", "ccm")):
         t0 = time.perf_counter()
         for i in range(len(split)):  # once per view, before training (cached on disk)

@@ -112,7 +112,8 @@ def stage1_losses(cfg: Any, tc: TrainConfig, act: Any = None):
     name, cls = rc.backbone_name, rc.backbone_class
     if act is True:
         act = ACT(1)
-    return build_losses(tc.losses, cls.provides, cls.batch_mode, backbone=name, act=act or None)
+    return build_losses(tc.losses, cls.provides, cls.batch_mode, backbone=name, act=act or None,
+                        validated=rc.loss_configs("train.losses"))
 
 
 def build_model(cfg: Any, scene: Scene, tc: TrainConfig | None = None):

@@ -39,6 +39,7 @@ class RunConfig:
 
     def __init__(self, cfg: Any):
         self.cfg = cfg
+        self.features: str | None = None  # colorize.features with `auto` resolved, by the stage-2 check (once)
 
     @property
     def backbone_name(self) -> str:

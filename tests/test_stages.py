@@ -224,3 +224,17 @@ def test_feature_extractor_names_have_one_home():
     choices = {f.name: f for f in dataclasses.fields(ColorizeConfig)}["features"].metadata["checks"]["choices"]
     assert FEATURES == choices == ("auto", *EXTRACTORS)
     assert set(collect._EXTRACTORS) == set(FEATURES)
+
+
+def test_auto_features_resolved_once_by_the_check(tmp_path, monkeypatch):
+    """``colorize.features=auto`` is resolved (and announced) by the stage-2 check and kept on the run config,
+    which stage 2 builds its extractor from (the build no longer resolves it again)."""
+    from arcsem.colorize import color_stage
+    from arcsem.colorize.features import base as fbase
+
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))  # no ImageNet weights: auto -> the default below
+    monkeypatch.setattr(fbase, "DEFAULT_WITHOUT_IMAGENET", "daisy")
+    rc = RunConfig(compose_with("colorize.features=auto"))
+    assert rc.features is None
+    color_stage.check_config(rc)
+    assert rc.features == "daisy"

@@ -33,7 +33,7 @@ def check_config(rc: Any) -> None:
     cc = rc.colorize
     losses = colorize_losses(cc, rc.backbone_class, rc.loss_configs("colorize.losses"))
     if any(n in losses.terms for n in ("tcm", "ccm")):
-        check_features(cc.features, cc.tcm_space)
+        rc.features = check_features(cc.features, cc.tcm_space)  # `auto` resolved here, once per run
     refs = cc.references
     for f in [refs] if isinstance(refs, str) else list(refs or []):
         if ("/" in str(f) or "." in str(f)) and not Path(str(f)).expanduser().exists():

@@ -245,8 +245,9 @@ def _surface_fill(cc, geo: SurfaceGeometry, split, masks, carried, ridx, cache_d
     return colors, valid | fill, info
 
 
-def _extractor(cc, cfg, ckpt, backbone, split, masks, cache_dir) -> tuple[Any, Any, dict]:
-    """The TCM/CCM feature extractor (``colorize.features``), its loss space and what to record."""
+def _extractor(cc, cfg, ckpt, backbone, split, masks, cache_dir, features: str | None = None) -> tuple[Any, Any, dict]:
+    """The TCM/CCM feature extractor (``colorize.features``, or ``features``: that name as the run's check resolved
+    it), its loss space and what to record."""
     from .features import SceneContext, build_extractor, tcm_space
     from .features.base import space_label
     from .pseudocolor import cache_key
@@ -258,7 +259,7 @@ def _extractor(cc, cfg, ckpt, backbone, split, masks, cache_dir) -> tuple[Any, A
                        depth_key=cache_key(Path(ckpt)) if from_model else cache_key(split.depths),
                        seed=int(cfg.get("seed", 0)), downscale=cc.tcm_downscale, cache_dir=cache_dir,
                        progress=cc.progress)
-    extractor = build_extractor(cc.features, ctx)
+    extractor = build_extractor(features or cc.features, ctx)
     space = tcm_space(cc.tcm_space, extractor)
     info = {"requested": cc.features, "name": extractor.name, "label": extractor.label(),
             "tcm_space": space_label(space), "time_s": time.perf_counter() - t0}
@@ -344,7 +345,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     extractor, space, finfo, make = None, None, None, None
     validated = rc.loss_configs("colorize.losses")
     if any(n in colorize_losses(cc, backbone, validated).terms for n in ("tcm", "ccm")):
-        extractor, space, finfo = _extractor(cc, cfg, ckpt, backbone, split, masks, cache_dir)
+        extractor, space, finfo = _extractor(cc, cfg, ckpt, backbone, split, masks, cache_dir, rc.features)
         make = _guide_factory(cc, extractor, space, split, geo, cache_dir)
     guidance = make(refs.indices.tolist(), refs.images) if make is not None else None
     cc, validation = _validate(cc, split, masks, refs, geo, guidance)

@@ -11,7 +11,6 @@ Adding a stage: one :func:`register` entry here (or in a plugin), its module (ch
 """
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,13 +53,9 @@ class Stage:
 
 def resolve(func: Check, stage: str) -> Callable[..., Any]:
     """A check or runner: the function itself, or ``"module:function"`` imported now (PluginError if absent)."""
-    if callable(func):
-        return func
-    module, _, name = func.partition(":")
-    try:
-        return getattr(importlib.import_module(module), name)
-    except (ImportError, AttributeError) as exc:
-        raise PluginError(f"stage '{stage}' needs {module}.{name}, which is not available: {exc}") from None
+    from .lazy import import_function
+
+    return import_function(func, f"stage '{stage}'")
 
 
 class StageRegistry:

@@ -63,8 +63,9 @@ def run_gray_stage(rc: Any, scene: Any, run_dir: Path) -> dict:
     Sweeps whose jobs differ only in stage 2 (ablations, reference counts) set ``share_stage1`` so the
     first job trains and the others wait on the cache lock and reuse the model (:mod:`arcsem.share`).
     """
-    from .stage1 import run_stage1
+    from ..lazy import import_function
 
+    run_stage1 = import_function("arcsem.train:run_stage1", "stage 'gray'")  # the package's name (tests replace it)
     if not rc.cfg.get("share_stage1", False):
         return run_stage1(rc, scene, run_dir)
     from ..share import ensure_stage1, stage1_result

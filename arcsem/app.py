@@ -1,15 +1,16 @@
 """The work of one ``arcsem`` run, as a plain function tests can call after ``compose(...)``.
 
-``run(cfg)`` seeds, loads the scene, dispatches on ``cfg.stage`` and writes into the run directory:
+``run(cfg)`` validates the config once (:class:`~arcsem.runconfig.RunConfig`, checked by the stage's checks:
+:mod:`arcsem.stages`), seeds, loads the scene, runs the stage ``cfg.stage`` names and writes into the run directory:
 
 * ``config.yaml``: the resolved config;
 * ``metrics.json``: seed, git revision, overrides, backbone, timings and whatever the stage returns
   (atomic writes: :mod:`arcsem.files`).
 
-Stages: ``gray`` (:func:`arcsem.train.run_stage1`), ``color`` (:func:`arcsem.colorize.run_stage2`),
-``all`` (both), ``check`` (load the scene and build the backbone, nothing trained: validates a
-dataset/plugin/config combination in seconds and prints a summary), ``render`` (orbit videos of the
-finished run ``render.run``: :mod:`arcsem.export.render`).
+Stages (the registry :data:`arcsem.stages.STAGES`): ``gray`` (:func:`arcsem.train.run_stage1`), ``color``
+(:func:`arcsem.colorize.run_stage2`), ``all`` (both), ``check`` (load the scene and build the backbone, nothing
+trained: validates a dataset/plugin/config combination in seconds and prints a summary), ``render`` (orbit videos
+of the finished run ``render.run``: :mod:`arcsem.export.render`).
 """
 from __future__ import annotations
 
@@ -18,27 +19,22 @@ import os
 import random
 import subprocess
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from .errors import ConfigError, Interrupted, PluginError
+from .errors import Interrupted
 from .files import write_json_atomic, write_text_atomic
 
 log = logging.getLogger(__name__)
 
 __all__ = [
-    "STAGES",
     "git_revision",
     "run",
     "run_directory",
     "seed_everything",
 ]
-
-STAGES = ("gray", "color", "all", "check", "render")
-
 
 def git_revision() -> str:
     """``git rev-parse HEAD`` at the package root, or ``"unknown"`` (not a git checkout, no git)."""
@@ -91,54 +87,14 @@ def set_threads(threads: Any) -> int:
         from .cores import usable_cores
 
         threads = usable_cores()
-    elif not isinstance(threads, int) or isinstance(threads, bool) or threads < 1:
-        raise ConfigError(f"threads: expected a positive integer or null, got {threads!r}")
+    else:
+        from .preflight import check_threads
+
+        check_threads(threads)
     import torch
 
     torch.set_num_threads(threads)
     return threads
-
-
-def _stage_function(stage: str) -> Callable[..., dict]:
-    module, func = {"gray": ("arcsem.train", "run_stage1"), "color": ("arcsem.colorize", "run_stage2"),
-                    "render": ("arcsem.export.render", "run_render_stage")}[stage]
-    import importlib
-
-    try:
-        return getattr(importlib.import_module(module), func)
-    except (ImportError, AttributeError) as exc:
-        raise PluginError(f"stage '{stage}' needs {module}.{func}, which is not available: {exc}") from None
-
-
-def _gray_stage(cfg: DictConfig, scene: Any, run_dir: Path) -> dict:
-    """Stage 1 in this run's folder, or (``share_stage1: true``) once per stage-1 config in the shared cache.
-
-    Sweeps whose jobs differ only in stage 2 (ablations, reference counts) set ``share_stage1`` so the
-    first job trains and the others wait on the cache lock and reuse the model (:mod:`arcsem.share`).
-    """
-    run_stage1 = _stage_function("gray")
-    if not cfg.get("share_stage1", False):
-        return run_stage1(cfg, scene, run_dir)
-    from .share import ensure_stage1, stage1_result
-
-    path, trained = ensure_stage1(cfg, lambda p: run_stage1(cfg, scene, p))
-    link = run_dir / "stage1"
-    if not link.exists():
-        link.symlink_to(path.resolve(), target_is_directory=True)
-    return {**(stage1_result(path) or {}), "stage1_dir": str(path), "stage1_reused": not trained}
-
-
-def _check_stage(cfg: DictConfig, scene: Any, run_dir: Path) -> dict:
-    """Build the backbone and ACT as stage 1 would (validates dataset, plugin and their configs); trains nothing."""
-    from .check_summary import check_summary
-    from .plugins import BACKBONES
-    from .train.stage1 import build_model
-
-    model, act = build_model(cfg, scene)
-    result = {"backbone_origin": BACKBONES.origin(cfg.backbone.name), "primitives": int(model.num_primitives()),
-              "act": act is not None}
-    print(check_summary(cfg, scene, result))
-    return result
 
 
 def _scene_summary(scene: Any) -> dict:
@@ -163,14 +119,15 @@ def _write_metrics(run_dir: Path, metrics: dict, t_start: float) -> None:
     write_json_atomic(run_dir / "metrics.json", strict_metrics(metrics), allow_nan=False)
 
 
-def _run_stages(cfg: DictConfig, scene: Any, run_dir: Path, stages: tuple[str, ...], metrics: dict,
+def _run_stages(rc: Any, scene: Any, run_dir: Path, stages: tuple[str, ...], metrics: dict,
                 t_start: float) -> None:
     """Run ``stages`` in order; ``metrics.json`` is written after each, and records a failure before re-raising."""
+    from .stages import STAGES, resolve
+
     for name in stages:
-        func = {"check": _check_stage, "gray": _gray_stage}.get(name) or _stage_function(name)
         t0 = time.perf_counter()
         try:
-            result = func(cfg, scene, run_dir) or {}
+            result = resolve(STAGES.get(name).run, name)(rc, scene, run_dir) or {}
         except BaseException as exc:
             from .errors import one_line
 
@@ -190,21 +147,24 @@ def run(cfg: DictConfig, run_dir: str | Path | None = None, overrides: list[str]
     """Run ``cfg.stage`` and write ``config.yaml`` and ``metrics.json`` (after every stage) into the run directory.
 
     ``overrides``: the command line (default: Hydra's task overrides, where Hydra runs the job); recorded in
-    ``metrics.json`` and checked. The whole config is validated first (:func:`arcsem.preflight.check_config`),
+    ``metrics.json`` and checked. The whole config is validated first, once (:func:`arcsem.stages.check_config`),
     the run folder is locked, and while the stages run no file outside the run folder and the cache is written
     (:mod:`arcsem.guard`).
     """
     from .data import load_scene
     from .guard import allowed_roots, protect
     from .locks import run_folder_lock
-    from .preflight import STAGE_PLAN, check_config, check_scene
+    from .runconfig import RunConfig
     from .share import cache_root
+    from .stages import STAGES, check_config, check_scene, resolve
 
     t_start = time.perf_counter()
     stage = str(cfg.stage)
     if overrides is None:
         _, overrides = _hydra_info()
-    check_config(cfg, stage, overrides)
+    rc = RunConfig(cfg)  # every group validated once, when first read (by the stage's checks)
+    check_config(rc, stage, overrides)
+    entry = STAGES.get(stage)
     run_dir = Path(run_dir) if run_dir is not None else run_directory(cfg)
     with run_folder_lock(run_dir):
         write_text_atomic(run_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
@@ -216,21 +176,20 @@ def run(cfg: DictConfig, run_dir: str | Path | None = None, overrides: list[str]
             "completed_stages": [], "warnings": [], "timings": {}, "stages": {},
         }
         scene, files, folders = None, [], []
-        if stage == "render":  # renders a finished run (its own dataset and models): that run is an input
-            folders = [str(Path(str(cfg.render.run)).expanduser().resolve())]
+        if not entry.needs_scene:  # e.g. stage=render: reads a finished run (its own dataset and models)
+            folders = list(resolve(entry.input_dirs, stage)(rc)) if entry.input_dirs else []
         else:
             t0 = time.perf_counter()
             scene = load_scene(cfg.dataset)
             metrics["timings"]["load_scene_s"] = time.perf_counter() - t0
             metrics["dataset"].update(root=scene.root, **_scene_summary(scene))
-            for warning in check_scene(cfg, scene, stage, run_dir):
+            for warning in check_scene(rc, scene, stage, run_dir):
                 log.warning(warning)
                 metrics["warnings"].append(warning)
             files, folders = _inputs(scene)
-        stages = {"check": ("check",), "render": ("render",)}.get(stage) or STAGE_PLAN[stage]
         with protect(allowed_roots(run_dir, cache_root(cfg)), inputs=files, input_dirs=folders,
                      own=[run_dir, cache_root(cfg)]):
-            _run_stages(cfg, scene, run_dir, stages, metrics, t_start)
+            _run_stages(rc, scene, run_dir, entry.runs(), metrics, t_start)
         metrics["warnings"] += [w for r in metrics["stages"].values() for part in r.values()
                                 if isinstance(part, dict) for w in part.get("warnings") or []]
         metrics["status"] = "complete"
@@ -241,7 +200,7 @@ def run(cfg: DictConfig, run_dir: str | Path | None = None, overrides: list[str]
 
             page = build_report([run_dir], out=run_dir / "report")
             print(f"report: {page}")
-        if stage in ("gray", "color", "all"):
+        if entry.summary:
             from .run_summary import summary_lines
 
             print("\n".join(summary_lines(metrics, run_dir, page)), flush=True)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["check_summary"]
+__all__ = ["check_summary", "run_check_stage"]
 
 
 def _extras(split) -> str:
@@ -25,13 +25,25 @@ def _box(bounds) -> str:
     return " x ".join(f"[{a:.3g}, {b:.3g}]" for a, b in zip(lo, hi))
 
 
+def run_check_stage(rc: Any, scene: Any, run_dir: Any) -> dict:
+    """``stage=check``: build the backbone and ACT as stage 1 would (validates dataset, plugin and their configs),
+    print :func:`check_summary`; trains nothing."""
+    from .plugins import BACKBONES
+    from .train.stage1 import build_model
+
+    model, act = build_model(rc, scene)
+    result = {"backbone_origin": BACKBONES.origin(rc.backbone_name), "primitives": int(model.num_primitives()),
+              "act": act is not None}
+    print(check_summary(rc, scene, result))
+    return result
+
+
 def check_summary(cfg: Any, scene: Any, result: dict) -> str:
     """Lines (under 80 columns where the data allows) describing a successful ``stage=check``."""
-    from .colorize.stage2 import colorize_config
-    from .mesh import mesh_config
-    from .train.stage1 import train_config
+    from .runconfig import run_config
 
-    tc, cc, mc = train_config(cfg), colorize_config(cfg), mesh_config(cfg.get("mesh"))
+    rc = run_config(cfg)
+    cfg, tc, cc, mc = rc.cfg, rc.train, rc.colorize, rc.mesh
     tr, te = scene.train, scene.test
     cams = tr.cameras
     refs = ", ".join(f"{k} ({len(v)})" for k, v in scene.reference_sets.items()) or "none"
@@ -42,7 +54,7 @@ def check_summary(cfg: Any, scene: Any, result: dict) -> str:
     scale, scale_name = scene.scale
     name = str(cfg.backbone.name)
     steps, losses1 = tc.steps, tc.losses  # the preset as tuned for this backbone (conf/tuning)
-    stage2 = _stage2_problem(cfg, scene, cc)
+    stage2 = _stage2_problem(rc, scene)
     lines = [
         "check: OK (the data was read and the model built; nothing was trained)",
         f"  dataset    {cfg.dataset.kind}: {scene.root}",
@@ -67,13 +79,13 @@ def check_summary(cfg: Any, scene: Any, result: dict) -> str:
     return "\n".join(lines)
 
 
-def _stage2_problem(cfg: Any, scene: Any, cc: Any) -> str | None:
+def _stage2_problem(rc: Any, scene: Any) -> str | None:
     """None where stage 2 can run as configured, else what to do (the check's warning says what is wrong)."""
+    from .colorize.color_stage import check_stage2_inputs
     from .errors import ConfigError, DataError
-    from .preflight import check_stage2_inputs
 
     try:
-        check_stage2_inputs(cfg, cc, scene)
+        check_stage2_inputs(rc, scene)
     except (ConfigError, DataError) as exc:
         if "reference" in str(exc):
             return "stage 2 needs references: colorize.references=<files/folder named after views>; then stage=all"

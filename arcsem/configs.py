@@ -1,31 +1,43 @@
-"""The config dataclasses of arcsem's core: the schemas of ``conf/`` (``train``, ``colorize``, ``act``) and the
-dataset reader options. Plain dataclasses with :func:`~arcsem.registry.checked` rules, no torch: the CLI registers
-them in Hydra's ConfigStore at start-up (:mod:`arcsem.schemas`), and the stages validate their groups with
-:func:`~arcsem.registry.validate_config`. Defaults are the paper's; ``conf/*/*.yaml`` list only what a preset changes.
+"""The config dataclasses of arcsem's core: the schemas of ``conf/`` (``train``, ``colorize``, ``act``, ``mesh``,
+``render``) and the dataset reader options. Plain dataclasses with :func:`~arcsem.registry.checked` rules (and, where a
+rule spans fields, a ``check()`` method), no torch: the CLI registers them in Hydra's ConfigStore at start-up
+(:mod:`arcsem.schemas`), and a run validates each group once (:class:`arcsem.runconfig.RunConfig`). Defaults are the
+paper's and live here only; ``conf/*/*.yaml`` list only what a preset changes.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from typing import Any
 
+from .errors import ConfigError
 from .registry import checked
 
 __all__ = [
     "ACT_MODES",
     "DEFAULT_LOSSES",
+    "EXTRACTORS",
+    "MESH_FORMATS",
+    "RENDER_LAYERS",
     "SPLIT_MODES",
+    "VGG_FEATURES",
     "ActConfig",
     "ColorizeConfig",
     "EvalConfig",
     "GroupSchedule",
     "GuardConfig",
+    "MeshConfig",
     "OptimConfig",
     "ReaderOptions",
+    "RenderConfig",
     "SurfaceConfig",
     "TrainConfig",
 ]
 
 ACT_MODES = ("rgb", "scalar")
+VGG_FEATURES = ("vgg16", "vgg19")
+"""The extractors whose features can be computed on a colour render (``colorize.tcm_space=features``)."""
+EXTRACTORS = (*VGG_FEATURES, "daisy", "learned")
+"""The TCM/CCM feature extractors (:mod:`arcsem.colorize.features`); ``colorize.features`` also takes ``auto``."""
 SPLIT_MODES = ("auto", "every_k", "holdout", "none")
 
 
@@ -153,7 +165,7 @@ class ColorizeConfig:
     # TCM/CCM matching features (arcsem.colorize.features): vgg16 (Ref-NPR) | vgg19 (ArCSEM code), ImageNet weights
     # from the torch hub cache | daisy (dense DAISY, OpenCV) | learned (a CNN trained on the scene's grey views with
     # stage-1 correspondences) | auto: vgg16 where its ImageNet weights exist, else the best measured without them
-    features: str = checked("auto", choices=("auto", "vgg16", "vgg19", "daisy", "learned"))
+    features: str = checked("auto", choices=("auto", *EXTRACTORS))
     # TCM loss space: features (the extractor's own, VGG only: the paper) | color (cell-mean colour, 1 - cos) |
     # auto: features for VGG, color for daisy/learned (they cannot describe a colour render)
     tcm_space: str = checked("auto", choices=("auto", "features", "color"))
@@ -193,3 +205,74 @@ class ReaderOptions:
     max_views: int | None = checked(None, ge=2)  # keep at most this many views, evenly spaced, before splitting
     holdout: list[str] = field(default_factory=list)  # split=holdout: the test views, by name (a leave-one-out
     # sweep: dataset.split=holdout dataset.holdout=[v_02],[v_03],[v_04])
+
+
+MESH_FORMATS = ("ply", "glb", "obj")
+RENDER_LAYERS = ("gray", "color", "depth", "normal")
+
+
+@dataclass
+class MeshConfig:
+    """``mesh``: TSDF mesh export (:mod:`arcsem.mesh`; defaults as used for the figures in docs/mesh.md)."""
+
+    enabled: bool = True  # export at the end of stage 1 (grey) and stage 2 (coloured)
+    voxel_size: float | None = None  # scene units; None: voxel_factor x the training pixel footprint
+    voxel_factor: float = 1.0
+    trunc: float = 6.0  # truncation distance in voxels (docs/mesh.md: 4 -> 1.11 %, 6 -> 0.90 % Chamfer)
+    max_voxels: int = 1 << 24  # 16.8 M voxels, ~340 MB while fusing
+    # views per orbit elevation fused besides the training views; 0 (training views only) measured best on
+    # the built-in scene: orbit views show the model from where no image constrained it (docs/mesh.md)
+    orbit_frames: int = 0
+    orbit_elevations: list[float] = field(default_factory=lambda: [20.0, 50.0])
+    # orbits only over the azimuths and elevations the training cameras span (what the model saw);
+    # false: full turns (views of sides no training view saw add the model's guesses to the mesh)
+    orbit_in_range: bool = True
+    alpha_min: float = 0.5  # rendered alpha that counts as surface (views without masks)
+    use_masks: bool = True  # the dataset's specimen masks decide foreground on training views
+    carve: bool = True  # background pixels clear the space in front of them
+    min_component: float = 0.05  # drop components with fewer faces than this x the largest's
+    formats: list[str] = field(default_factory=lambda: ["ply", "glb"])
+    chamfer_points: int = 1_000_000  # mesh samples for the Chamfer distance (built-in scene; see groundtruth.py)
+
+    def check(self) -> None:
+        """ConfigError for a rule the field types cannot say: known formats, a positive voxel, >= 1-voxel trunc."""
+        bad = set(self.formats) - set(MESH_FORMATS)
+        if bad:
+            raise ConfigError(f"mesh.formats: unknown format(s) {sorted(bad)}; valid: {', '.join(MESH_FORMATS)}")
+        if self.voxel_size is not None and not self.voxel_size > 0:
+            raise ConfigError(f"mesh.voxel_size must be > 0 (scene units) or null, got {self.voxel_size}")
+        if not self.trunc >= 1:
+            raise ConfigError(f"mesh.trunc must be >= 1 voxel, got {self.trunc}")
+
+
+@dataclass
+class RenderConfig:
+    """``render`` (``stage=render``, :mod:`arcsem.export.render`): which run, which orbit, which videos."""
+
+    run: str | None = None  # the finished run folder to render (required for stage=render)
+    frames: int = 200  # 10 s at 20 fps
+    fps: int = 20
+    azimuth: list[float] = field(default_factory=lambda: [0.0, 360.0])  # start, end (degrees)
+    elevation: float = 20.0  # degrees above the orbit plane
+    width: int | None = None  # None: the training width
+    height: int | None = None  # None: the training aspect ratio
+    camera: str | None = None  # pinhole | orthographic; None: the training cameras' model
+    zoom: float = 1.0
+    layers: list[str] = field(default_factory=lambda: list(RENDER_LAYERS))
+    alpha_min: float = 0.5  # rendered alpha that counts as surface in the depth/normal videos
+
+    def orbit(self):
+        """The :class:`arcsem.orbit.OrbitConfig` of these settings."""
+        from .orbit import OrbitConfig
+
+        return OrbitConfig(frames=self.frames, azimuth=tuple(self.azimuth), elevation=self.elevation,
+                           width=self.width, height=self.height, camera=self.camera, zoom=self.zoom)
+
+    def check(self) -> None:
+        """ConfigError for unknown or no layers, an fps outside 1..120 or an orbit :mod:`arcsem.orbit` refuses."""
+        bad = [x for x in self.layers if x not in RENDER_LAYERS]
+        if bad or not self.layers:
+            raise ConfigError(f"render.layers: unknown or no layer(s) {bad}; valid: {', '.join(RENDER_LAYERS)}")
+        if not 1 <= self.fps <= 120:
+            raise ConfigError(f"render.fps must be in 1..120, got {self.fps}")
+        self.orbit().validate()

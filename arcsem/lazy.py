@@ -1,5 +1,6 @@
-"""Lazy package attributes (PEP 562): ``import arcsem.backbones.gs2d`` imports nothing heavy until a name is used;
-names that moved stay importable from their old module for one release, with a DeprecationWarning."""
+"""Lazy imports: package attributes (PEP 562: ``import arcsem.backbones.gs2d`` imports nothing heavy until a name is
+used), functions named ``"module:function"`` (:func:`import_function`, the stages' checks and runners), and names
+that moved, importable from their old module for one release with a DeprecationWarning (:func:`moved_getattr`)."""
 from __future__ import annotations
 
 import importlib
@@ -7,7 +8,7 @@ import warnings
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["lazy_getattr", "moved_getattr"]
+__all__ = ["import_function", "lazy_getattr", "moved_getattr"]
 
 
 def lazy_getattr(package: str, where: dict[str, str]) -> Callable[[str], Any]:
@@ -35,3 +36,17 @@ def moved_getattr(module: str, moved: dict[str, str]) -> Callable[[str], Any]:
         raise AttributeError(f"module {module!r} has no attribute {name!r}")
 
     return __getattr__
+
+
+def import_function(ref: Callable[..., Any] | str, who: str) -> Callable[..., Any]:
+    """``ref`` itself if callable, else the function ``"module:function"`` imported now; a PluginError saying that
+    ``who`` (e.g. ``"stage 'gray'"``) needs it where it cannot be imported."""
+    if callable(ref):
+        return ref
+    module, _, name = ref.partition(":")
+    try:
+        return getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError) as exc:
+        from .errors import PluginError
+
+        raise PluginError(f"{who} needs {module}.{name}, which is not available: {exc}") from None

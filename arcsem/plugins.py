@@ -89,6 +89,9 @@ class Backbone(nn.Module):
     Construction: ``cls(cfg, scene=scene, act=act)``: ``cfg`` the validated ``Config``, ``scene`` the
     :class:`~arcsem.scene.Scene` at the training resolution, ``act`` the ACT module (stage 1 with ACT) or None.
 
+    Before a run trains anything, its stage checks call the classmethods :meth:`check_config` (the validated
+    ``Config`` and the device) and, once the scene is read, :meth:`check_scene`: once each per run.
+
     The trainer, per step: :meth:`learning_rates` (once) and the optimisers from :meth:`make_optimizers` (once,
     Adam for the groups it leaves out), :meth:`render` / :meth:`render_rays`, the losses, :meth:`pre_backward`,
     ``backward``, :meth:`post_backward`, the optimiser steps; :meth:`state_dict` / ``load_state_dict`` for
@@ -110,6 +113,19 @@ class Backbone(nn.Module):
     def __init__(self, cfg: Any, scene: Any = None, **runtime: Any):
         super().__init__()
         self.cfg = cfg
+
+    @classmethod
+    def check_config(cls, cfg: Any, device: str) -> None:
+        """Before a run reads any data: what this plugin needs beyond its ``Config``'s field rules, for ``cfg`` (the
+        validated ``Config``) on ``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``): an optional dependency, a device.
+        Raise :class:`~arcsem.errors.ConfigError` / ``PluginError`` naming the key and the fix. Called once per run,
+        by the checks of the stages that build this backbone (:mod:`arcsem.stages`). Default: nothing to check."""
+
+    @classmethod
+    def check_scene(cls, cfg: Any, scene: Any) -> None:
+        """Once the scene is read, before training: what this plugin needs of it with ``cfg`` (the validated
+        ``Config``): camera models (``scene.train.cameras.model``), image sizes ``[H, W]``... Raise ConfigError
+        naming the key and the fix. Called once per run, like :meth:`check_config`. Default: nothing to check."""
 
     def render(self, cams: Cameras, **kw: Any) -> RenderOutput:
         """Render ``C`` cameras; returns at least the keys in ``provides`` (``[C, H, W, k]`` each)."""

@@ -111,16 +111,18 @@ def load_stage1(path: str | Path, scene: Any, cfg: Any = None):
     """
     from omegaconf import OmegaConf
 
+    from .runconfig import run_config
     from .train.checkpoint import load_checkpoint, load_module_state
-    from .train.stage1 import build_model, prepare_scene, stage1_config, train_config
+    from .train.stage1 import build_model, prepare_scene, stage1_config
 
     state = load_checkpoint(path)
+    cfg = run_config(cfg).cfg if cfg is not None else None
     saved = state.get("config") or {}
     if not saved.get("backbone") and cfg is None:
         raise TrainingError(f"{path}: checkpoint has no stored config; pass the stage-1 cfg")
     base = OmegaConf.create({**(saved or stage1_config(cfg)), "device": str((cfg or {}).get("device", "cpu"))})
-    tc = train_config(base)
-    backbone, act = build_model(base, prepare_scene(scene, tc), tc)
+    rc = run_config(base)  # the checkpoint's own config: another input than the run's, validated once here
+    backbone, act = build_model(rc, prepare_scene(scene, rc.train))
     load_module_state(backbone, state["model"])
     if act is not None and state.get("act") is not None:
         load_module_state(act, state["act"])

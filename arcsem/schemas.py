@@ -6,6 +6,8 @@
   the group lists its schema first in its defaults (``defaults: [gs2d_schema, _self_]``). So
   ``backbone.sh_degree=2`` works without ``+``, a mistyped key fails when the config is composed, and
   ``--cfg job`` and the run's ``config.yaml`` show every effective key.
+  ``mesh`` and ``render`` (top-level blocks, not groups) have theirs in ``outputs_schema``, the first entry of
+  conf/config.yaml's defaults: their defaults live in the dataclasses only.
 * **Search path.** A plugin package adds its YAML folder with an entry point in the group ``arcsem.conf``
   naming a package of config groups (``my_plugin = "my_plugin.conf"``); :class:`EntryPointSearchPath`
   appends every such package (as ``pkg://my_plugin.conf``). It is
@@ -96,16 +98,18 @@ def setup() -> None:
         return
     from hydra.core.config_store import ConfigStore
     from hydra.core.plugins import Plugins
+    from omegaconf import OmegaConf
 
-    from .configs import ActConfig, ColorizeConfig, TrainConfig
+    from .configs import ActConfig, ColorizeConfig, MeshConfig, RenderConfig, TrainConfig
 
     cs = ConfigStore.instance()
     for group, node in (("train", TrainConfig), ("colorize", ColorizeConfig), ("act", ActConfig)):
         cs.store(group=group, name=f"{group}_schema", node=node)
+    # the top-level blocks with a schema and no group: conf/config.yaml lists `outputs_schema` first in its defaults
+    cs.store(name="outputs_schema", node={"mesh": OmegaConf.structured(MeshConfig),
+                                          "render": OmegaConf.structured(RenderConfig)})
     _store_backbone_schemas(cs)
     Plugins.instance().register(EntryPointSearchPath)
-    from omegaconf import OmegaConf
-
     from .backbones.gs2d.config import lowpass_for
 
     OmegaConf.register_new_resolver("gs2d_lowpass", lowpass_for, replace=True)

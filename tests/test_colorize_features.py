@@ -117,7 +117,7 @@ def test_auto_choice_said_once_per_job(tmp_path, monkeypatch, caplog):
     config check; building the extractor in stage 2 does not say it again."""
     from test_config import compose_with
 
-    from arcsem.preflight import check_config
+    from arcsem.stages import check_config
 
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
     monkeypatch.setattr(fbase, "DEFAULT_WITHOUT_IMAGENET", "daisy")  # builds without a scene

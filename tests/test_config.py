@@ -16,6 +16,7 @@ from arcsem.data import KINDS, reader_options
 from arcsem.errors import PluginError
 from arcsem.plugins import BACKBONES
 from arcsem.registry import validate_config
+from arcsem.stages import STAGES
 
 DEFAULT_GROUPS = {next(iter(e)) for e in yaml.safe_load((CONF / "config.yaml").read_text())["defaults"]
                   if isinstance(e, dict)}
@@ -35,7 +36,7 @@ def test_default_config_composes():
     missing = missing_defaults()
     assert not missing, f"conf/config.yaml defaults without a file: {missing}"
     cfg = compose_with()
-    assert cfg.stage in app.STAGES and cfg.seed == 0
+    assert cfg.stage in STAGES and cfg.seed == 0
 
 
 @pytest.mark.parametrize("group,option", OPTIONS, ids=[f"{g}={o}" for g, o in OPTIONS])
@@ -47,7 +48,7 @@ def test_every_option_composes(group, option):
         assert cfg.dataset.kind in KINDS
         reader_options(cfg.dataset)
     if group == "experiment":
-        assert cfg.stage in app.STAGES
+        assert cfg.stage in STAGES
 
 
 @pytest.mark.parametrize("option", sorted(o for g, o in OPTIONS if g == "backbone"))
@@ -176,8 +177,8 @@ def test_quick_gaussian_schedule_scales_with_train_steps():
     """The quick preset's schedule is a fraction of the run: 1500 steps give the tuned values, 300 steps the same
     shape (the opacity resets at 60 and 120, not on the last step, which left 10 dB held-out); a schedule written
     by hand that resets in the run's last tenth is warned about."""
-    from arcsem.preflight import late_reset_warning
     from arcsem.registry import plain
+    from arcsem.train.gray_stage import late_reset_warning
 
     keys = ("sh_increase_every", "densify_from", "densify_until", "densify_every", "opacity_reset_every",
             "lr_position_max_steps")

@@ -119,9 +119,17 @@ def test_gsplat_refused_where_it_cannot_run():
     gsplat_cameras(ortho)  # 3DGS: gsplat's 'ortho'
 
 
+def _check_gsplat_scene(bcfg: dict, scene) -> None:
+    """The backbone's own scene check (:meth:`arcsem.plugins.Backbone.check_scene`), as a run's stage checks call it."""
+    from arcsem.plugins import BACKBONES
+    from arcsem.registry import validate_config
+
+    cls = BACKBONES.get(bcfg["name"])
+    cls.check_scene(validate_config(cls.Config, {k: v for k, v in bcfg.items() if k != "name"}, "backbone"), scene)
+
+
 def test_preflight_refuses_scenes_gsplat_cannot_draw():
     """Once the scene is read (before training): an orthographic 2DGS camera, another low-pass sigma."""
-    from arcsem.preflight import _check_gsplat_scene
     from arcsem.scene import Scene, Split
 
     def scene(model):
@@ -148,7 +156,6 @@ def test_quick_gs2d_preset_draws_with_gsplats_filter_on_gsplat():
     on the command line is still the user's, and still refused where gsplat cannot draw it."""
     from test_config import compose_with
 
-    from arcsem.preflight import _check_gsplat_scene
     from arcsem.registry import plain
     from arcsem.scene import Scene, Split
 

@@ -1,4 +1,5 @@
-"""The ``mesh`` and ``render`` blocks of conf/config.yaml repeat their dataclasses' defaults exactly."""
+"""The ``mesh`` and ``render`` blocks: their defaults live in their dataclasses only (the schemas in Hydra's
+ConfigStore), and a composed config has every key, settable without ``+``."""
 from __future__ import annotations
 
 import dataclasses
@@ -12,10 +13,16 @@ from arcsem.mesh import MeshConfig, mesh_config
 
 
 @pytest.mark.parametrize("key,cls,parse", [("mesh", MeshConfig, mesh_config), ("render", RenderConfig, render_config)])
-def test_yaml_block_equals_dataclass_defaults(key, cls, parse):
-    block = yaml.safe_load((CONF / "config.yaml").read_text())[key]
+def test_composed_block_equals_dataclass_defaults(key, cls, parse):
+    from test_config import compose_with
+
+    assert key not in yaml.safe_load((CONF / "config.yaml").read_text())  # one home for each default
+    block = compose_with()[key]
     assert parse(block) == cls()
     assert set(block) == {f.name for f in dataclasses.fields(cls)}
+    first = dataclasses.fields(cls)[0]
+    value = {"enabled": False, "run": "elsewhere"}[first.name]
+    assert compose_with(f"{key}.{first.name}={str(value).lower()}")[key][first.name] == value  # no `+` needed
 
 
 def test_bad_values_name_the_key():

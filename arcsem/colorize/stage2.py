@@ -25,7 +25,8 @@ import torch.nn.functional as F
 from ..devices import run_device
 from ..errors import DataError
 from ..plugins import Batch, ColorTargets
-from ..registry import plain, validate_config
+from ..registry import plain
+from ..runconfig import run_config
 from .config import ColorizeConfig
 from .guidance import Guidance
 from .masks import specimen_masks
@@ -39,16 +40,18 @@ log = logging.getLogger(__name__)
 
 
 def colorize_config(cfg: Any) -> ColorizeConfig:
-    return validate_config(ColorizeConfig, dict(plain(cfg.get("colorize")) or {}), where="colorize")
+    """The validated ``colorize`` group of ``cfg`` (a run's :class:`~arcsem.runconfig.RunConfig`: validated once)."""
+    return run_config(cfg).colorize
 
 
-def colorize_losses(cc: ColorizeConfig, backbone: Any):
-    """The stage-2 :class:`LossSet` (terms with weight 0 dropped), checked against ``backbone`` (class or model)."""
+def colorize_losses(cc: ColorizeConfig, backbone: Any, validated: dict | None = None):
+    """The stage-2 :class:`LossSet` (terms with weight 0 dropped), checked against ``backbone`` (class or model);
+    ``validated``: the run's cache of the terms' Configs (:meth:`arcsem.runconfig.RunConfig.loss_configs`)."""
     from ..train import build_losses
 
     terms = {k: v for k, v in (plain(cc.losses) or {}).items() if v is not None and float(v.get("weight", 1)) != 0}
     return build_losses(terms, backbone.provides, backbone.batch_mode, where="colorize.losses", backbone=backbone.name,
-                        batch_parts=frozenset({"color"}))
+                        batch_parts=frozenset({"color"}), validated=validated)
 
 
 def check_stage1_model(cfg: Any, cc: ColorizeConfig, scene, run_dir: Path) -> Path:
@@ -229,8 +232,9 @@ def _surface_fill(cc, geo: SurfaceGeometry, split, masks, carried, ridx, cache_d
     return colors, valid | fill, info
 
 
-def _extractor(cc, cfg, ckpt, backbone, split, masks, cache_dir) -> tuple[Any, Any, dict]:
-    """The TCM/CCM feature extractor (``colorize.features``), its loss space and what to record."""
+def _extractor(cc, cfg, ckpt, backbone, split, masks, cache_dir, features: str | None = None) -> tuple[Any, Any, dict]:
+    """The TCM/CCM feature extractor (``colorize.features``, or ``features``: that name as the run's check resolved
+    it), its loss space and what to record."""
     from .features import SceneContext, build_extractor, tcm_space
     from .features.base import space_label
     from .pseudocolor import cache_key
@@ -242,7 +246,7 @@ def _extractor(cc, cfg, ckpt, backbone, split, masks, cache_dir) -> tuple[Any, A
                        depth_key=cache_key(Path(ckpt)) if from_model else cache_key(split.depths),
                        seed=int(cfg.get("seed", 0)), downscale=cc.tcm_downscale, cache_dir=cache_dir,
                        progress=cc.progress)
-    extractor = build_extractor(cc.features, ctx)
+    extractor = build_extractor(features or cc.features, ctx)
     space = tcm_space(cc.tcm_space, extractor)
     info = {"requested": cc.features, "name": extractor.name, "label": extractor.label(),
             "tcm_space": space_label(space), "time_s": time.perf_counter() - t0}
@@ -314,7 +318,8 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     from .outputs import evaluate_colour, write_colored_products, write_outputs
 
     run_dir = Path(run_dir)
-    cc = colorize_config(cfg)
+    rc = run_config(cfg)
+    cfg, cc = rc.cfg, rc.colorize
     ckpt = check_stage1_model(cfg, cc, scene, run_dir)
     refs = load_references(scene, cc.references)  # validated against the dataset's views
     backbone, _ = load_stage1(ckpt, scene, cfg)  # (resizes the scene as stage 1 did, internally)
@@ -326,13 +331,14 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     cache_dir = Path(cc.cache_dir) if cc.cache_dir else cache_root(cfg) / "colorize"
     geo = SurfaceGeometry(backbone, split)
     extractor, space, finfo, make = None, None, None, None
-    if any(n in colorize_losses(cc, backbone).terms for n in ("tcm", "ccm")):
-        extractor, space, finfo = _extractor(cc, cfg, ckpt, backbone, split, masks, cache_dir)
+    validated = rc.loss_configs("colorize.losses")
+    if any(n in colorize_losses(cc, backbone, validated).terms for n in ("tcm", "ccm")):
+        extractor, space, finfo = _extractor(cc, cfg, ckpt, backbone, split, masks, cache_dir, rc.features)
         make = _guide_factory(cc, extractor, space, split, geo, cache_dir)
     guidance = make(refs.indices.tolist(), refs.images) if make is not None else None
     cc, validation = _validate(cc, split, masks, refs, geo, guidance)
     pseudo, valid, pinfo = _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo)
-    losses = colorize_losses(cc, backbone)
+    losses = colorize_losses(cc, backbone, validated)
     if any(n in losses.terms for n in ("tcm", "ccm")):
         t0 = time.perf_counter()
         for i in range(len(split)):  # once per view, before training (cached on disk)
@@ -356,7 +362,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     for part, extra in coverage_metrics(backbone, scene, refs, masks, pinfo["valid2d"], cc).items():
         result.setdefault(part, {}).update(extra)
     result.update(write_outputs(backbone, scene, run_dir, cc, pseudo, valid))
-    result.update(write_colored_products(cfg, backbone, scene, run_dir, res.steps, cc.progress))
+    result.update(write_colored_products(rc, backbone, scene, run_dir, res.steps, cc.progress))
     result.update(
         features=features, references=refs.names, losses=sorted(losses.terms), steps=res.steps, time_s=res.time_s,
         steps_per_s=res.steps_per_s, stage1_checkpoint=str(ckpt), image_size=[split.cameras.width, split.cameras.height],

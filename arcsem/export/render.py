@@ -14,58 +14,23 @@ The ``render`` config block (``conf/config.yaml``) is validated against :class:`
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..configs import RENDER_LAYERS as LAYERS
+from ..configs import RenderConfig
 from ..errors import ConfigError
 
 __all__ = ["LAYERS", "RenderConfig", "render_config", "render_orbit", "run_render_stage"]
 
-LAYERS = ("gray", "color", "depth", "normal")
-
-
-@dataclass
-class RenderConfig:
-    """``render``: which run, which orbit, which videos."""
-
-    run: str | None = None  # the finished run folder to render (required for stage=render)
-    frames: int = 200  # 10 s at 20 fps
-    fps: int = 20
-    azimuth: list[float] = field(default_factory=lambda: [0.0, 360.0])  # start, end (degrees)
-    elevation: float = 20.0  # degrees above the orbit plane
-    width: int | None = None  # None: the training width
-    height: int | None = None  # None: the training aspect ratio
-    camera: str | None = None  # pinhole | orthographic; None: the training cameras' model
-    zoom: float = 1.0
-    layers: list[str] = field(default_factory=lambda: list(LAYERS))
-    alpha_min: float = 0.5  # rendered alpha that counts as surface in the depth/normal videos
-
-
 def render_config(raw: Any) -> RenderConfig:
-    """A validated :class:`RenderConfig` (unknown keys, layers, fps and orbit values are errors)."""
-    from omegaconf import DictConfig, OmegaConf
+    """A validated :class:`~arcsem.configs.RenderConfig` (unknown keys, layers, fps and orbit values are errors); a
+    run reads its own once: :attr:`arcsem.runconfig.RunConfig.render`."""
+    from ..runconfig import validated
 
-    from ..registry import validate_config
-
-    data = OmegaConf.to_container(raw, resolve=True) if isinstance(raw, DictConfig) else dict(raw or {})
-    rc = validate_config(RenderConfig, data, where="render")
-    bad = [x for x in rc.layers if x not in LAYERS]
-    if bad or not rc.layers:
-        raise ConfigError(f"render.layers: unknown or no layer(s) {bad}; valid: {', '.join(LAYERS)}")
-    if not 1 <= rc.fps <= 120:
-        raise ConfigError(f"render.fps must be in 1..120, got {rc.fps}")
-    _orbit(rc).validate()
-    return rc
-
-
-def _orbit(rc: RenderConfig):
-    from ..orbit import OrbitConfig
-
-    return OrbitConfig(frames=rc.frames, azimuth=tuple(rc.azimuth), elevation=rc.elevation, width=rc.width,
-                       height=rc.height, camera=rc.camera, zoom=rc.zoom)
+    return validated(RenderConfig, raw, where="render")
 
 
 def _frames(backbone, cams, alpha_min: float, geometry: bool, progress: bool, desc: str) -> dict[str, list]:
@@ -110,7 +75,7 @@ def render_orbit(run_dir: str | Path, out_dir: str | Path, rc: RenderConfig, pro
     out_dir = Path(out_dir)
     t0 = time.perf_counter()
     grey = load_run(run_dir, colored=False)
-    cams = orbit_cameras(grey.scene.train.cameras, grey.scene.bounds, _orbit(rc))
+    cams = orbit_cameras(grey.scene.train.cameras, grey.scene.bounds, rc.orbit())
     geometry = bool({"depth", "normal"} & set(rc.layers))
     result: dict[str, Any] = {"run": str(run_dir), "frames": len(cams), "fps": rc.fps,
                               "size": [cams.width, cams.height], "camera": cams.model, "videos": {}}
@@ -137,7 +102,9 @@ def render_orbit(run_dir: str | Path, out_dir: str | Path, rc: RenderConfig, pro
 
 def run_render_stage(cfg: Any, scene: Any, run_dir: str | Path) -> dict:
     """``stage=render``: ``render.run`` is the finished run; the videos go into this job's ``run_dir``."""
-    rc = render_config(cfg.get("render"))
+    from ..runconfig import run_config
+
+    rc = run_config(cfg).render
     if not rc.run:
         raise ConfigError("render.run is not set: add render.run=<a finished run folder>")
     if Path(rc.run).resolve() == Path(run_dir).resolve():

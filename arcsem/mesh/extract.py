@@ -16,59 +16,24 @@ scene bounds (``Scene.bounds``) and is coarsened if it would exceed ``max_voxels
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from ..errors import ConfigError
+from ..configs import MeshConfig
 from .tsdf import TSDFVolume, extract_mesh, keep_components, make_grid
 
 __all__ = ["MeshConfig", "export_mesh", "fuse_views", "mesh_config", "pixel_footprint", "write_mesh"]
 
 
-@dataclass
-class MeshConfig:
-    """``mesh``: TSDF mesh export (defaults as used for the figures in docs/mesh.md)."""
-
-    enabled: bool = True  # export at the end of stage 1 (grey) and stage 2 (coloured)
-    voxel_size: float | None = None  # scene units; None: voxel_factor x the training pixel footprint
-    voxel_factor: float = 1.0
-    trunc: float = 6.0  # truncation distance in voxels (docs/mesh.md: 4 -> 1.11 %, 6 -> 0.90 % Chamfer)
-    max_voxels: int = 1 << 24  # 16.8 M voxels, ~340 MB while fusing
-    # views per orbit elevation fused besides the training views; 0 (training views only) measured best on
-    # the built-in scene: orbit views show the model from where no image constrained it (docs/mesh.md)
-    orbit_frames: int = 0
-    orbit_elevations: list[float] = field(default_factory=lambda: [20.0, 50.0])
-    # orbits only over the azimuths and elevations the training cameras span (what the model saw);
-    # false: full turns (views of sides no training view saw add the model's guesses to the mesh)
-    orbit_in_range: bool = True
-    alpha_min: float = 0.5  # rendered alpha that counts as surface (views without masks)
-    use_masks: bool = True  # the dataset's specimen masks decide foreground on training views
-    carve: bool = True  # background pixels clear the space in front of them
-    min_component: float = 0.05  # drop components with fewer faces than this x the largest's
-    formats: list[str] = field(default_factory=lambda: ["ply", "glb"])
-    chamfer_points: int = 1_000_000  # mesh samples for the Chamfer distance (built-in scene; see groundtruth.py)
-
-
 def mesh_config(raw: Any) -> MeshConfig:
-    """A validated :class:`MeshConfig` from a config node / dict / None (unknown keys are errors)."""
-    from omegaconf import DictConfig, OmegaConf
+    """A validated :class:`~arcsem.configs.MeshConfig` from a config node / dict / None (``arcsem-export``'s
+    overrides; a run reads its own once: :attr:`arcsem.runconfig.RunConfig.mesh`)."""
+    from ..runconfig import validated
 
-    from ..registry import validate_config
-
-    data = OmegaConf.to_container(raw, resolve=True) if isinstance(raw, DictConfig) else dict(raw or {})
-    cfg = validate_config(MeshConfig, data, where="mesh")
-    bad = set(cfg.formats) - {"ply", "glb", "obj"}
-    if bad:
-        raise ConfigError(f"mesh.formats: unknown format(s) {sorted(bad)}; valid: ply, glb, obj")
-    if cfg.voxel_size is not None and not cfg.voxel_size > 0:
-        raise ConfigError(f"mesh.voxel_size must be > 0 (scene units) or null, got {cfg.voxel_size}")
-    if not cfg.trunc >= 1:
-        raise ConfigError(f"mesh.trunc must be >= 1 voxel, got {cfg.trunc}")
-    return cfg
+    return validated(MeshConfig, raw, where="mesh")
 
 
 def pixel_footprint(cams, centre: torch.Tensor) -> float:

@@ -22,6 +22,7 @@ import pandas as pd
 import yaml
 from hydra.errors import OverrideParseException
 
+from ..configs import EXTRACTORS
 from ..errors import DataError
 
 __all__ = [
@@ -52,7 +53,7 @@ class Study:
 _REFERENCES = {"one": "1", "two": "2", "three": "3", "four": "4", "five": "5"}
 _COLOUR_SCENES = (("synthetic", "grain"), ("diatom", "diatom"), ("parts", "parts"), ("public_fox", "fox"),
                   ("public_chair", "chair (held out)"))  # colorization_benchmark's datasets; the held-out one last
-_EXTRACTORS = ("vgg16", "vgg19", "daisy", "learned", "auto")  # colorize.features, in table order
+_EXTRACTORS = (*EXTRACTORS, "auto")  # colorize.features, in table order
 
 
 STUDIES: dict[str, Study] = {

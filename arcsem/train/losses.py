@@ -13,6 +13,7 @@ backbone cannot feed. A plugin registered under another name can be used twice w
 """
 from __future__ import annotations
 
+import copy
 from collections.abc import Mapping
 from typing import Any
 
@@ -22,7 +23,7 @@ from torch.profiler import record_function as region
 
 from ..errors import ConfigError
 from ..plugins import LOSSES, Batch, Loss, RenderOutput
-from ..registry import plain
+from ..registry import plain, validate_config
 
 __all__ = ["LossSet", "build_losses"]
 
@@ -56,7 +57,7 @@ class LossSet(nn.Module):
 
 def build_losses(cfg: Mapping | None, provides: frozenset[str] | set[str], batch_mode: str = "image",
                  where: str = "train.losses", backbone: str = "backbone", batch_parts: frozenset[str] = frozenset(),
-                 **runtime: Any) -> LossSet:
+                 validated: dict | None = None, **runtime: Any) -> LossSet:
     """Build the loss plugins of ``cfg`` and check them against the backbone.
 
     Args:
@@ -65,6 +66,8 @@ def build_losses(cfg: Mapping | None, provides: frozenset[str] | set[str], batch
         batch_mode: ``"image"`` or ``"rays"`` (``Backbone.batch_mode``).
         batch_parts: the optional :class:`~arcsem.plugins.Batch` parts the stage fills (``{"color"}`` in stage 2),
             checked against each loss's ``needs``.
+        validated: a run's cache of the terms' validated ``Config`` (:meth:`arcsem.runconfig.RunConfig.loss_configs`):
+            a term already there is built from a copy of it, not validated again; one validated here is added.
         runtime: passed to every plugin constructor (e.g. ``scene``).
     Raises:
         ConfigError: a term needs an output the backbone does not provide, or a batch mode it lacks.
@@ -77,7 +80,7 @@ def build_losses(cfg: Mapping | None, provides: frozenset[str] | set[str], batch
         plugin = term_cfg.pop("plugin", name)
         if float(term_cfg.get("weight", 1.0)) == 0.0:
             continue
-        loss = LOSSES.build({"name": plugin, **term_cfg}, **runtime)
+        loss = _build_term(plugin, term_cfg, validated, runtime)
         for key in ("weight", "start_step"):
             value = getattr(loss.cfg, key, 0)
             if not isinstance(value, (int, float)) or value < 0:
@@ -100,6 +103,19 @@ def build_losses(cfg: Mapping | None, provides: frozenset[str] | set[str], batch
     if not terms:
         raise ConfigError(f"{where}: no loss term with a non-zero weight")
     return LossSet(terms)
+
+
+def _build_term(plugin: str, term_cfg: dict, validated: dict | None, runtime: dict) -> Loss:
+    """The loss plugin ``plugin`` with ``term_cfg`` validated against its ``Config`` once per ``validated`` cache
+    (keyed by the plugin and the values: a changed term is another config, validated anew)."""
+    cls = LOSSES.get(plugin)
+    key = (plugin, repr(sorted(term_cfg.items())))
+    if validated is None or key not in validated:
+        config = validate_config(cls.Config, term_cfg, where=f"{LOSSES.kind} '{plugin}'")
+        if validated is None:
+            return cls(config, **runtime)
+        validated[key] = config
+    return cls(copy.deepcopy(validated[key]), **runtime)
 
 
 def is_finite(x: Tensor) -> bool:

@@ -16,10 +16,11 @@ __all__ = ["write_products"]
 def write_products(cfg: Any, backbone, scene, run_dir: str | Path, prefix: str = "", iteration: int = 0,
                    progress: bool = False) -> dict:
     """Write ``<prefix>mesh.*`` and ``<prefix>viewer/`` into ``run_dir``; returns their metrics and paths."""
-    from ..mesh import export_mesh, mesh_config
+    from ..mesh import export_mesh
+    from ..runconfig import run_config
 
     run_dir = Path(run_dir)
-    mc = mesh_config(cfg.get("mesh") if hasattr(cfg, "get") else None)
+    mc = run_config(cfg).mesh  # a run's: validated once, however many products it writes
     out: dict[str, Any] = {}
     if mc.enabled and "depth" in backbone.provides:
         out["mesh"] = export_mesh(backbone, scene, run_dir / f"{prefix}mesh", mc, progress=progress)

@@ -25,8 +25,8 @@ import torch
 
 from ..configs import EvalConfig, TrainConfig
 from ..metrics import metric_convention
-from ..plugins import BACKBONES
-from ..registry import plain, validate_config
+from ..registry import plain
+from ..runconfig import run_config
 from ..scene import Scene
 from ..video import write_video
 from ..visual import DEPTH_SPAN, to_uint8
@@ -58,12 +58,14 @@ NON_SEMANTIC_KEYS = ("resume", "eval_every", "log_every", "checkpoint_every", "p
 
 
 def train_config(cfg: Any) -> TrainConfig:
-    return validate_config(TrainConfig, dict(plain(cfg.train) or {}), where="train")
+    """The validated ``train`` group of ``cfg`` (a run's :class:`~arcsem.runconfig.RunConfig`: validated once)."""
+    return run_config(cfg).train
 
 
 def stage1_config(cfg: Any, scene: Scene | None = None) -> dict:
     """The part of ``cfg`` that determines the stage-1 model (compared when resuming), with the dataset's
     :func:`~arcsem.scene.scene_fingerprint` when ``scene`` is given (stage 2 checks it)."""
+    cfg = run_config(cfg).cfg
     train = {k: v for k, v in dict(plain(cfg.train) or {}).items() if k not in NON_SEMANTIC_KEYS}
     out = {"dataset": plain(cfg.get("dataset")), "backbone": plain(cfg.backbone), "act": plain(cfg.get("act")),
            "train": train, "seed": int(cfg.get("seed", 0))}
@@ -80,19 +82,13 @@ def prepare_scene(scene: Scene, tc: TrainConfig) -> Scene:
 
 
 def act_config(cfg: Any):
-    """The validated ``act`` group (:class:`arcsem.act.ActConfig`)."""
-    from ..configs import ActConfig
-
-    return validate_config(ActConfig, dict(plain(cfg.get("act")) or {}), where="act")
+    """The validated ``act`` group (:class:`arcsem.configs.ActConfig`)."""
+    return run_config(cfg).act
 
 
-def backbone_config(cfg: Any) -> dict:
-    """``cfg.backbone`` as a plain dict, checked against the plugin's ``Config`` (ranges too)."""
-    bcfg = dict(plain(cfg.backbone))
-    name = bcfg.get("name")
-    cls = BACKBONES.get(str(name))
-    validate_config(cls.Config, {k: v for k, v in bcfg.items() if k != "name"}, where=f"backbone '{name}'")
-    return bcfg
+def backbone_config(cfg: Any):
+    """``cfg.backbone`` checked against the plugin's ``Config`` (ranges too): that ``Config`` instance."""
+    return run_config(cfg).backbone
 
 
 def stage1_losses(cfg: Any, tc: TrainConfig, act: Any = None):
@@ -101,25 +97,28 @@ def stage1_losses(cfg: Any, tc: TrainConfig, act: Any = None):
     ``act``: the ACT module, or True to stand for one (validation before the scene is known)."""
     from ..act import ACT
 
-    name = str(cfg.backbone.name)
-    cls = BACKBONES.get(name)
+    rc = run_config(cfg)
+    name, cls = rc.backbone_name, rc.backbone_class
     if act is True:
         act = ACT(1)
-    return build_losses(tc.losses, cls.provides, cls.batch_mode, backbone=name, act=act or None)
+    return build_losses(tc.losses, cls.provides, cls.batch_mode, backbone=name, act=act or None,
+                        validated=rc.loss_configs("train.losses"))
 
 
 def build_model(cfg: Any, scene: Scene, tc: TrainConfig | None = None):
-    """``(backbone, act)`` as configured, on ``cfg.device``."""
+    """``(backbone, act)`` as configured, on ``cfg.device`` (``tc``: not needed; accepted for older callers)."""
+    import copy
+
     from ..act import ACT
 
-    tc = tc or train_config(cfg)
-    bcfg = backbone_config(cfg)
-    ac = act_config(cfg)
+    rc = run_config(cfg)
+    config, ac = rc.backbone, rc.act
     act = None
     if ac.enabled:
         act = ACT(len(scene.train), ac.mode, ac.init_noise)
-    backbone = BACKBONES.build(bcfg, scene=scene, **({"act": act} if act is not None else {}))
-    device = torch.device(str(cfg.get("device", "cpu")))
+    # a copy: the model owns its Config (a second model of this run starts from the same settings)
+    backbone = rc.backbone_class(copy.deepcopy(config), scene=scene, **({"act": act} if act is not None else {}))
+    device = torch.device(rc.device)
     return backbone.to(device), (act.to(device) if act is not None else None)
 
 
@@ -136,16 +135,17 @@ def _periodic_eval(backbone, scene: Scene, ec: EvalConfig):
 def run_stage1(cfg: Any, scene: Scene, run_dir: str | Path) -> dict:
     """Train, evaluate and export stage 1; returns ``{"stage1": {...}}`` for ``metrics.json``."""
     run_dir = Path(run_dir)
-    tc = train_config(cfg)
+    rc = run_config(cfg)
+    cfg, tc = rc.cfg, rc.train
     raw_scene, scene = scene, prepare_scene(scene, tc)
-    backbone, act = build_model(cfg, scene, tc)
+    backbone, act = build_model(rc, scene)
     name = backbone.name
-    losses = stage1_losses(cfg, tc, act)
+    losses = stage1_losses(rc, tc, act)
     rays = tc.rays_per_batch or int(backbone.rays_per_step)
     loop = LoopConfig(steps=tc.steps, stage="geometry", batch_views=tc.batch_views, rays_per_batch=rays,
                       log_every=tc.log_every, eval_every=tc.eval_every, checkpoint_every=tc.checkpoint_every,
                       resume=tc.resume, seed=int(cfg.get("seed", 0)), progress=tc.progress, desc=f"stage 1 ({name})")
-    act_lr = act_config(cfg).lr
+    act_lr = rc.act.lr
     res = train(backbone, scene.train, losses, loop, optim=tc.optim, ckpt_dir=run_dir / "checkpoints",
                 config=stage1_config(cfg, raw_scene), act=act, act_lr=act_lr,
                 evaluate=_periodic_eval(backbone, scene, tc.eval) if tc.eval_every else None)
@@ -156,7 +156,7 @@ def run_stage1(cfg: Any, scene: Scene, run_dir: str | Path) -> dict:
     backbone.eval()
     result = evaluate(backbone, scene, run_dir, tc.eval)
     export = _export(backbone, run_dir)
-    result.update(write_products(cfg, backbone, scene, run_dir, iteration=res.steps, progress=tc.progress))
+    result.update(write_products(rc, backbone, scene, run_dir, iteration=res.steps, progress=tc.progress))
     return {"stage1": {**result, "steps": res.steps, "time_s": res.time_s, "steps_per_s": res.steps_per_s,
                        "resumed_from": res.resumed_from, "num_primitives": int(backbone.num_primitives()),
                        "image_size": [scene.train.cameras.width, scene.train.cameras.height],

@@ -63,6 +63,26 @@ class GaussianBackbone(Backbone):
         return init_gaussians(points, colors, num_scales=self.num_scales, sh_degree=cfg.sh_degree,
                               opacity=cfg.init_opacity, random_rotations=self.random_rotations)
 
+    # ------------------------------------------------------------------ run checks (arcsem.plugins.Backbone)
+    @classmethod
+    def check_config(cls, cfg: GaussianConfig, device: str) -> None:
+        """``rasterizer=gsplat`` (the optional CUDA rasteriser) needs gsplat and a CUDA ``device``."""
+        if cfg.rasterizer == "gsplat":
+            from .gsplat_bridge import require_gsplat
+
+            require_gsplat(device)
+
+    @classmethod
+    def check_scene(cls, cfg: GaussianConfig, scene: Any) -> None:
+        """``rasterizer=gsplat``: every camera of the scene must be one gsplat draws (its 2DGS: pinhole only)."""
+        if cfg.rasterizer != "gsplat":
+            return
+        from .gsplat_bridge import gsplat_cameras
+
+        for split in (scene.train, scene.test):
+            if len(split):
+                gsplat_cameras(split.cameras, two_d=cls.num_scales == 2)
+
     # ------------------------------------------------------------------ rendering
     def _rasterize(self, means, quats, scales, opacities, colors, cams, **kw) -> RenderOutput:
         raise NotImplementedError

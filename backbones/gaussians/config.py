@@ -5,7 +5,12 @@ from dataclasses import dataclass, field
 
 from arcsem.registry import checked
 
-__all__ = ["GaussianConfig"]
+__all__ = ["LOWPASS_SIGMA", "GaussianConfig"]
+
+LOWPASS_SIGMA = 2**-0.5
+"""The official 2DGS screen-space low-pass sigma, in pixels (``rho2d = |pixel - centre|^2 / sigma^2 = 2 |d|^2``; the
+kernels take ``1 / sigma^2``, so a sigma must be > 0). gsplat's 2DGS compiles this one in. The one place it is
+written: the gs2d ``Config`` default, the rasterisers' defaults and the gsplat check read it from here."""
 
 
 @dataclass

@@ -22,6 +22,8 @@ from torch import Tensor
 
 from arcsem import cext
 
+from .config import LOWPASS_SIGMA
+
 __all__ = [
     "EXTENSION",
     "composite2d",
@@ -162,7 +164,7 @@ class _Composite2D(torch.autograd.Function):
 
 def composite2d(Hm: Tensor, Dz: Tensor, centers: Tensor, opacities: Tensor, colors: Tensor, normals: Tensor,
                 mcoef: Tensor, lists, near: float, C: int, H: int, W: int, tile: int,
-                background: Tensor | None = None, lowpass_sigma: float = 2**-0.5):
+                background: Tensor | None = None, lowpass_sigma: float = LOWPASS_SIGMA):
     """Composite sorted 2-D Gaussian surfels front to back (official 2DGS rules, see cpp/composite2d.h).
 
     Args:
@@ -283,7 +285,7 @@ def sh_colors(means: Tensor, sh_dc: Tensor, sh_rest: Tensor, origins: Tensor, or
 
 @torch.no_grad()
 def footprint_bin_2dgs(H: Tensor, Dz: Tensor, opacities: Tensor, C: int, near: float, W: int, Hh: int, tile: int,
-                       lowpass_sigma: float = 2**-0.5):
+                       lowpass_sigma: float = LOWPASS_SIGMA):
     """``footprint_2dgs`` + ``bin_tiles`` fused: the tile lists (cpp/api.h ``TileLists``): radii ``[C*N]`` (0 where
     not visible), visible ``[C*N]``, rects ``[C*N, 4]``, effective pixel boxes ``box [C*N, 4]``, tile ``offsets``
     ``[C*TY*TX + 1]``, sorted ``ids [P]``, and each entry's pairs (``entry_offsets``, ``pair_of``)."""

@@ -37,6 +37,8 @@ from arcsem.cameras import Cameras
 from arcsem.errors import ConfigError
 from arcsem.rotations import quat_to_rotmat
 
+from .config import LOWPASS_SIGMA
+
 __all__ = ["drawn_2dgs", "gsplat_cameras", "render_gsplat_2dgs", "render_gsplat_3dgs", "require_2dgs_tile", "require_gsplat",
            "require_lowpass"]
 
@@ -56,7 +58,7 @@ def require_gsplat(device) -> None:
 
 def require_lowpass(lowpass_sigma: float) -> None:
     """ConfigError unless the 2DGS low-pass sigma is gsplat's fixed one (``1/sqrt(2)`` px, the official)."""
-    if abs(lowpass_sigma - 2**-0.5) > 1e-9:
+    if abs(lowpass_sigma - LOWPASS_SIGMA) > 1e-9:
         raise ConfigError(f"{KEY}=gsplat: gsplat's low-pass filter is fixed at backbone.lowpass_sigma=0.7071 "
                           f"(got {lowpass_sigma}); use {KEY}=auto")
 
@@ -122,7 +124,7 @@ def render_gsplat_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
 
 def render_gsplat_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
                        cams: Cameras, *, background: Tensor | None = None, tile: int = 16, near: float = 0.01,
-                       dist_depth: tuple[float, float, float] = (0.0, 1.0, 0.0), lowpass_sigma: float = 2**-0.5,
+                       dist_depth: tuple[float, float, float] = (0.0, 1.0, 0.0), lowpass_sigma: float = LOWPASS_SIGMA,
                        **_: object) -> dict[str, Tensor]:
     """:func:`arcsem.backbones.gs2d.render.render_2dgs` on ``gsplat.rasterization_2dgs`` (pinhole cameras).
 

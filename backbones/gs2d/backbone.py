@@ -26,8 +26,16 @@ class GS2DBackbone(GaussianBackbone):
     def __init__(self, cfg: Config, scene=None, act=None, **runtime):
         super().__init__(cfg, scene=scene, act=act, **runtime)
         self._dist_depth()  # a bad mode fails at construction, not at the first render
-        if not self.cfg.lowpass_sigma > 0:
-            raise ConfigError(f"backbone.lowpass_sigma must be > 0 (pixels), got {self.cfg.lowpass_sigma}")
+
+    @classmethod
+    def check_scene(cls, cfg: GS2DConfig, scene) -> None:
+        """``rasterizer=gsplat``: pinhole cameras, gsplat's fixed low-pass sigma, tiles of at most 16 px."""
+        super().check_scene(cfg, scene)
+        if cfg.rasterizer == "gsplat":
+            from ..gaussians.gsplat_bridge import require_2dgs_tile, require_lowpass
+
+            require_lowpass(float(cfg.lowpass_sigma))
+            require_2dgs_tile(int(cfg.tile))
 
     def _dist_depth(self) -> tuple[float, float, float]:
         from .render import distortion_depth

@@ -5,13 +5,13 @@ from dataclasses import dataclass
 
 from arcsem.registry import checked
 
-from ..gaussians.config import GaussianConfig
+from ..gaussians.config import LOWPASS_SIGMA, GaussianConfig
 
 __all__ = ["GSPLAT_LOWPASS_SIGMA", "GS2DConfig", "lowpass_for"]
 
 # gsplat's 2DGS kernels compile their screen-space filter in (FILTER_INV_SQUARE = 2: sigma = 1/sqrt(2) px, the
 # official value); no argument changes it
-GSPLAT_LOWPASS_SIGMA = 2**-0.5
+GSPLAT_LOWPASS_SIGMA = LOWPASS_SIGMA
 
 
 def lowpass_for(rasterizer: str, ours: float) -> float:
@@ -33,4 +33,5 @@ class GS2DConfig(GaussianConfig):
     # this sigma around its projected centre (official 1/sqrt(2) = 0.707). It widens every silhouette by
     # about a sigma, and a fit to sharp silhouettes pays for that by shrinking the surface: at low
     # resolution a pixel is ~1 % of the specimen (benchmarks/results/README.md, "Surfels behind the surface")
-    lowpass_sigma: float = checked(0.7071067811865476, ge=0.0)
+    # (> 0: the kernels divide by sigma^2)
+    lowpass_sigma: float = checked(LOWPASS_SIGMA, gt=0.0)

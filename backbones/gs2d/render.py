@@ -9,6 +9,7 @@ orthographic camera ``Tw = (0, 0, 1)``, so the same code applies.
 from __future__ import annotations
 
 import torch
+from arcsem.backbones.gaussians.config import LOWPASS_SIGMA
 from arcsem.backbones.gaussians.raster import (
     Segments,
     bin_tiles,
@@ -50,7 +51,7 @@ def distortion_depth(mode: str = "ndc", length: float = 1.0) -> tuple[float, flo
     raise ValueError(f"distortion_depth: mode must be 'ndc' or 'linear', got '{mode}'")
 # Screen-space low-pass filter (2DGS): a splat is drawn at least as the 2-D Gaussian of this sigma (pixels)
 # around its projected centre, rho = min(rho3d, |pixel - centre|^2 / sigma^2). Official: rho2d = 2 |d|^2.
-LOWPASS_SIGMA = 2**-0.5  # = the gs2d Config default 0.7071067811865476
+# LOWPASS_SIGMA: the official 1/sqrt(2) (arcsem.backbones.gaussians.config), the gs2d Config default
 
 
 def splat_homographies(means: Tensor, quats: Tensor, scales: Tensor, cams: Cameras) -> tuple[Tensor, Tensor]:

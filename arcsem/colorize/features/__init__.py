@@ -9,10 +9,11 @@ from .base import (
     Extractor,
     SceneContext,
     announce_features,
+    check_features,
     resolve_features,
     tcm_space,
 )
 from .build import build_extractor
 
 __all__ = ["DEFAULT_WITHOUT_IMAGENET", "FEATURES", "ColourSpace", "Extractor", "SceneContext", "announce_features",
-           "build_extractor", "resolve_features", "tcm_space"]
+           "build_extractor", "check_features", "resolve_features", "tcm_space"]

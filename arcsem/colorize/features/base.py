@@ -29,12 +29,15 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from ...configs import EXTRACTORS, VGG_FEATURES
+
 __all__ = ["DEFAULT_WITHOUT_IMAGENET", "FEATURES", "ColourSpace", "Extractor", "SceneContext", "announce_features",
-           "grey_channel", "imagenet_vgg_available", "no_grad_features", "resolve_features", "space_label", "tcm_space"]
+           "check_features", "grey_channel", "imagenet_vgg_available", "no_grad_features", "resolve_features",
+           "space_label", "tcm_space"]
 
 log = logging.getLogger(__name__)
 
-FEATURES = ("auto", "vgg16", "vgg19", "daisy", "learned")
+FEATURES = ("auto", *EXTRACTORS)
 # The extractor `auto` takes where no ImageNet VGG weights exist: the best measured without them, end to end
 # (held-out colour PSNR of the full method at one reference, three seeds, two scenes, paired by seed:
 # benchmarks/results/features/README.md, section 5): VGG16 with random weights, ahead of DAISY and the
@@ -116,20 +119,37 @@ def announce_features(name: str) -> str:
         if imagenet_vgg_available("vgg16"):
             why = "ImageNet VGG16 weights found"
         else:
-            what = "with random weights, " if chosen in ("vgg16", "vgg19") else ""
+            what = "with random weights, " if chosen in VGG_FEATURES else ""
             why = (f"no ImageNet VGG weights in the torch hub cache; {what}the best extractor measured without "
                    "them (benchmarks/results/features)")
         log.warning("colorize.features=auto: TCM/CCM use '%s' features (%s)", chosen, why)
     return chosen
 
 
-def tcm_space(choice: str, extractor: Extractor):
-    """The TCM loss space: ``auto`` = the extractor's own features where it is differentiable (VGG), else colour."""
+def _check_space(choice: str, name: str, differentiable: bool) -> None:
+    """``colorize.tcm_space=features`` needs features that can be computed on a colour render (VGG's)."""
     from ...errors import ConfigError
 
-    if choice == "features" and not extractor.differentiable:
-        raise ConfigError(f"colorize.tcm_space=features: '{extractor.name}' features cannot be computed on a "
+    if choice == "features" and not differentiable:
+        raise ConfigError(f"colorize.tcm_space=features: '{name}' features cannot be computed on a "
                           "colour render; use tcm_space=color (or auto)")
+
+
+def check_features(name: str, space: str) -> str:
+    """Before a run: the extractor ``name`` (``auto`` announced: :func:`announce_features`) can run here, and the
+    TCM loss space ``space`` suits it. Returns the extractor's name."""
+    chosen = announce_features(name)  # the one line per job that says what `auto` chose
+    if chosen == "daisy":
+        from .daisy import require_daisy
+
+        require_daisy()
+    _check_space(space, chosen, chosen in VGG_FEATURES)
+    return chosen
+
+
+def tcm_space(choice: str, extractor: Extractor):
+    """The TCM loss space: ``auto`` = the extractor's own features where it is differentiable (VGG), else colour."""
+    _check_space(choice, extractor.name, extractor.differentiable)
     if choice == "features" or (choice == "auto" and extractor.differentiable):
         return extractor
     return ColourSpace(extractor.strides)

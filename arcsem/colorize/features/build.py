@@ -5,6 +5,7 @@ It sits above the extractors' modules (:mod:`..vgg`, :mod:`.daisy`, :mod:`.learn
 """
 from __future__ import annotations
 
+from ...configs import VGG_FEATURES
 from .base import FEATURES, Extractor, SceneContext, resolve_features
 
 __all__ = ["build_extractor"]
@@ -15,7 +16,7 @@ def build_extractor(name: str, ctx: SceneContext | None = None) -> Extractor:
     from ...errors import ConfigError
 
     name = resolve_features(name)
-    if name in ("vgg16", "vgg19"):
+    if name in VGG_FEATURES:
         import copy
 
         from ..vgg import get_vgg

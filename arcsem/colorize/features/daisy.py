@@ -23,6 +23,17 @@ def cell_centres(h: int, w: int, stride: int) -> tuple[np.ndarray, np.ndarray]:
     return np.arange(w // stride) * stride + off, np.arange(h // stride) * stride + off
 
 
+def require_daisy() -> None:
+    """PluginError unless the installed OpenCV has DAISY (``cv2.xfeatures2d``, OpenCV contrib)."""
+    import cv2
+
+    if not hasattr(cv2, "xfeatures2d"):
+        from ...errors import PluginError
+
+        raise PluginError("colorize.features=daisy needs OpenCV contrib (opencv-contrib-python-headless); "
+                          "the installed cv2 has no xfeatures2d")
+
+
 class DaisyFeatures:
     """``images [N, H, W, 3]`` -> per block ``[N, 200, H // s, W // s]`` dense DAISY (float32, no gradient)."""
 
@@ -45,11 +56,7 @@ class DaisyFeatures:
     def _descriptor(self, radius: float):
         import cv2
 
-        if not hasattr(cv2, "xfeatures2d"):
-            from ...errors import PluginError
-
-            raise PluginError("colorize.features=daisy needs OpenCV contrib (opencv-contrib-python-headless); "
-                              "the installed cv2 has no xfeatures2d")
+        require_daisy()
         q_radius, q_theta, q_hist = self.q
         return cv2.xfeatures2d.DAISY_create(radius=float(radius), q_radius=q_radius, q_theta=q_theta,
                                             q_hist=q_hist, norm=cv2.xfeatures2d.DAISY_NRM_PARTIAL)

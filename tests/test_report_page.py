@@ -125,3 +125,26 @@ def test_weights_command_reports_each_file(tmp_path, monkeypatch, capsys):
     torch.save({"w": torch.zeros(1)}, tmp_path / "hub" / "checkpoints" / "alexnet-owt-7be5be79.pth")
     assert main(["alexnet-owt-7be5be79.pth"]) == 0
     assert "alexnet-owt-7be5be79.pth: ok" in capsys.readouterr().out
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason=SKIP_REASON)
+def test_the_runs_table_of_a_stage_all_run_fits_a_1400_px_window(tmp_path):
+    """Every column a stage=all run fills (grey train/held-out, depth, mesh, colour non-ref./held-out, coverage,
+    features, validated target) fits a 1400 px window: the page's self-check finds no table wider than it (the
+    validated-target column, added for issue 38, first pushed it over)."""
+    ims = {"psnr": 31.23, "ssim": 0.949, "lpips": 0.123}
+    stage2 = {"train_nonref": ims, "test": {**ims, "psnr_covered": 22.98, "psnr_uncovered": 23.36, "coverage": 0.999},
+              "features": "vgg16-random",
+              "validation": {"surface": "fill", "shading": "auto", "tcm": {"keep": True}, "ccm": {"keep": True},
+                             "target_mse": {"fill/auto": 0.01, "off/off": 0.017}}}
+    stage1 = {"train_paper": ims, "test": ims, "depth": {"test_mae_pct": 0.94, "test_mae": 0.0188},
+              "mesh": {"gt": {"chamfer_pct": 0.88}}}
+    run = tmp_path / "demo"
+    run.mkdir()
+    (run / "metrics.json").write_text(json.dumps({"seed": 0, "overrides": ["experiment=demo"], "stages": {
+        "gray": {"stage1": stage1}, "color": {"stage2": stage2}}}))
+    page = build_report([run])
+    with Browser(1400, 900) as browser:
+        browser.open(page.as_uri(), settle=1.0)
+        assert browser.evaluate("document.querySelectorAll('table.metrics th').length") >= 20
+        assert page_problems(browser) == []

@@ -24,7 +24,8 @@ table{border-collapse:collapse;margin:1em 0}th,td{padding:3px 8px;border-bottom:
 td{text-align:right}td:first-child,th:first-child{text-align:left}th{background:#f3f3f3}
 img{max-width:100%;border:1px solid #ddd}figure{display:inline-block;margin:4px}video{max-width:380px}.notes{font-size:90%;color:#444}
 .broken{background:#fdd;border:1px solid #c00;padding:6px}code{background:#f3f3f3;padding:0 3px}
-table.files{table-layout:fixed;width:100%;font-size:85%}table.files td,table.files th{overflow-wrap:anywhere;text-align:left}"""
+table.files{table-layout:fixed;width:100%;font-size:85%}table.files td,table.files th{overflow-wrap:anywhere;text-align:left}
+table.metrics{font-size:85%}table.metrics th,table.metrics td{padding:3px 4px}table.metrics td.text{text-align:left;min-width:5em;max-width:10em;overflow-wrap:anywhere}"""
 
 CHECK = """<script>
 window.addEventListener('load', function () {
@@ -70,10 +71,11 @@ def render_table(t: Table) -> str:
     top = "<tr><th></th>" + "".join(f'<th colspan="{n}">{e(g)}</th>' for g, n in groups) + "</tr>"
     head = f"<tr><th>{e(ROW_HEADER.get(t.study, 'Row'))}</th>" + "".join(
         f"<th>{e(c.label)}</th>" for c in t.columns) + "</tr>"
+    cls = ['' if not c.text else ' class="text"' for c in t.columns]
     body = "".join("<tr><td>" + e(label) + "</td>" + "".join(
-        f"<td><b>{e(x)}</b></td>" if b else f"<td>{e(x)}</td>" for x, b in row) + "</tr>"
+        f"<td{k}><b>{e(x)}</b></td>" if b else f"<td{k}>{e(x)}</td>" for k, (x, b) in zip(cls, row)) + "</tr>"
         for label, row in zip(t.labels, t.cells))
-    return f"<table>{top}{head}{body}</table>"
+    return f'<table class="metrics">{top}{head}{body}</table>'
 
 
 def copy_videos(study: str, runs: dict[str, Path], out: Path) -> list[tuple[str, Path]]:

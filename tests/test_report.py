@@ -381,31 +381,3 @@ def test_colour_grid_shows_held_out_views_and_marks_references(tmp_path):
     tile_h = marked.shape[0] // 2  # v0, v1: the reference's row label has a second line, "(reference)"
     row_label = lambda r: int((marked[r * tile_h: (r + 1) * tile_h, :90] < 128).any(-1).any(-1).sum())
     assert row_label(1) > 1.5 * row_label(0)
-
-
-def test_the_validated_stage2_target_is_a_column_of_the_colour_tables(tmp_path):
-    """Stage 2's leave-one-reference-out choice (metrics.json stage2.validation) reaches the report: the target it
-    trained towards, its gain over the pseudo-colours alone, and the guided losses kept; 'as configured' without."""
-    from arcsem.report.collect import stage2_choice
-    from arcsem.report.tables import build_table
-
-    validation = {"references": 5, "surface": "fill", "shading": "auto", "time_s": 2.0,
-                  "target_mse": {"fill/auto": 0.01, "fill/off": 0.02, "off/auto": 0.015, "off/off": 0.04},
-                  "tcm": {"guidance": 0.002, "target": 0.03, "keep": True},
-                  "ccm": {"guidance": 0.09, "target": 0.05, "keep": False}}
-    for name, val in (("five", validation), ("one", None)):
-        run = tmp_path / "sweep" / name
-        run.mkdir(parents=True)
-        stage2 = {"test": {"psnr": 27.0, "ssim": 0.9, "lpips": 0.2}, **({"validation": val} if val else {})}
-        metrics = {"seed": 0, "overrides": ["experiment=demo"], "stages": {"color": {"stage2": stage2}}}
-        (run / "metrics.json").write_text(json.dumps(metrics))
-    coll = collect([tmp_path / "sweep"])
-    choice = dict(zip(coll.runs["run_dir"].map(lambda p: Path(p).name), coll.runs["stage2_choice"]))
-    assert choice == {"five": "surface+shading (+6.0 dB) +TCM", "one": "as configured"}
-    table = build_table(coll, "runs")
-    col = [c.key for c in table.columns].index("stage2_choice")
-    assert sorted(row[col][0] for row in table.cells) == ["as configured", "surface+shading (+6.0 dB) +TCM"]
-    assert any("validated target" in n for n in table.notes)
-    off = {"stage2.validation.surface": "off", "stage2.validation.shading": "off",
-           "stage2.validation.target_mse.off/off": 0.04}
-    assert stage2_choice(off) == "pseudo-colours (+0.0 dB)"

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .sdf import ellipsoid
+from .sdf import ellipsoid, fibonacci_sphere
 
 __all__ = ["PALETTE", "PART_NAMES", "Parts", "make_parts", "parts_albedo", "parts_label", "parts_sdf"]
 
@@ -35,15 +35,6 @@ PALETTE = {  # an artist's choice: one colour per part, hues far apart
     "substrate": (0.85, 0.78, 0.45),  # sand
 }
 PART_NAMES = ("body", "spine", "pore", "debris")  # labels 0..3 of :func:`parts_label`
-
-
-def _fibonacci(n: int) -> np.ndarray:
-    """``[n, 3]`` unit vectors spread evenly over the sphere."""
-    i = np.arange(n) + 0.5
-    z = 1 - 2 * i / n
-    phi = math.pi * (1 + 5**0.5) * i
-    r = np.sqrt(1 - z**2)
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], -1)
 
 
 @dataclass
@@ -111,7 +102,7 @@ def make_parts(seed: int = 0, n_pores: int = 10, n_spines: int = 14, n_debris: i
     radii = np.array(Parts.body_radii)
     turn = rng.uniform(0, 2 * math.pi)
     c, s = math.cos(turn), math.sin(turn)
-    dirs = _fibonacci(n_pores + n_spines) @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T
+    dirs = fibonacci_sphere(n_pores + n_spines) @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T
     dirs = dirs[dirs[:, 2] > -0.75]  # nothing under the body, where no view looks
     on_body = dirs / np.linalg.norm(dirs / radii, axis=-1, keepdims=True)
     normal = on_body / radii**2

@@ -28,6 +28,7 @@ __all__ = [
     "Grain",
     "body_sdf",
     "ellipsoid",
+    "fibonacci_sphere",
     "furrow_profile",
     "grain_albedo",
     "grain_sdf",
@@ -97,7 +98,8 @@ class Grain:
         return grain_albedo(self, p)
 
 
-def _fibonacci(n: int) -> np.ndarray:
+def fibonacci_sphere(n: int) -> np.ndarray:
+    """``[n, 3]`` unit vectors spread evenly over the sphere (the Fibonacci lattice)."""
     i = np.arange(n) + 0.5
     z = 1 - 2 * i / n
     phi = math.pi * (1 + 5**0.5) * i
@@ -117,7 +119,7 @@ def make_grain(seed: int = 0, n_spines: int = 30) -> Grain:
     phi0 = rng.uniform(0, 2 * math.pi / 3)
     fphi = phi0 + np.arange(3) * 2 * math.pi / 3
     furrows = np.stack([np.cos(fphi), np.sin(fphi), np.zeros(3)], -1)
-    cand = _fibonacci(8 * n_spines) @ _rotation(rng).T
+    cand = fibonacci_sphere(8 * n_spines) @ _rotation(rng).T
     side = np.cross(np.array([0.0, 0.0, 1.0]), furrows)  # [3, 3] normals of the meridian planes
     near = (np.abs(cand @ side.T) < 0.25) & (cand @ furrows.T > 0) & (np.abs(cand[:, 2]) < 0.8)[:, None]
     cand = cand[~near.any(1)]

@@ -78,6 +78,21 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def _drawn_screenshot(browser, path, timeout: float = 20.0) -> bytes:
+    """A screenshot once the page shows a drawn frame (the compared region is not one flat colour), polled every
+    0.3 s after a first 1.5 s: a fixed wait lost the race on a busy machine (the frame not yet painted)."""
+    from PIL import Image
+
+    time.sleep(1.5)
+    deadline = time.monotonic() + timeout
+    while True:
+        png = browser.screenshot(path)
+        grey = np.asarray(Image.open(io.BytesIO(png)).convert("L")).astype(float)[200:650, 100:600]
+        if grey.std() > 20 or time.monotonic() > deadline:
+            return png
+        time.sleep(0.3)
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(CHROMIUM is None, reason=SKIP_REASON)
 def test_headless_chromium_shows_the_model(tmp_path):
@@ -95,8 +110,7 @@ def test_headless_chromium_shows_the_model(tmp_path):
             while not any(full for s in viewer.sessions.values() for _, full in s.frames):
                 assert time.monotonic() < deadline, "the viewer sent no full-resolution frame"
                 time.sleep(0.2)
-            time.sleep(1.5)  # let the browser draw it
-            png = browser.screenshot(tmp_path / "viewer.png")
+            png = _drawn_screenshot(browser, tmp_path / "viewer.png")  # the browser has drawn the frame
             sess = next(iter(viewer.sessions.values()))
             state, mode, camera = sess.state()
             canvas = int(browser.evaluate("window.innerHeight"))

@@ -180,7 +180,7 @@ def run(cfg: DictConfig, run_dir: str | Path | None = None, overrides: list[str]
             folders = list(resolve(entry.input_dirs, stage)(rc)) if entry.input_dirs else []
         else:
             t0 = time.perf_counter()
-            scene = load_scene(cfg.dataset)
+            scene = load_scene(rc.dataset)
             metrics["timings"]["load_scene_s"] = time.perf_counter() - t0
             metrics["dataset"].update(root=scene.root, **_scene_summary(scene))
             for warning in check_scene(rc, scene, stage, run_dir):

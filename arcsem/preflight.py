@@ -79,14 +79,13 @@ def training_size(cams: Any, downscale: float, width: int | None) -> tuple[int, 
     return w, round(cams.height * w / cams.width)
 
 
-def check_run(cfg: Any, dataset: bool = True) -> None:
-    """The run-wide keys ``seed``, ``threads``, ``device`` and, with ``dataset``, the dataset config
-    (:func:`arcsem.data.check_dataset_config`); reads no data."""
-    _check_top_level(cfg)
+def check_run(rc: Any, dataset: bool = True) -> None:
+    """The run-wide keys ``seed``, ``threads``, ``device`` and, with ``dataset``, the dataset config (read once into
+    ``rc.dataset``, :func:`arcsem.data.check_dataset_config`); reads no data. ``rc``: the run's
+    :class:`~arcsem.runconfig.RunConfig`."""
+    _check_top_level(rc.cfg)
     if dataset:
-        from .data import check_dataset_config
-
-        check_dataset_config(cfg.dataset)
+        rc.dataset  # noqa: B018 - validated (and kept) on first read
 
 
 def check_scene_basics(scene: Any) -> list[str]:

@@ -32,7 +32,7 @@ class RunConfig:
     """The composed config of one run (``cfg``: read it for plain keys such as ``seed``, ``device`` or the dataset)
     and its groups as typed, checked dataclasses, each validated once, when first read.
 
-    Fields: ``train`` (:class:`~arcsem.configs.TrainConfig`), ``act``, ``colorize``, ``mesh``, ``render``, and
+    Fields: ``dataset`` (:class:`~arcsem.data.DatasetSpec`), ``train`` (:class:`~arcsem.configs.TrainConfig`), ``act``, ``colorize``, ``mesh``, ``render``, and
     ``backbone``: the plugin's validated ``Config`` (its class: ``backbone_class``, its name: ``backbone_name``);
     the loss terms' ``Config``: :meth:`loss_configs`.
     """
@@ -57,6 +57,14 @@ class RunConfig:
         """``cfg.backbone`` without ``name``, checked against the plugin's ``Config`` (ranges too)."""
         values = {k: v for k, v in dict(plain(self.cfg.backbone)).items() if k != "name"}
         return validated(self.backbone_class.Config, values, where=f"backbone '{self.backbone_name}'")
+
+    @cached_property
+    def dataset(self) -> Any:
+        """``cfg.dataset`` checked once (:func:`arcsem.data.check_dataset_config`): the
+        :class:`~arcsem.data.DatasetSpec` that :func:`arcsem.data.load_scene` reads."""
+        from .data import check_dataset_config
+
+        return check_dataset_config(self.cfg.dataset)
 
     @cached_property
     def train(self) -> TrainConfig:

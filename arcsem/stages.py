@@ -140,7 +140,7 @@ def check_config(cfg: Any, stage: str, overrides: list[str] | None = None) -> No
 
     rc = run_config(cfg)
     check_flag_overrides(rc.cfg, overrides or [])
-    check_run(rc.cfg, dataset=STAGES.get(stage).needs_scene)
+    check_run(rc, dataset=STAGES.get(stage).needs_scene)
     for check in _unique(stage, "check_config"):
         check(rc)
 

@@ -182,8 +182,9 @@ def test_a_whole_run_validates_each_group_once(tmp_path, monkeypatch):
     assert metrics["status"] == "complete" and metrics["completed_stages"] == ["gray", "color"]
     # once for the run; train, act and the backbone once more for the stage-1 checkpoint's own stored config,
     # which stage 2 rebuilds its model from (another input, read from disk)
-    assert {k: calls[k] for k in ("train", "act", "backbone '_checked'", "colorize", "mesh", "render")} == {
-        "train": 2, "act": 2, "backbone '_checked'": 2, "colorize": 1, "mesh": 1, "render": 0}, calls
+    # the dataset once (its reader options, by the preflight; the scene is loaded from that checked spec)
+    assert {k: calls[k] for k in ("dataset", "train", "act", "backbone '_checked'", "colorize", "mesh", "render")} == {
+        "dataset": 1, "train": 2, "act": 2, "backbone '_checked'": 2, "colorize": 1, "mesh": 1, "render": 0}, calls
     # each loss term once, though the checks and the stages build the loss sets four times
     assert {k: n for k, n in calls.items() if k.startswith("loss ")} == {
         "loss 'l1'": 1, "loss 'dssim'": 1, "loss 'reference_l1'": 1, "loss 'pseudo_color'": 1}, calls

@@ -5,6 +5,7 @@ Every reader returns one :class:`~arcsem.scene.Scene`; options shared by all rea
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +18,7 @@ from .transforms import read_transforms
 
 __all__ = [
     "KINDS",
+    "DatasetSpec",
     "ReaderOptions",
     "check_dataset_config",
     "dataset_keys",
@@ -49,10 +51,29 @@ def dataset_keys(kind: str) -> list[str]:
     return keys
 
 
-def check_dataset_config(cfg: Any) -> None:
-    """ConfigError naming the key for a ``dataset`` config with a kind or key arcsem does not know (a typo added
-    with ``+dataset.dowscale=4`` would be ignored otherwise), bad reader options, or, for ``synthetic``, a
-    generator parameter out of its range (``n_horizontal=0``, ``noise=-1``, ``camera=fisheye``)."""
+@dataclass(frozen=True)
+class DatasetSpec:
+    """A checked ``dataset`` config (:func:`check_dataset_config`), what :func:`load_scene` reads: the kind, the
+    reader options, the scene's path (``transforms``, ``colmap``), the generator's parameters (``synthetic``) and
+    the COLMAP reader's own keys."""
+
+    kind: str
+    options: ReaderOptions
+    path: str | None = None
+    params: dict | None = None
+    images: str = "images"
+    masks: str | None = None
+    undistort: bool = True
+
+
+def check_dataset_config(cfg: Any) -> DatasetSpec:
+    """The checked :class:`DatasetSpec` of a ``dataset`` config (DictConfig or dict); ConfigError naming the key for
+    a kind or key arcsem does not know (a typo added with ``+dataset.dowscale=4`` would be ignored otherwise), bad
+    reader options, a missing ``path``, or, for ``synthetic``, a generator parameter out of its range
+    (``n_horizontal=0``, ``noise=-1``, ``camera=fisheye``). Reads no data. A run calls it once (the run config's
+    ``dataset``) and hands the spec to :func:`load_scene`."""
+    if isinstance(cfg, DatasetSpec):
+        return cfg
     kind = _get(cfg, "kind")
     if kind not in KINDS:
         raise ConfigError(f"dataset.kind: unknown kind '{kind}'; available: {', '.join(KINDS)}")
@@ -61,9 +82,21 @@ def check_dataset_config(cfg: Any) -> None:
     if unknown:
         raise ConfigError(f"dataset.{unknown[0]}: unknown key for dataset kind '{kind}'; valid keys: "
                           f"{', '.join(keys)}")
-    reader_options(cfg)
+    opts = reader_options(cfg)
     if kind == "synthetic":
-        _synthetic_params(cfg)
+        return DatasetSpec(kind, opts, params=_synthetic_params(cfg))
+    from omegaconf import DictConfig, OmegaConf
+
+    if isinstance(cfg, DictConfig) and OmegaConf.is_missing(cfg, "path"):
+        raise ConfigError(f"dataset.path is not set: add dataset.path=/path/to/scene (dataset kind '{kind}')")
+    path = _get(cfg, "path")
+    if not path:
+        raise ConfigError(f"dataset.path is not set (dataset kind '{kind}')")
+    if kind == "transforms":
+        return DatasetSpec(kind, opts, path=str(path))
+    masks = _get(cfg, "masks")
+    return DatasetSpec(kind, opts, path=str(path), images=str(_get(cfg, "images", "images")),
+                       masks=None if masks is None else str(masks), undistort=bool(_get(cfg, "undistort", True)))
 
 
 def _synthetic_params(cfg: Any) -> dict:
@@ -88,32 +121,16 @@ def _get(cfg: Any, key: str, default: Any = None) -> Any:
     return cfg.get(key, default) if hasattr(cfg, "get") else getattr(cfg, key, default)
 
 
-def _synthetic_path(cfg: Any) -> Path:
-    """Generate (or reuse) the synthetic scene: ``arcsem.synthetic.ensure_scene(**params)``.
-
-    ``params`` is ``cfg.params`` if present, else every key of ``cfg`` that is not a reader option.
-    """
-    try:
-        from ..synthetic import ensure_scene
-    except ImportError as exc:
-        raise PluginError(f"dataset kind 'synthetic' needs arcsem.synthetic.ensure_scene: {exc}") from None
-    return Path(ensure_scene(**_synthetic_params(cfg)))
-
-
 def load_scene(cfg: Any) -> Scene:
-    """Read the dataset described by a ``conf/dataset/*.yaml`` config (DictConfig or dict)."""
-    check_dataset_config(cfg)
-    kind, opts = _get(cfg, "kind"), reader_options(cfg)
-    if kind == "synthetic":
-        return read_transforms(_synthetic_path(cfg), opts)
-    from omegaconf import DictConfig, OmegaConf
-
-    if isinstance(cfg, DictConfig) and OmegaConf.is_missing(cfg, "path"):
-        raise ConfigError(f"dataset.path is not set: add dataset.path=/path/to/scene (dataset kind '{kind}')")
-    path = _get(cfg, "path")
-    if not path:
-        raise ConfigError(f"dataset.path is not set (dataset kind '{kind}')")
-    if kind == "transforms":
-        return read_transforms(path, opts)
-    return read_colmap(path, opts, images=_get(cfg, "images", "images"), masks=_get(cfg, "masks"),
-                       undistort=bool(_get(cfg, "undistort", True)))
+    """Read the dataset a :class:`DatasetSpec` describes; handed a ``conf/dataset/*.yaml`` config (DictConfig or
+    dict) instead, check it first (:func:`check_dataset_config`)."""
+    spec = check_dataset_config(cfg)
+    if spec.kind == "synthetic":
+        try:
+            from ..synthetic import ensure_scene
+        except ImportError as exc:
+            raise PluginError(f"dataset kind 'synthetic' needs arcsem.synthetic.ensure_scene: {exc}") from None
+        return read_transforms(Path(ensure_scene(**spec.params)), spec.options)
+    if spec.kind == "transforms":
+        return read_transforms(spec.path, spec.options)
+    return read_colmap(spec.path, spec.options, images=spec.images, masks=spec.masks, undistort=spec.undistort)

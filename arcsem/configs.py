@@ -132,6 +132,9 @@ class GuardConfig:
     normal_tol: float = checked(0.35, gt=0.0)  # largest difference of the normals' elevation n . u
     height_tol: float = checked(0.15, gt=0.0)  # largest difference of the heights (share of the specimen's)
     views_tol: float = checked(0.2, gt=0.0)  # largest difference from the other views' median colour at a point
+    # TCM and CCM act only on the cells the pseudo-colour target leaves (under half their pixels have one): where the
+    # stage-1 geometry already says which reference pixel a point shows, an appearance match is the weaker evidence
+    uncovered_only: bool = True
 
 
 @dataclass

@@ -1,5 +1,5 @@
 """The colour comparison's table: held-out colour PSNR (whole, masked, inside and outside the pseudo-colour
-coverage) of every stage-2 run folder under a directory, with what validation chose.
+coverage) of every stage-2 run folder under a directory, the reference views' own PSNR and what validation chose.
 
     .venv/bin/python benchmarks/colour_table.py DIR [DIR ...]     # run folders DIR/<scene>_<refs>_<variant>/
 """
@@ -18,13 +18,16 @@ def row(run: Path) -> str | None:
     t, v = s2["test"], s2.get("validation") or {}
     chose = (f"{v['surface']}/{v['shading']}, TCM {'on' if v.get('tcm', {}).get('keep') else 'off'}, "
              f"CCM {'on' if v.get('ccm', {}).get('keep') else 'off'}") if v else "-"
-    return (f"| {run.name} | {t['psnr']:.2f} | {t['psnr_masked']:.2f} | {t['psnr_covered']:.2f} | "
-            f"{t['psnr_uncovered']:.2f} | {t['uncovered_px']} | {chose} | {m.get('git_revision', '')[:7]} |")
+    f = lambda d, k: f"{d[k]:.2f}" if d.get(k) is not None else "-"  # no masks: no masked PSNR
+    return (f"| {run.name} | {f(t, 'psnr')} | {f(t, 'psnr_masked')} | {f(t, 'psnr_covered')} | "
+            f"{f(t, 'psnr_uncovered')} | {t.get('uncovered_px', '-')} | {f(s2.get('train_ref', {}), 'psnr')} | "
+            f"{chose} | {m.get('git_revision', '')[:7]} |")
 
 
 def main(dirs: list[str]) -> None:
-    print("| run | held-out PSNR | masked | inside cov. | outside cov. | px outside | validation chose | commit |")
-    print("|---|---:|---:|---:|---:|---:|---|---|")
+    print("| run | held-out PSNR | masked | inside cov. | outside cov. | px outside | reference views | validation chose "
+          "| commit |")
+    print("|---|---:|---:|---:|---:|---:|---:|---|---|")
     for d in dirs:
         for run in sorted(p.parent for p in Path(d).glob("*/metrics.json")):
             print(row(run))

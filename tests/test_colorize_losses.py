@@ -84,3 +84,33 @@ def test_stage2_losses_declare_their_targets_and_stay_out_of_stage1():
     assert "tcm" in build_losses({"tcm": {}}, {"rgb"}, batch_parts=frozenset({"color"})).terms
     with pytest.raises(ConfigError, match="runs in stage 2"):
         PseudoColor(PseudoColor.Config())({"rgb": torch.zeros(1, 4, 4, 3)}, _batch([0]), 0)
+
+
+class _AllValidGuidance:
+    """Guidance stub: every TCM location (one block, 4x4) and CCM cell (2x2) of every view has a target."""
+
+    def targets(self, v):
+        return {"tcm_guidance": [torch.ones(2, 4, 4)], "tcm_valid": [torch.ones(4, 4, dtype=torch.bool)],
+                "ccm_target": torch.full((2, 2, 3), 0.5), "ccm_valid": torch.ones(2, 2, dtype=torch.bool)}
+
+    def to(self, device):
+        return self
+
+
+def test_tcm_ccm_act_only_where_the_pseudo_colours_do_not_reach():
+    """``colorize.guard.uncovered_only``: the top half of each view has pseudo-colours, so TCM keeps only the bottom
+    two rows of its 4x4 grid and CCM only the bottom row of cells; off, every location keeps its target."""
+    refs = References(names=["a"], indices=torch.tensor([0]), images=torch.full((1, 16, 16, 3), 0.25))
+    valid = torch.zeros(3, 16, 16, dtype=torch.bool)
+    valid[:, :8] = True
+    valid[2, 8:10, :4] = True  # view 2: an eighth of the bottom-left CCM cell also covered (under half: kept)
+    args = (refs, torch.full((3, 16, 16, 3), 0.75), valid, _AllValidGuidance(), None, 4, 8)
+    on = ColorTargetHook(*args, uncovered_only=True)(_batch([1, 2], h=16, w=16)).color
+    assert on.tcm_valid[0].shape == (2, 4, 4) and on.ccm_valid.shape == (2, 2, 2)
+    expect_tcm = torch.zeros(2, 4, 4, dtype=torch.bool)
+    expect_tcm[:, 2:] = True
+    expect_tcm[1, 2, 0] = False  # view 2's covered rows 8-9, columns 0-3: that TCM cell is half covered
+    assert torch.equal(on.tcm_valid[0], expect_tcm)
+    assert on.ccm_valid.tolist() == [[[False, False], [True, True]]] * 2
+    off = ColorTargetHook(*args, uncovered_only=False)(_batch([1, 2], h=16, w=16)).color
+    assert bool(off.tcm_valid[0].all()) and bool(off.ccm_valid.all())

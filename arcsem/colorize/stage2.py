@@ -107,11 +107,12 @@ class ColorTargetHook:
     a step gathers its targets there, without host transfers.
 
     Args: refs (``R`` references); pseudo ``[N, H, W, 3]`` and valid ``[N, H, W]`` of every training view; guidance
-    (None without TCM/CCM); space: the TCM loss space (the extractor, or a colour space).
+    (None without TCM/CCM); space: the TCM loss space (the extractor, or a colour space); uncovered_only: TCM/CCM
+    targets only on the cells where under half the pixels have a pseudo-colour (``colorize.guard.uncovered_only``).
     """
 
     def __init__(self, refs: References, pseudo: torch.Tensor, valid: torch.Tensor, guidance: Guidance | None,
-                 space=None, tcm_downscale: int = 4, ccm_downscale: int = 16):
+                 space=None, tcm_downscale: int = 4, ccm_downscale: int = 16, uncovered_only: bool = False):
         n = pseudo.shape[0]
         slot = torch.full((n,), len(refs), dtype=torch.long)  # reference position of each view; R: none
         slot[refs.indices] = torch.arange(len(refs))
@@ -119,11 +120,21 @@ class ColorTargetHook:
         self.references = torch.cat([refs.images.float(), torch.zeros_like(refs.images[:1]).float()])  # [R + 1, ...]
         self.pseudo, self.valid, self.guidance, self.space = pseudo, valid, guidance, space
         self.tcm_downscale, self.ccm_downscale = tcm_downscale, ccm_downscale
+        self.uncovered_only, self._uncovered = uncovered_only, {}
+
+    def uncovered(self, idx: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
+        """``[B, h, w]`` bool: the cells of a ``shape`` grid over views ``idx`` where under half the pixels have a
+        pseudo-colour (computed once per grid for all views, on the targets' device)."""
+        if shape not in self._uncovered:
+            share = F.interpolate(self.valid[:, None].float(), size=tuple(shape), mode="area")[:, 0]
+            self._uncovered[shape] = share < 0.5
+        return self._uncovered[shape][idx]
 
     def to(self, device) -> ColorTargetHook:
         """Move every tensor, the guidance and the loss space (a module: the VGG) to ``device``; returns self."""
         for name in ("slot", "is_ref", "references", "pseudo", "valid"):
             setattr(self, name, getattr(self, name).to(device))
+        self._uncovered = {k: v.to(device) for k, v in self._uncovered.items()}
         if self.guidance is not None:
             self.guidance.to(device)
         if isinstance(self.space, torch.nn.Module):
@@ -144,6 +155,11 @@ class ColorTargetHook:
                 targets.tcm_valid = [stack([x["tcm_valid"][b] for x in t]) for b in range(len(t[0]["tcm_valid"]))]
             targets.ccm_target = stack([x["ccm_target"] for x in t])
             targets.ccm_valid = stack([x["ccm_valid"] for x in t])
+            if self.uncovered_only:
+                blocks = targets.tcm_valid or [torch.ones(g.shape[:1] + g.shape[2:], dtype=torch.bool, device=g.device)
+                                               for g in targets.tcm_guidance]
+                targets.tcm_valid = [ok & self.uncovered(idx, tuple(ok.shape[-2:])) for ok in blocks]
+                targets.ccm_valid = targets.ccm_valid & self.uncovered(idx, tuple(targets.ccm_valid.shape[-2:]))
         return dataclasses.replace(batch, color=targets)
 
 
@@ -348,7 +364,8 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
         finfo["time_s"] += time.perf_counter() - t0
     else:
         guidance, space = None, None
-    hook = ColorTargetHook(refs, pseudo, valid, guidance, space, cc.tcm_downscale, cc.ccm_downscale)
+    hook = ColorTargetHook(refs, pseudo, valid, guidance, space, cc.tcm_downscale, cc.ccm_downscale,
+                           uncovered_only=cc.guard.enabled and cc.guard.uncovered_only)
     hook.to(run_device(cfg))  # the targets, the guidance and the loss space's extractor follow the model
     loop = LoopConfig(steps=cc.steps, stage="color", batch_views=cc.batch_views, log_every=cc.log_every,
                       checkpoint_every=cc.checkpoint_every, resume=cc.resume, seed=int(cfg.get("seed", 0)),

@@ -49,3 +49,33 @@ def test_apply_choice_sets_the_target_and_drops_losses_that_lose():
     assert out.surface.mode == "off" and out.shading == "auto"
     assert out.losses["tcm"]["weight"] == 0.0 and out.losses["ccm"]["weight"] == 5.0
     assert cc.losses["tcm"]["weight"] == 1.0  # the input config is left as it was
+
+
+class _Guidance:
+    """TCM guidance and CCM targets right (blue) on the top half of an 8x8 view, wrong (green) on the bottom."""
+
+    def targets(self, v):
+        tcm = torch.zeros(3, 8, 8)
+        tcm[2, :4], tcm[1, 4:] = 1.0, 1.0
+        ccm = torch.zeros(2, 2, 3)
+        ccm[0, :, 2], ccm[1, :, 1] = 1.0, 1.0
+        return {"tcm_guidance": [tcm], "ccm_target": ccm, "ccm_valid": torch.ones(2, 2, dtype=torch.bool)}
+
+
+def test_tcm_and_ccm_are_scored_only_where_they_act():
+    """Truth blue on top, red below; the target is wrong (red) on top, where it has pixels, and the flat grey below.
+    Over the whole view the guidance wins (it is right on top); on the cells the target leaves, where it acts in
+    training (``colorize.guard.uncovered_only``), it loses to the flat guess and is dropped."""
+    from arcsem.colorize.validate import _guide_scores
+
+    truth, rgb = torch.zeros(8, 8, 3), torch.full((8, 8, 3), 0.5)
+    truth[:4, :, 2], truth[4:, :, 0] = 1.0, 1.0
+    rgb[:4] = torch.tensor([1.0, 0.0, 0.0])
+    covered = torch.zeros(8, 8, dtype=torch.bool)
+    covered[:4] = True
+    space = lambda x: [x.permute(0, 3, 1, 2)]  # colour as the feature
+    g_tcm, r_tcm, g_ccm, r_ccm = _guide_scores(_Guidance(), 0, rgb, truth, space, 1, 4)
+    assert g_tcm < r_tcm and g_ccm < r_ccm  # whole view: (0 + 1) / 2 against (1 + 0.42) / 2; 1/3 against 0.46
+    g_tcm, r_tcm, g_ccm, r_ccm = _guide_scores(_Guidance(), 0, rgb, truth, space, 1, 4, covered)
+    assert abs(g_tcm - 1.0) < 1e-6 and abs(r_tcm - (1 - 3 ** -0.5)) < 1e-6  # bottom only: green vs grey
+    assert abs(g_ccm - 2 / 3) < 1e-6 and abs(r_ccm - 0.25) < 1e-6

@@ -14,7 +14,10 @@ point, :func:`geometry_descriptors`), and kept only if it passes:
 * **agreement across views** (:func:`cross_view_agreement`): the colour a match brings to a surface point must
   agree (within ``views_tol``) with the median of what the other views' matches bring to the same point.
 
-Where no location passes, the view location gets no target and the losses pull nothing there.
+Where no location passes, the view location gets no target and the losses pull nothing there. And with
+``uncovered_only`` (the default) the matches act only on the cells the pseudo-colour target leaves
+(:func:`uncovered_cells`): where the stage-1 geometry already says which reference pixel a point shows, an
+appearance match is the weaker evidence.
 """
 from __future__ import annotations
 
@@ -25,7 +28,15 @@ from torch import Tensor
 from ..cameras import Cameras
 from ..configs import GuardConfig
 
-__all__ = ["GuardConfig", "cross_view_agreement", "geometry_descriptors", "grid_positions", "guarded_nearest"]
+__all__ = ["GuardConfig", "cross_view_agreement", "geometry_descriptors", "grid_positions", "guarded_nearest",
+           "uncovered_cells"]
+
+
+def uncovered_cells(valid: Tensor, shape: tuple[int, int]) -> Tensor:
+    """``[N, h, w]`` bool: the cells of an ``h x w`` grid over each view where under half the pixels have a
+    pseudo-colour (``valid [N, H, W]``; area-weighted, so a grid need not divide the image)."""
+    share = F.interpolate(valid[:, None].float(), size=tuple(shape), mode="area")[:, 0]
+    return share < 0.5
 
 
 def geometry_descriptors(cams: Cameras, depths: Tensor, normals: Tensor) -> Tensor:

@@ -126,8 +126,9 @@ class ColorTargetHook:
         """``[B, h, w]`` bool: the cells of a ``shape`` grid over views ``idx`` where under half the pixels have a
         pseudo-colour (computed once per grid for all views, on the targets' device)."""
         if shape not in self._uncovered:
-            share = F.interpolate(self.valid[:, None].float(), size=tuple(shape), mode="area")[:, 0]
-            self._uncovered[shape] = share < 0.5
+            from .guard import uncovered_cells
+
+            self._uncovered[shape] = uncovered_cells(self.valid, shape)
         return self._uncovered[shape][idx]
 
     def to(self, device) -> ColorTargetHook:

@@ -10,7 +10,9 @@ specimen pixels. Closed form, no training: a few seconds per reference. The decl
   without a target). The setting with the least error is chosen; pseudo-colours alone (both off) is one of the four;
 * **TCM** is kept where its guarded guidance lies closer to the truth in the TCM loss space than the chosen
   target image (the same locations, mean cosine distance); **CCM** where its targets lie closer (squared error) to
-  the truth's cell colours than the target's cell means on the cells it acts on. Otherwise their weight becomes 0.
+  the truth's cell colours than the target's cell means on the cells it acts on. Both are scored where they act in
+  training: with ``colorize.guard.uncovered_only`` on the cells the target leaves (there the target image holds the
+  flat guess). Where they act nowhere, or lose, their weight becomes 0.
 
 So the chosen setting is never worse than pseudo-colours alone on the validation. The scores and the choice are
 recorded in ``metrics.json`` (``stage2.validation``).
@@ -67,10 +69,19 @@ def target_error(rgb: Tensor, truth: Tensor, mask: Tensor) -> float:
     return float(((rgb - truth.float()) ** 2).sum(-1)[mask].mean() / 3) if bool(mask.any()) else float("nan")
 
 
-def _guide_scores(guidance, v: int, rgb: Tensor, truth: Tensor, space, tcm_downscale: int, ccm_downscale: int):
+def _guide_scores(guidance, v: int, rgb: Tensor, truth: Tensor, space, tcm_downscale: int, ccm_downscale: int,
+                  covered: Tensor | None = None):
     """``(tcm guidance, tcm target, ccm guidance, ccm target)`` distances to the truth on view ``v``'s guarded
-    locations (NaN where a loss acts nowhere)."""
-    t = guidance.targets(v)
+    locations (NaN where a loss acts nowhere); with ``covered [H, W]`` (the target's pixels), only on the cells the
+    target leaves, as in training (``colorize.guard.uncovered_only``)."""
+    t = dict(guidance.targets(v))
+    if covered is not None:
+        from .guard import uncovered_cells
+
+        free = lambda ok: ok & uncovered_cells(covered[None], tuple(ok.shape[-2:]))[0]
+        t["ccm_valid"] = free(t["ccm_valid"])
+        t["tcm_valid"] = [free(t["tcm_valid"][b] if "tcm_valid" in t else torch.ones(g.shape[1:], dtype=torch.bool))
+                          for b, g in enumerate(t["tcm_guidance"])]
     with torch.no_grad():
         f_truth = space(downscale(truth[None].float(), tcm_downscale))
         f_rgb = space(downscale(rgb[None].float(), tcm_downscale))
@@ -116,8 +127,9 @@ def validate(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Tensor, r
     if guidance is not None:
         for r in range(len(ridx)):
             held = guidance.without(r)
-            rgb, _ = target_image(guide["rgb_" + str(r)], grey[ridx[r]], surface, shading)
-            s = _guide_scores(held, ridx[r], rgb, images[r], held.space, held.tcm_downscale, held.ccm_downscale)
+            rgb, ok = target_image(guide["rgb_" + str(r)], grey[ridx[r]], surface, shading)
+            s = _guide_scores(held, ridx[r], rgb, images[r], held.space, held.tcm_downscale, held.ccm_downscale,
+                              ok if cc.guard.enabled and cc.guard.uncovered_only else None)
             guide["tcm"].append(s[:2])
             guide["ccm"].append(s[2:])
         for k in ("tcm", "ccm"):

@@ -97,3 +97,38 @@ def test_views_that_disagree_about_a_points_colour_are_dropped():
     points[1][0] = float("nan")  # no surface known at the shared point in view 1: one red, one blue, no majority
     out = cross_view_agreement(points, colours, keep, cell=0.5, tol=0.2)
     assert [o.tolist() for o in out] == [[False, True], [False, True], [False, True]]
+
+
+class _Carried:
+    """Guidance stub: one CCM grid of 2x2 cells per 8x8 view; every match brings ``colour`` and is kept, except the
+    bottom-right cell's (dropped by the guard)."""
+
+    def __init__(self, colour):
+        self.colour = torch.tensor(colour)
+
+    def kinds(self):
+        return [("ccm", (2, 2))]
+
+    def carried(self, v, name):
+        keep = torch.tensor([True, True, True, False])
+        return self.colour.expand(4, 3), keep
+
+
+def test_match_check_keeps_matches_that_bring_the_pseudo_colours_and_drops_those_that_bring_another_part():
+    """Views 1 and 2: the top half has 2-D pseudo-colours (red, the part the reference shows there), the bottom none.
+    Matches that bring red beat the flat guess (the references' mean, grey) on the two covered cells; matches that
+    bring blue (another part) do not, and the loss is dropped; bottom cells (uncovered) and dropped matches do not
+    count."""
+    from arcsem.colorize.guard import match_check
+
+    pseudo = torch.zeros(3, 8, 8, 3)
+    pseudo[..., 0] = 1.0
+    valid = torch.zeros(3, 8, 8, dtype=torch.bool)
+    valid[:, :4] = True
+    flat = torch.tensor([0.5, 0.5, 0.5])
+    right = match_check(_Carried([1.0, 0.0, 0.0]), [1, 2], pseudo, valid, flat)["ccm"]
+    assert right["cells"] == 4 and right["match"] == 0.0 and abs(right["flat"] - 0.25) < 1e-6 and right["keep"]
+    wrong = match_check(_Carried([0.0, 0.0, 1.0]), [1, 2], pseudo, valid, flat)["ccm"]
+    assert abs(wrong["match"] - 2 / 3) < 1e-6 and not wrong["keep"]
+    nowhere = match_check(_Carried([1.0, 0.0, 0.0]), [1, 2], pseudo, torch.zeros_like(valid), flat)["ccm"]
+    assert nowhere["cells"] == 0 and not nowhere["keep"]  # no evidence: the loss is dropped

@@ -224,6 +224,23 @@ class Guidance:
             out["tcm_valid"] = [m[f"tcm_ok{b}"] & self._agree.get((v, f"tcm{b}"), True) for b in range(len(guide))]
         return out
 
+    def kinds(self) -> list[tuple[str, tuple[int, int]]]:
+        """The match kinds and their grids: ``("ccm", (hc, wc))``, then ``("tcm<b>", (h_b, w_b))`` per block."""
+        return [("ccm", self.grid)] + [(f"tcm{b}", tuple(r.shape[-2:])) for b, r in enumerate(self.ref_gray)]
+
+    def carried(self, v: int, name: str) -> tuple[Tensor, Tensor]:
+        """The colour each match of kind ``name`` brings to view ``v`` (``[h*w, 3]``: the CCM target, or the
+        reference colour at the TCM match, pooled to the block's grid) and which matches are kept (``[h*w]``)."""
+        t, m = self.targets(v), self.matches(v)
+        if name == "ccm":
+            return t["ccm_target"].reshape(-1, 3), t["ccm_valid"].reshape(-1)
+        b = int(name[3:])
+        grid = tuple(self.ref_gray[b].shape[-2:])
+        rgb = _flat(_pool_to(self.ref_rgb.permute(0, 3, 1, 2), grid))  # [R*h*w, 3]
+        idx = m[f"tcm_idx{b}"].reshape(-1)
+        keep = t["tcm_valid"][b].reshape(-1) if "tcm_valid" in t else torch.ones(len(idx), dtype=torch.bool)
+        return rgb[idx], keep
+
     def agree(self, points: Tensor, footprint: float, tol: float) -> dict[str, float]:
         """Drop the guarded matches whose colour disagrees with the other views' at the same surface point
         (:func:`arcsem.colorize.guard.cross_view_agreement`), once every view's matches exist.
@@ -235,23 +252,12 @@ class Guidance:
         from .guard import cross_view_agreement
 
         N, H = points.shape[0], points.shape[1]
-        kinds = [("ccm", self.grid)] + [(f"tcm{b}", tuple(r.shape[-2:])) for b, r in enumerate(self.ref_gray)]
         dropped = {}
-        for name, grid in kinds:
+        for name, grid in self.kinds():
             pts = F.interpolate(points.permute(0, 3, 1, 2).float(), size=grid, mode="nearest")
             pts = pts.permute(0, 2, 3, 1).reshape(N, -1, 3)
-            cols, keep = [], []
-            rgb = None if name == "ccm" else _flat(_pool_to(self.ref_rgb.permute(0, 3, 1, 2), grid))  # [R*h*w, 3]
-            for v in range(N):
-                t, m = self.targets(v), self.matches(v)
-                if name == "ccm":
-                    cols.append(t["ccm_target"].reshape(-1, 3))
-                    keep.append(t["ccm_valid"].reshape(-1))
-                else:
-                    b = int(name[3:])
-                    cols.append(rgb[m[f"tcm_idx{b}"].reshape(-1)])
-                    keep.append(t["tcm_valid"][b].reshape(-1) if "tcm_valid" in t else torch.ones(len(rgb) // len(
-                        self.ref_indices), dtype=torch.bool))
+            carried = [self.carried(v, name) for v in range(N)]
+            cols, keep = [c for c, _ in carried], [k for _, k in carried]
             ok = cross_view_agreement(list(pts), cols, keep, footprint * H / grid[0], tol)
             for v in range(N):
                 self._agree[(v, name)] = ok[v].reshape(grid)

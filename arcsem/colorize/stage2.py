@@ -299,6 +299,19 @@ def _agree(guidance: Guidance, split, geo: SurfaceGeometry, tol: float) -> dict[
     return guidance.agree(pts, float(foot.median()) if foot.numel() else 1.0, tol)
 
 
+def _match_check(cc, guidance: Guidance, split, refs, masks, pseudo, valid2d):
+    """:func:`arcsem.colorize.guard.match_check` on the non-reference views: the config without the losses whose
+    matches carry no colour, and the scores."""
+    from .guard import match_check
+    from .validate import without_losses
+
+    others = [i for i in range(len(split)) if i not in set(refs.indices.tolist())]
+    ref_masks = masks[refs.indices]
+    flat = refs.images.float()[ref_masks].mean(0) if bool(ref_masks.any()) else refs.images.float().mean((0, 1, 2))
+    check = match_check(guidance, others, pseudo.cpu(), valid2d.cpu(), flat)
+    return without_losses(cc, [k for k, c in check.items() if not c["keep"]]), check
+
+
 def _validate(cc, split, masks, refs, geo: SurfaceGeometry, guidance):
     """``colorize.validate=auto`` with two or more references (:mod:`arcsem.colorize.validate`): the config with
     the scene's own choice and the scores (None: not validated)."""
@@ -362,8 +375,11 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
             guidance.matches(i)
         if cc.guard.enabled:
             finfo["agreement_dropped"] = _agree(guidance, split, geo, cc.guard.views_tol)
+            if cc.guard.check:
+                cc, finfo["match_check"] = _match_check(cc, guidance, split, refs, masks, pseudo, pinfo["valid2d"])
+                losses = colorize_losses(cc, backbone, validated)
         finfo["time_s"] += time.perf_counter() - t0
-    else:
+    if not any(n in losses.terms for n in ("tcm", "ccm")):
         guidance, space = None, None
     hook = ColorTargetHook(refs, pseudo, valid, guidance, space, cc.tcm_downscale, cc.ccm_downscale,
                            uncovered_only=cc.guard.enabled and cc.guard.uncovered_only)

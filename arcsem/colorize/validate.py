@@ -30,7 +30,7 @@ from .pseudocolor import pseudo_colors
 from .shading import fit_shading, shade
 from .surface import surface_colors
 
-__all__ = ["GRID", "apply_choice", "held_out_targets", "target_error", "validate"]
+__all__ = ["GRID", "apply_choice", "held_out_targets", "target_error", "validate", "without_losses"]
 
 GRID = [{"surface": s, "shading": h} for s in ("fill", "off") for h in ("auto", "off")]
 
@@ -139,12 +139,18 @@ def validate(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Tensor, r
     return out
 
 
+def without_losses(cc, names: list[str]):
+    """``cc`` (the stage-2 config) with the weight of each loss in ``names`` set to 0."""
+    losses = {k: dict(v) for k, v in (cc.losses or {}).items()}
+    for k in names:
+        if k in losses:
+            losses[k]["weight"] = 0.0
+    return dataclasses.replace(cc, losses=losses)
+
+
 def apply_choice(cc, choice: dict):
     """``cc`` (the stage-2 config) with the validation's choice: surface mode, shading, TCM/CCM weights (0 where
     dropped)."""
-    losses = {k: dict(v) for k, v in (cc.losses or {}).items()}
-    for k in ("tcm", "ccm"):
-        if k in choice and not choice[k]["keep"] and k in losses:
-            losses[k]["weight"] = 0.0
+    cc = without_losses(cc, [k for k in ("tcm", "ccm") if k in choice and not choice[k]["keep"]])
     return dataclasses.replace(cc, surface=dataclasses.replace(cc.surface, mode=choice["surface"]),
-                               shading=choice["shading"], losses=losses)
+                               shading=choice["shading"])

@@ -1,5 +1,6 @@
 """The colour comparison's table: held-out colour PSNR (whole, masked, inside and outside the pseudo-colour
-coverage) of every stage-2 run folder under a directory, the reference views' own PSNR and what validation chose.
+coverage) of every stage-2 run folder under a directory, the reference views' own PSNR, the target the
+validation chose and the guided losses that trained.
 
     .venv/bin/python benchmarks/colour_table.py DIR [DIR ...]     # run folders DIR/<scene>_<refs>_<variant>/
 """
@@ -16,8 +17,9 @@ def row(run: Path) -> str | None:
     if not s2:
         return f"| {run.name} | failed: {m.get('error')} |"
     t, v = s2["test"], s2.get("validation") or {}
-    chose = (f"{v['surface']}/{v['shading']}, TCM {'on' if v.get('tcm', {}).get('keep') else 'off'}, "
-             f"CCM {'on' if v.get('ccm', {}).get('keep') else 'off'}") if v else "-"
+    trained = s2.get("losses") or []  # the guided losses that trained: kept by the validation and the match check
+    chose = (f"{v['surface']}/{v['shading']}, " if v else "") + \
+        f"TCM {'on' if 'tcm' in trained else 'off'}, CCM {'on' if 'ccm' in trained else 'off'}"
     f = lambda d, k: f"{d[k]:.2f}" if d.get(k) is not None else "-"  # no masks: no masked PSNR
     return (f"| {run.name} | {f(t, 'psnr')} | {f(t, 'psnr_masked')} | {f(t, 'psnr_covered')} | "
             f"{f(t, 'psnr_uncovered')} | {t.get('uncovered_px', '-')} | {f(s2.get('train_ref', {}), 'psnr')} | "
@@ -25,7 +27,7 @@ def row(run: Path) -> str | None:
 
 
 def main(dirs: list[str]) -> None:
-    print("| run | held-out PSNR | masked | inside cov. | outside cov. | px outside | reference views | validation chose "
+    print("| run | held-out PSNR | masked | inside cov. | outside cov. | px outside | reference views | target, guided losses "
           "| commit |")
     print("|---|---:|---:|---:|---:|---:|---:|---|---|")
     for d in dirs:

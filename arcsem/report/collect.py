@@ -218,15 +218,17 @@ def read_run(run: Path) -> dict[str, Any]:
 
 def stage2_choice(rec: dict[str, Any]) -> str:
     """What stage 2 trained towards, from a run's flattened record: the pseudo-colour target chosen by the
-    leave-one-reference-out validation (``stage2.validation``: surface spread, shading, both or neither) and the
-    guided losses it kept (TCM, CCM), with the chosen target's held-out error beside the pseudo-colours' alone;
-    ``as configured`` when the run did not validate (one reference, ``colorize.validate=off``)."""
+    leave-one-reference-out validation (``stage2.validation``: surface spread, shading, both or neither), with the
+    chosen target's held-out error beside the pseudo-colours' alone, ``as configured`` when the run did not validate
+    (one reference, ``colorize.validate=off``); then the guided losses that trained (``stage2.losses``: what the
+    validation and the guard's match check kept; older runs: the validation's keep)."""
     v = {k.removeprefix("stage2.validation."): x for k, x in rec.items() if k.startswith("stage2.validation.")}
+    trained = rec.get("stage2.losses")
+    kept = [n.upper() for n in ("tcm", "ccm") if (n in trained if isinstance(trained, list) else v.get(f"{n}.keep"))]
     if "surface" not in v:
-        return "as configured"
+        return "as configured" + "".join(f" +{k}" for k in kept)
     parts = [n for n, on in (("surface", v["surface"] != "off"), ("shading", v.get("shading") != "off")) if on]
     target = "+".join(parts) or "pseudo-colours"
-    kept = [n.upper() for n in ("tcm", "ccm") if v.get(f"{n}.keep")]
     chosen, plain = v.get(f"target_mse.{v['surface']}/{v.get('shading')}"), v.get("target_mse.off/off")
     err = ""
     if isinstance(chosen, (int, float)) and isinstance(plain, (int, float)) and chosen > 0 and plain > 0:

@@ -248,7 +248,8 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
                      "out in turn (colorize.validate=auto, two or more references): the pseudo-colours spread over "
                      "the surface and/or carried with the SEM shading, or the pseudo-colours alone; in brackets the "
                      "chosen target's gain over the pseudo-colours alone on the held-out references; +TCM/+CCM: the "
-                     "guided losses it kept. 'as configured': no validation (one reference, or validate=off).")
+                     "guided losses that trained (kept by the validation and by the match check against the "
+                     "pseudo-colours). 'as configured': no validation (one reference, or validate=off).")
     seeds = sorted({str(s) for s in df["seed"].dropna()}) if "seed" in df else []
     if seeds:
         notes.append(f"seeds: {', '.join(seeds)}; several runs per row are shown as mean ± std.")

@@ -71,9 +71,17 @@ def test_stage2_end_to_end(tmp_path, monkeypatch):
         else:
             torch.testing.assert_close(after[k], v, msg=k)
     assert any(not torch.equal(after[k], before[k]) for k in after if "sh" in k or "f_dc" in k or "feature" in k)
+    assert "match_check" not in s2["feature_extractor"]  # with references held out, the validation decides
     # a rerun reuses the pseudo-colours and guidance from the cache and the finished checkpoint
     r2 = run_stage2(cfg, scene, run)
     assert r2["stage2"]["pseudo"]["cache_hit"] is True
+    # one reference: no validation; the match check against the pseudo-colours decides TCM and CCM
+    cfg.colorize.references, cfg.colorize.stage1 = "one", str(run)
+    one = run_stage2(cfg, scene, tmp_path / "one")["stage2"]
+    check = one["feature_extractor"]["match_check"]
+    assert one["validation"] is None and set(check) == {"tcm", "ccm"}
+    assert sorted(one["losses"]) == sorted(["pseudo_color", "reference_l1"] + [k for k in check if check[k]["keep"]])
+    assert all(c["keep"] == (c["cells"] > 0 and c["match"] < c["flat"]) for c in check.values())
 
 
 @pytest.mark.slow

@@ -375,7 +375,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
             guidance.matches(i)
         if cc.guard.enabled:
             finfo["agreement_dropped"] = _agree(guidance, split, geo, cc.guard.views_tol)
-            if cc.guard.check:
+            if cc.guard.check and validation is None:  # with two or more references the validation decides
                 cc, finfo["match_check"] = _match_check(cc, guidance, split, refs, masks, pseudo, pinfo["valid2d"])
                 losses = colorize_losses(cc, backbone, validated)
         finfo["time_s"] += time.perf_counter() - t0

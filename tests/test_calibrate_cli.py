@@ -163,6 +163,9 @@ def test_tiny_scene_end_to_end(tiny_scene, tmp_path, capsys):
     for name in ("residuals.png", "report.md"):
         assert (tmp_path / "ds" / "report" / name).is_file()
     assert len(list((tmp_path / "ds" / "report").glob("overlay_*.png"))) == 2
+    assert len(list((tmp_path / "ds" / "report").glob("masks_*.png"))) == 2  # the masks and their seed points
+    assert report["masks"]["specimen_points"] > 0 and "Masks: seeded by" in (
+        tmp_path / "ds" / "report" / "report.md").read_text()
 
 
 def _dense_start_lies_on_the_surface(truth, calibrated, report: dict) -> None:

@@ -1,8 +1,13 @@
 """Automatic specimen masks, seeded by the sparse points.
 
+The points clearly above the substrate are first split into the specimen and debris (:func:`split_debris`): the
+connected parts of their 3-D neighbour graph, the largest one the specimen, any part with under
+:data:`DEBRIS_SHARE` of its points debris. Debris lies on the substrate like the specimen but is not what the
+user imaged; counted in, it made the masks, the masked metrics and the mesh include it.
+
 Each view is segmented on a copy at most :data:`WORK_SIZE` pixels wide by OpenCV's marker watershed over
 the (lightly smoothed) image: discs around the projections of the specimen points are foreground seeds,
-discs around the substrate points (:mod:`.frame`) and the pixels farther than :data:`FAR` of the image size
+discs around the substrate and debris points (:mod:`.frame`) and the pixels farther than :data:`FAR` of the image size
 from every specimen point are background seeds. The regions meet on
 the strongest edges between the seeds (SEM silhouettes are bright edges). The result is cleaned by
 morphology (closing, opening, holes filled) and keeps only the connected parts that hold specimen seeds.
@@ -12,10 +17,54 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["specimen_masks"]
+__all__ = ["DEBRIS_SHARE", "mask_overlay", "specimen_masks", "split_debris"]
 
 WORK_SIZE = 256
 FAR = 0.01
+DEBRIS_SHARE = 0.2  # a part with fewer points than this share of the largest one's is debris (set by hand)
+LINK = 4.0  # two points are neighbours within LINK x the median distance of a point to its nearest one
+
+
+def split_debris(X: np.ndarray) -> np.ndarray:
+    """``[n]`` bool, True for the specimen: of the points ``X [n, 3]`` above the substrate, those in the connected
+    parts of their neighbour graph (points within :data:`LINK` times the median nearest-neighbour distance) that
+    hold at least :data:`DEBRIS_SHARE` as many points as the largest part; the rest are debris. All True for
+    fewer than 10 points."""
+    if len(X) < 10:
+        return np.ones(len(X), bool)
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(X)
+    nn = tree.query(X, k=2)[0][:, 1]
+    pairs = tree.query_pairs(LINK * float(np.median(nn)), output_type="ndarray")
+    from scipy.sparse import coo_matrix
+
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(X), len(X)))
+    _n, labels = connected_components(graph, directed=False)
+    sizes = np.bincount(labels)
+    return sizes[labels] >= DEBRIS_SHARE * sizes.max()
+
+
+def mask_overlay(img8: np.ndarray, mask: np.ndarray, specimen_uv: np.ndarray, debris_uv: np.ndarray,
+                 substrate_uv: np.ndarray | None) -> np.ndarray:
+    """``[h, w, 3]`` BGR, at most 1400 px wide: ``img8 [H, W]`` with the mask tinted green and its outline, the
+    specimen points (green), debris points (red) and substrate points (blue) as dots."""
+    import cv2
+
+    H, W = img8.shape
+    f = min(1.0, 1400 / max(H, W))
+    size = (round(W * f), round(H * f))
+    img = cv2.cvtColor(cv2.resize(img8, size, interpolation=cv2.INTER_AREA), cv2.COLOR_GRAY2BGR)
+    m = cv2.resize(mask.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST)
+    img[m > 0] = (0.6 * img[m > 0] + 0.4 * np.array([60, 200, 60])).astype(np.uint8)
+    contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    cv2.drawContours(img, contours, -1, (0, 255, 0), 1, cv2.LINE_AA)
+    for pts, colour in ((specimen_uv, (0, 200, 0)), (debris_uv, (0, 0, 255)),
+                        (substrate_uv if substrate_uv is not None else np.zeros((0, 2)), (255, 120, 0))):
+        for x, y in np.round(np.asarray(pts) * f).astype(int):
+            cv2.circle(img, (int(x), int(y)), 2, colour, -1)
+    return img
 
 
 def _discs(shape, pts: np.ndarray, radius: int) -> np.ndarray:
@@ -57,7 +106,8 @@ def _watershed(img: np.ndarray, fg: np.ndarray, bg: np.ndarray) -> np.ndarray:
 def specimen_masks(images: list[np.ndarray], specimen_uv: list[np.ndarray], substrate_uv: list[np.ndarray] | None
                    ) -> list[np.ndarray]:
     """``[H, W]`` bool masks of ``images`` (uint8 ``[H, W]``) from the projected specimen points
-    ``specimen_uv[v] [k, 2]`` and substrate points (None without a substrate); module docstring."""
+    ``specimen_uv[v] [k, 2]`` and the points that are not the specimen (substrate and debris; None without any);
+    module docstring."""
     import cv2
 
     out = []

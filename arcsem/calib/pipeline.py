@@ -21,7 +21,7 @@ from .features import Features, detect_features, to_u8_stretched
 from .frame import Frame, refit_substrate, specimen_points, world_frame
 from .geometry import rot_z, triangulate
 from .init import init_from_stage, strongest_tracks
-from .masks import specimen_masks
+from .masks import specimen_masks, split_debris
 from .matching import PairMatches, match_descriptors, ransac_affine_fundamental
 from .perspective import PinholeViews, from_ortho, perspective_adjust
 from .refine import refine_observations
@@ -72,6 +72,7 @@ class Calibration:
     timings: dict = field(default_factory=dict)
     dense: np.ndarray | None = None         # [P, 3] the dense start's points (.dense), not in the adjustment
     dense_colors: np.ndarray | None = None  # [P] their grey in [0, 1]
+    mask_points: dict | None = None  # the masks' seeds: point indices of the specimen, debris and substrate
 
 
 def _feature_scale(opts: CalibrationOptions, size: tuple[int, int]) -> float:
@@ -302,12 +303,19 @@ def _point_colors(feats: list[Features], obs: Observations) -> np.ndarray:
 
 
 def _masks(series: Series, cal: Calibration) -> list[np.ndarray]:
-    """Masks seeded by the points clearly above the substrate (:func:`~.frame.specimen_points`) and those on it."""
+    """Masks seeded by the specimen points (above the substrate, :func:`~.frame.specimen_points`, less the debris,
+    :func:`~.masks.split_debris`) and, as background, the substrate's and the debris' points; the points' split is
+    kept in ``cal.mask_points`` for the report."""
     sub = cal.frame.substrate
-    spec_pts = cal.X[specimen_points(sub, cal.frame.height, len(cal.X))]
-    sub_pts = None if sub is None else cal.X[sub]
+    above = np.flatnonzero(specimen_points(sub, cal.frame.height, len(cal.X)))
+    main = split_debris(cal.X[above]) if sub is not None else np.ones(len(above), bool)
+    spec, debris = above[main], above[~main]
+    other = np.concatenate([np.flatnonzero(sub) if sub is not None else np.zeros(0, int), debris])
     all_v = np.arange(len(series))
     uv = lambda P: [cal.views.project(P, Observations(np.full(len(P), v), np.arange(len(P)), None, None, len(P)))
                     for v in all_v]
-    return specimen_masks([to_u8_stretched(series.pixels(i)) for i in all_v], uv(spec_pts),
-                          None if sub_pts is None else uv(sub_pts))
+    cal.mask_points = {"specimen": spec, "debris": debris, "substrate": np.flatnonzero(sub) if sub is not None
+                       else np.zeros(0, int)}
+    cal.stats["masks"] = {"specimen_points": len(spec), "debris_points": len(debris)}
+    return specimen_masks([to_u8_stretched(series.pixels(i)) for i in all_v], uv(cal.X[spec]),
+                          uv(cal.X[other]) if len(other) else None)

@@ -4,7 +4,10 @@
   found, magnified (``x RESIDUAL_GAIN``), over the image frame; right, each view's RMS error as a bar;
 * ``overlay_<view>.png`` for two views (the first and the middle one): the features found (green circles),
   where the calibrated cameras put their points (red dots) and the fitted tilt axis through the centre
-  (yellow, the principal axis; cyan, a second arc's axis).
+  (yellow, the principal axis; cyan, a second arc's axis);
+* ``masks_<view>.png`` for the same views, where the calibration made masks: the specimen mask (green tint and
+  outline) with the points that seeded it: specimen (green), debris (red) and substrate (blue) points, the last two
+  as background (:mod:`.masks`).
 """
 from __future__ import annotations
 
@@ -73,6 +76,20 @@ def overlay(img8: np.ndarray, found: np.ndarray, projected: np.ndarray, axes_2d:
     return img
 
 
+def _mask_image(series: Series, cal, v: int) -> np.ndarray:
+    """View ``v``'s mask and its seed points (:func:`~.masks.mask_overlay`)."""
+    from .masks import mask_overlay
+    from .tracks import Observations
+
+    def uv(idx):
+        P = cal.X[idx]
+        return cal.views.project(P, Observations(np.full(len(P), v), np.arange(len(P)), None, None, len(P)))
+
+    pts = cal.mask_points
+    return mask_overlay(to_u8_stretched(series.pixels(v)), cal.masks[v], uv(pts["specimen"]), uv(pts["debris"]),
+                        uv(pts["substrate"]))
+
+
 def _camera_line(cal) -> str:
     persp = cal.stats.get("bundle", {}).get("perspective")
     if persp is None:
@@ -109,6 +126,8 @@ def write_report(folder: Path, series: Series, cal, options: dict, command: str)
         dirs = [d / np.linalg.norm(d) for d in dirs if np.linalg.norm(d) > 1e-6]
         img = overlay(to_u8_stretched(series.pixels(v)), cal.obs.uv[sel], proj[sel], dirs)
         cv2.imwrite(str(out / f"overlay_{series.names[v].replace('/', '_')}.png"), img)
+        if cal.masks is not None and cal.mask_points is not None:
+            cv2.imwrite(str(out / f"masks_{series.names[v].replace('/', '_')}.png"), _mask_image(series, cal, v))
     record = {"command": command, "options": options, "unit": cal.unit, "crop": vars(series.crop),
               "angle_source": series.angle_source, "frame": {"mirrored": cal.frame.mirrored, "notes": cal.frame.notes},
               "tilt_axes": axes, "timings_s": cal.timings, **stats}
@@ -116,6 +135,7 @@ def write_report(folder: Path, series: Series, cal, options: dict, command: str)
     axis_lines = [f"- axis {i + 1}: world {np.round(a['axis'], 3).tolist()}, {a['image_angle_deg']:.1f} deg from the "
                   f"image x axis, {a['out_of_plane_deg']:.1f} deg out of the image plane, {a['pairs']} view pairs, "
                   f"mean step {a['mean_step_deg']:.2f} deg" for i, a in enumerate(axes)]
+    kinds = ["overlay", *(["masks"] if cal.masks is not None and cal.mask_points else [])]
     text = [f"# Calibration of {series.folder.name}", "", f"`{command}`", "",
             (f"RMS reprojection error {stats['rms_px']:.3f} px (median {stats['median_px']:.3f} px) over "
             f"{stats['observations']} observations of {stats['tracks']} tracks "
@@ -128,6 +148,11 @@ def write_report(folder: Path, series: Series, cal, options: dict, command: str)
               if stats.get("dense", {}).get("points") else []),
             "", _camera_line(cal),
             "", "Tilt axes (between consecutive views):", *axis_lines, "", *[f"- {n}" for n in cal.frame.notes], "",
-            _table(stats["per_view"], cal.splits, series.tilts), "",
-            "Images: `residuals.png`, " + ", ".join(f"`overlay_{series.names[v].replace('/', '_')}.png`" for v in picks)]
+            _table(stats["per_view"], cal.splits, series.tilts),
+            *(["", (f"Masks: seeded by {stats['masks']['specimen_points']} specimen points; "
+                    f"{stats['masks']['debris_points']} points above the substrate apart from the specimen (debris) "
+                    "and the substrate's points are background (`masks_<view>.png`: specimen green, debris red, "
+                    "substrate blue).")] if "masks" in stats else []),
+            "", "Images: `residuals.png`, " + ", ".join(
+                f"`{kind}_{series.names[v].replace('/', '_')}.png`" for v in picks for kind in kinds)]
     write_text_atomic(out / "report.md", "\n".join(text) + "\n")

@@ -4,7 +4,7 @@ from arcsem.losses.colorize import CCM, TCM, PseudoColor, ReferenceL1, ccm_dista
 
 from arcsem.colorize.analytic import arc_cameras
 from arcsem.colorize.references import References
-from arcsem.colorize.stage2 import ColorTargetHook
+from arcsem.colorize.targets import ColorTargetHook
 from arcsem.plugins import Batch, ColorTargets
 
 

@@ -13,7 +13,7 @@ from arcsem.cameras import Cameras
 from arcsem.colorize.features import build_extractor, tcm_space
 from arcsem.colorize.guidance import Guidance
 from arcsem.colorize.references import References
-from arcsem.colorize.stage2 import ColorTargetHook
+from arcsem.colorize.targets import ColorTargetHook
 from arcsem.devices import held_tensors, run_device, stray_tensors
 from arcsem.plugins import LOSSES, Batch
 

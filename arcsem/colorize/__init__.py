@@ -23,7 +23,7 @@ __all__ = [
 ]
 
 _WHERE = {
-    "run_stage2": "stage2", "ColorTargetHook": "stage2", "ColorizeConfig": "config",
+    "run_stage2": "stage2", "ColorTargetHook": "targets", "ColorizeConfig": "config",
     "load_references": "references", "References": "references",
     "specimen_masks": "masks", "otsu_mask": "masks",
     "pseudo_colors": "pseudocolor", "cached_pseudo_colors": "pseudocolor",

@@ -13,7 +13,6 @@ pseudo-colour coverage, :mod:`arcsem.colorize.coverage`) plus ``features``: the 
 """
 from __future__ import annotations
 
-import dataclasses
 import logging
 import time
 from pathlib import Path
@@ -24,17 +23,17 @@ import torch.nn.functional as F
 
 from ..devices import run_device
 from ..errors import DataError
-from ..plugins import Batch, ColorTargets
 from ..registry import plain
 from ..runconfig import run_config
 from .config import ColorizeConfig
 from .guidance import Guidance
 from .masks import specimen_masks
 from .pseudocolor import cached_pseudo_colors, pseudo_colors, pseudo_key, render_depths
-from .references import References, load_references
+from .references import load_references
 from .shading import fit_shading, shade
+from .targets import ColorTargetHook
 
-__all__ = ["ColorTargetHook", "check_stage1_model", "colorize_config", "colorize_losses", "find_stage1", "run_stage2"]
+__all__ = ["check_stage1_model", "colorize_config", "colorize_losses", "find_stage1", "run_stage2"]
 
 log = logging.getLogger(__name__)
 
@@ -99,69 +98,6 @@ def _resize_images(x: torch.Tensor, h: int, w: int) -> torch.Tensor:
     if x.shape[1:3] == (h, w):
         return x
     return F.interpolate(x.permute(0, 3, 1, 2).float(), size=(h, w), mode="area").permute(0, 2, 3, 1)
-
-
-class ColorTargetHook:
-    """The stage-2 ``batch_hook``: gives each batch its :class:`~arcsem.plugins.ColorTargets` from the pseudo-colours
-    and the guidance. :meth:`to` puts everything it holds (the loss space's extractor too) on the run's device, so
-    a step gathers its targets there, without host transfers.
-
-    Args: refs (``R`` references); pseudo ``[N, H, W, 3]`` and valid ``[N, H, W]`` of every training view; guidance
-    (None without TCM/CCM); space: the TCM loss space (the extractor, or a colour space); uncovered_only: TCM/CCM
-    targets only on the cells where under half the pixels have a pseudo-colour (``colorize.guard.uncovered_only``).
-    """
-
-    def __init__(self, refs: References, pseudo: torch.Tensor, valid: torch.Tensor, guidance: Guidance | None,
-                 space=None, tcm_downscale: int = 4, ccm_downscale: int = 16, uncovered_only: bool = False):
-        n = pseudo.shape[0]
-        slot = torch.full((n,), len(refs), dtype=torch.long)  # reference position of each view; R: none
-        slot[refs.indices] = torch.arange(len(refs))
-        self.slot, self.is_ref = slot, slot < len(refs)
-        self.references = torch.cat([refs.images.float(), torch.zeros_like(refs.images[:1]).float()])  # [R + 1, ...]
-        self.pseudo, self.valid, self.guidance, self.space = pseudo, valid, guidance, space
-        self.tcm_downscale, self.ccm_downscale = tcm_downscale, ccm_downscale
-        self.uncovered_only, self._uncovered = uncovered_only, {}
-
-    def uncovered(self, idx: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
-        """``[B, h, w]`` bool: the cells of a ``shape`` grid over views ``idx`` where under half the pixels have a
-        pseudo-colour (computed once per grid for all views, on the targets' device)."""
-        if shape not in self._uncovered:
-            from .guard import uncovered_cells
-
-            self._uncovered[shape] = uncovered_cells(self.valid, shape)
-        return self._uncovered[shape][idx]
-
-    def to(self, device) -> ColorTargetHook:
-        """Move every tensor, the guidance and the loss space (a module: the VGG) to ``device``; returns self."""
-        for name in ("slot", "is_ref", "references", "pseudo", "valid"):
-            setattr(self, name, getattr(self, name).to(device))
-        self._uncovered = {k: v.to(device) for k, v in self._uncovered.items()}
-        if self.guidance is not None:
-            self.guidance.to(device)
-        if isinstance(self.space, torch.nn.Module):
-            self.space.to(device)
-        return self
-
-    def __call__(self, batch: Batch) -> Batch:
-        views = list(batch.views) if batch.views else batch.indices.tolist()
-        idx = batch.indices.to(self.pseudo.device)
-        targets = ColorTargets(is_reference=self.is_ref[idx], reference=self.references[self.slot[idx]],
-                               pseudo=self.pseudo[idx], pseudo_valid=self.valid[idx], tcm_space=self.space,
-                               tcm_downscale=self.tcm_downscale, ccm_downscale=self.ccm_downscale)
-        if self.guidance is not None:
-            t = [self.guidance.targets(v) for v in views]
-            stack = (lambda xs: xs[0][None]) if len(views) == 1 else torch.stack  # one view: a view, no copy
-            targets.tcm_guidance = [stack([x["tcm_guidance"][b] for x in t]) for b in range(len(t[0]["tcm_guidance"]))]
-            if "tcm_valid" in t[0]:
-                targets.tcm_valid = [stack([x["tcm_valid"][b] for x in t]) for b in range(len(t[0]["tcm_valid"]))]
-            targets.ccm_target = stack([x["ccm_target"] for x in t])
-            targets.ccm_valid = stack([x["ccm_valid"] for x in t])
-            if self.uncovered_only:
-                blocks = targets.tcm_valid or [torch.ones(g.shape[:1] + g.shape[2:], dtype=torch.bool, device=g.device)
-                                               for g in targets.tcm_guidance]
-                targets.tcm_valid = [ok & self.uncovered(idx, tuple(ok.shape[-2:])) for ok in blocks]
-                targets.ccm_valid = targets.ccm_valid & self.uncovered(idx, tuple(targets.ccm_valid.shape[-2:]))
-        return dataclasses.replace(batch, color=targets)
 
 
 def _prepare_scene(scene, ckpt: Path, cc: ColorizeConfig):

@@ -10,6 +10,7 @@
 #   no_tcm / no_ccm                               TCM / CCM weight 0 (validation still chooses the rest)
 #   no_shading / no_surface / no_validate / no_guard   one addition off
 #   everywhere   TCM/CCM also inside the pseudo-colour coverage (colorize.guard.uncovered_only=false)
+#   no_check     TCM/CCM kept at one reference whatever the match check says (colorize.guard.check=false)
 # Run folders: OUT_DIR/s2/<scene>_<refs>_<variant>[_s<seed>] (seed 0 has no suffix, as in earlier tables).
 set -euo pipefail
 OUT=${1:?output folder}; SCENES=${2:-synthetic diatom}; REFS=${3:-one three five}
@@ -26,6 +27,7 @@ overrides() {
     no_validate) echo "colorize.validate=off" ;;
     no_guard) echo "colorize.guard.enabled=false" ;;
     everywhere) echo "colorize.guard.uncovered_only=false" ;;
+    no_check) echo "colorize.guard.check=false" ;;
     *) echo "error: unknown variant $1" >&2; exit 2 ;;
   esac
 }

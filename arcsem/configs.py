@@ -195,6 +195,9 @@ class ColorizeConfig:
     # pseudo-colours take each view's SEM brightness (arcsem.colorize.shading): auto (a line fitted to the
     # references' colour against their grey; flat where the colours do not follow it) | off (copied as they are)
     shading: str = checked("auto", choices=("auto", "off"))
+    # the background outside the specimen masks: auto (the references' background colour as a line of the grey,
+    # the pseudo-colour target of every other view's background, arcsem.colorize.background) | off (no target there)
+    background: str = checked("auto", choices=("auto", "off"))
     # with two or more references: auto (each reference held out in turn chooses the surface spread, the shading and
     # whether TCM/CCM act, arcsem.colorize.validate; recorded in metrics.json) | off (the settings as written)
     validate: str = checked("auto", choices=("auto", "off"))

@@ -25,6 +25,7 @@ from ..devices import run_device
 from ..errors import DataError
 from ..registry import plain
 from ..runconfig import run_config
+from .background import background_target, fit_background
 from .config import ColorizeConfig
 from .guidance import Guidance
 from .masks import specimen_masks
@@ -114,7 +115,8 @@ def _prepare_scene(scene, ckpt: Path, cc: ColorizeConfig):
 def _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo: SurfaceGeometry):
     """The pseudo-colour target ``[N, H, W, 3]`` and its pixels ``[N, H, W]`` of every training view: the 2-D
     pseudo-colours (:mod:`.pseudocolor`), completed by the surface spread (:mod:`.surface`, ``colorize.surface``)
-    and shaded for each view (:mod:`.shading`, ``colorize.shading``); returns them and what to record."""
+    and shaded for each view (:mod:`.shading`, ``colorize.shading``), the background's line of the grey outside the
+    specimen masks (:mod:`.background`, ``colorize.background``); returns them and what to record."""
     t0 = time.perf_counter()
     depth_src = ckpt if cc.depth == "model" else split.depths
     if cc.depth == "dataset" and split.depths is None:
@@ -138,6 +140,13 @@ def _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo: Surface
     a, b = fit_shading(refs.images, grey[ridx], masks[ridx]) if cc.shading == "auto" else (1.0, 0.0)
     info["shading"] = {"mode": cc.shading, "a": a, "b": b}
     colors = torch.where(valid[..., None], shade(colors[..., :3], colors[..., 3], grey, a, b), colors[..., :3])
+    if cc.background == "auto":  # the substrate: the references' background colour as a line of the grey
+        line = fit_background(refs.images, grey[ridx], masks[ridx])
+        info["background"] = line or {"pixels": 0}
+        if line is not None:
+            rgb, where = background_target(grey, masks, line)
+            where = where & ~valid
+            colors, valid = torch.where(where[..., None], rgb, colors), valid | where
     return colors, valid, info
 
 
@@ -338,7 +347,8 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
         steps_per_s=res.steps_per_s, stage1_checkpoint=str(ckpt), image_size=[split.cameras.width, split.cameras.height],
         pseudo={**_pseudo_quality(split, masks, refs, pseudo, pinfo["valid2d"]), "cache_hit": pinfo["cache_hit"],
                 "time_s": pinfo["time_s"], "shading": pinfo["shading"], **({"surface": {**pinfo["surface"], **_pseudo_quality(
-                    split, masks, refs, pseudo, valid & ~pinfo["valid2d"], "filled")}} if "surface" in pinfo else {})}, guidance_time_s=finfo["time_s"] if guidance is not None else 0.0,
+                    split, masks, refs, pseudo, valid & ~pinfo["valid2d"] & masks, "filled")}} if "surface" in pinfo else {}),
+                **({"background": pinfo["background"]} if "background" in pinfo else {})}, guidance_time_s=finfo["time_s"] if guidance is not None else 0.0,
         feature_extractor=finfo, final_loss=res.history[-1]["loss"] if res.history else None,
         validation=validation)
     warning = loss_trend_warning(res.history, loop.desc)

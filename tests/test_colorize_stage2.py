@@ -72,6 +72,8 @@ def test_stage2_end_to_end(tmp_path, monkeypatch):
             torch.testing.assert_close(after[k], v, msg=k)
     assert any(not torch.equal(after[k], before[k]) for k in after if "sh" in k or "f_dc" in k or "feature" in k)
     assert "match_check" not in s2["feature_extractor"]  # with references held out, the validation decides
+    bg = s2["pseudo"]["background"]  # the references' background colour as a line of the grey, for the others
+    assert bg["pixels"] > 0 and len(bg["a"]) == len(bg["b"]) == 3
     # a rerun reuses the pseudo-colours and guidance from the cache and the finished checkpoint
     r2 = run_stage2(cfg, scene, run)
     assert r2["stage2"]["pseudo"]["cache_hit"] is True

@@ -88,6 +88,9 @@ class Scene:
         bounds_source: where ``bounds`` come from: ``"given"`` (the dataset's ``aabb``, or whoever built
             the scene), ``"points"`` (percentiles of the point cloud) or ``"cameras"`` (the frusta).
         warnings: what the reader noticed and decided (an alpha channel ignored, colour views), one line each.
+        content_bounds: ``[2, 3]`` box of everything the views show (substrate and debris too) where the dataset
+            gives it (transforms key ``content_aabb``, written by ``arcsem-calibrate``), else None. The Plenoxels
+            grid spans it; ``bounds`` stays the specimen's, the length scale of the Gaussians.
         intensity: the intensity ranges the image files were read over, one entry per distinct range
             (``{"levels": "0..65535 (16-bit samples)", "views": 32, "first": path}``); empty for generated scenes.
     """
@@ -105,6 +108,7 @@ class Scene:
     bounds_source: str = "given"
     warnings: list[str] = field(default_factory=list)
     intensity: list[dict] = field(default_factory=list)
+    content_bounds: Tensor | None = None
 
     @property
     def extent(self) -> float:

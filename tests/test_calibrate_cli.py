@@ -164,6 +164,9 @@ def test_tiny_scene_end_to_end(tiny_scene, tmp_path, capsys):
         assert (tmp_path / "ds" / "report" / name).is_file()
     assert len(list((tmp_path / "ds" / "report").glob("overlay_*.png"))) == 2
     assert len(list((tmp_path / "ds" / "report").glob("masks_*.png"))) == 2  # the masks and their seed points
+    meta = json.loads((tmp_path / "ds" / "transforms.json").read_text())  # the specimen's box inside the content's
+    box, content = np.array(meta["aabb"]), np.array(meta["content_aabb"])
+    assert (content[0] <= box[0]).all() and (content[1] >= box[1]).all() and (content[1] - content[0] > box[1] - box[0]).any()
     assert report["masks"]["specimen_points"] > 0 and "Masks: seeded by" in (
         tmp_path / "ds" / "report" / "report.md").read_text()
 

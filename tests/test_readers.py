@@ -294,3 +294,21 @@ def test_load_scene_config_errors(tiny_transforms):
     path = tiny_transforms(n=2, aabb=[[0, 0], [1, 1]])
     with pytest.raises(DataError, match="'aabb' must be"):
         load_scene({"kind": "transforms", "path": str(path)})
+
+
+def test_content_box_spans_the_plenoxels_grid_and_leaves_the_gaussians_scale(tiny_transforms):
+    """``content_aabb`` (arcsem-calibrate's box of all the views show) is the Plenoxels grid's; ``aabb`` stays the
+    specimen's box and the Gaussians' length scale (``extent``)."""
+    from arcsem.backbones.plenoxels.bounds import grid_bounds
+
+    box, content = [[-1, -1, -1], [1, 1, 1]], [[-3, -2, -1.5], [3, 2, 1.5]]
+    s = read_transforms(tiny_transforms(n=3, model="ORTHOGRAPHIC", aabb=box, content_aabb=content))
+    np.testing.assert_allclose(s.bounds.numpy(), box)
+    np.testing.assert_allclose(s.content_bounds.numpy(), content)
+    assert s.extent == pytest.approx(1.1 * np.sqrt(12))
+    np.testing.assert_allclose(grid_bounds(s).numpy(), content)
+    plain = read_transforms(tiny_transforms("plain", n=3, model="ORTHOGRAPHIC", aabb=box))
+    assert plain.content_bounds is None
+    np.testing.assert_allclose(grid_bounds(plain).numpy(), box)
+    with pytest.raises(DataError, match="'content_aabb' must be"):
+        read_transforms(tiny_transforms("bad", n=2, aabb=box, content_aabb=[[0, 0], [1, 1]]))

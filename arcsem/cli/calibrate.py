@@ -148,9 +148,9 @@ def _write(out: Path, series, cal, args, opts) -> None:
         for name in OUTPUTS:
             p = out / name
             shutil.rmtree(p) if p.is_dir() else p.unlink(missing_ok=True)
-    lo, hi = _box(cal, specimen_points(cal.frame.substrate, cal.frame.height, len(cal.X)))
-    pad = 0.1 * (hi - lo)
-    extra = {"world_unit": cal.unit,
+    (lo, hi), (clo, chi) = _boxes(cal, specimen_points(cal.frame.substrate, cal.frame.height, len(cal.X)))
+    pad, cpad = 0.1 * (hi - lo), 0.1 * (chi - clo)
+    extra = {"world_unit": cal.unit, "content_aabb": np.stack([clo - cpad, chi + cpad]).tolist(),
              "frames": [{"stage_tilt_deg": t, "stage_rotation_deg": r, "stage_angles_from": ts, "pixel_size_from": ps,
                          "intensity_levels": im.levels.describe() if im.levels else None}
                         for t, r, ts, ps, im in zip(series.tilts, series.rotations, series.sources["tilt"],
@@ -166,16 +166,19 @@ def _write(out: Path, series, cal, args, opts) -> None:
         write_report(out, series, cal, {k: v for k, v in vars(opts).items()}, command)
 
 
-def _box(cal, specimen):
-    """``(lo, hi)`` ``[3]`` of the dataset's box before padding: the specimen points' 1-99 percentiles, grown to
-    the 0.5-99.5 percentiles of every point (sparse and dense: the substrate and debris each view shows)."""
+def _boxes(cal, specimen):
+    """The dataset's two boxes before padding, each ``(lo, hi)`` ``[3]``: the specimen's (its points' 1-99
+    percentiles: ``aabb``, the Gaussians' length scale) and the content's (grown to the 0.5-99.5 percentiles of every
+    point, sparse and dense: the substrate and debris each view shows; ``content_aabb``, the Plenoxels grid). Growing
+    ``aabb`` itself cost 0.9 dB (sparse start) to 2.7 dB (dense start) held out on the built-in scene: the Gaussians'
+    learning rate and split threshold scale with it (benchmarks/results/calibration.md section 9)."""
     import numpy as np
 
     spec = cal.X[specimen]
     lo, hi = np.percentile(spec, 1, axis=0), np.percentile(spec, 99, axis=0)
     everything = cal.X if cal.dense is None or not len(cal.dense) else np.concatenate([cal.X, cal.dense])
-    return (np.minimum(lo, np.percentile(everything, 0.5, axis=0)),
-            np.maximum(hi, np.percentile(everything, 99.5, axis=0)))
+    return (lo, hi), (np.minimum(lo, np.percentile(everything, 0.5, axis=0)),
+                      np.maximum(hi, np.percentile(everything, 99.5, axis=0)))
 
 
 def _join_negative_values(argv: list[str]) -> list[str]:

@@ -281,8 +281,10 @@ def bounds_from_cameras(cams: Cameras) -> torch.Tensor:
 
 def assemble_scene(root: Path, views: list[ViewSpec], opts: ReaderOptions, *, bounds: Any = None,
                    points: np.ndarray | None = None, point_colors: np.ndarray | None = None,
-                   reference_sets: dict[str, list[str]] | None = None, specimen_size: float | None = None) -> Scene:
-    """Select, split and read ``views``; bounds from ``bounds``, else the points, else the frusta."""
+                   reference_sets: dict[str, list[str]] | None = None, specimen_size: float | None = None,
+                   content_bounds: Any = None) -> Scene:
+    """Select, split and read ``views``; bounds from ``bounds``, else the points, else the frusta;
+    ``content_bounds``: the box of all the views show, where the dataset gives it (``content_aabb``)."""
     if not views:
         raise DataError(f"{root}: the dataset has no views")
     seen: dict[Path, int] = {}
@@ -309,15 +311,8 @@ def assemble_scene(root: Path, views: list[ViewSpec], opts: ReaderOptions, *, bo
         if bad:
             raise DataError(f"{root}: reference set '{set_name}' names unknown view(s) {', '.join(bad)}")
     sets = {k: [n for n in v if n in known] for k, v in (reference_sets or {}).items()}
-    if bounds is not None:
-        try:
-            box = torch.as_tensor(np.asarray(bounds, dtype=np.float32)).reshape(2, 3)
-        except (ValueError, TypeError, RuntimeError):
-            raise DataError(f"{root}: 'aabb' must be [[xmin, ymin, zmin], [xmax, ymax, zmax]], got {bounds}") from None
-        if not torch.isfinite(box).all():
-            raise DataError(f"{root}: 'aabb' must hold finite numbers, got {box.tolist()}")
-        if not (box[1] > box[0]).all():
-            raise DataError(f"{root}: 'aabb' max {box[1].tolist()} must exceed min {box[0].tolist()}")
+    box = _box(root, bounds, "aabb") if bounds is not None else None
+    content = _box(root, content_bounds, "content_aabb") if content_bounds is not None else None
     source = "given"
     if bounds is None and points is not None and len(points) > 0:
         box, source = bounds_from_points(points), "points"
@@ -326,7 +321,20 @@ def assemble_scene(root: Path, views: list[ViewSpec], opts: ReaderOptions, *, bo
     to_t = lambda a: None if a is None else torch.as_tensor(np.asarray(a, dtype=np.float32))
     return Scene(str(root), train, test, box, points=to_t(points), point_colors=to_t(point_colors),
                  references=refs, reference_sets=sets, specimen_size=specimen_size, bounds_source=source,
-                 warnings=_reading_warnings(notes), intensity=intensity_ranges(notes))
+                 warnings=_reading_warnings(notes), intensity=intensity_ranges(notes), content_bounds=content)
+
+
+def _box(root: Path, bounds: Any, key: str) -> torch.Tensor:
+    """A dataset's box ``[2, 3]`` (``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``) under ``key``, checked."""
+    try:
+        box = torch.as_tensor(np.asarray(bounds, dtype=np.float32)).reshape(2, 3)
+    except (ValueError, TypeError, RuntimeError):
+        raise DataError(f"{root}: '{key}' must be [[xmin, ymin, zmin], [xmax, ymax, zmax]], got {bounds}") from None
+    if not torch.isfinite(box).all():
+        raise DataError(f"{root}: '{key}' must hold finite numbers, got {box.tolist()}")
+    if not (box[1] > box[0]).all():
+        raise DataError(f"{root}: '{key}' max {box[1].tolist()} must exceed min {box[0].tolist()}")
+    return box
 
 
 def _check_headers(views: list[ViewSpec], downscale: float) -> None:

@@ -6,7 +6,8 @@ Schema (``*`` marks arcsem extensions); intrinsics may sit at the top level or i
   default to the image size, ``cx, cy`` to the image centre, ``fl_y`` to ``fl_x``;
 * ``*camera_model``: ``PINHOLE`` (default; ``SIMPLE_PINHOLE`` and ``OPENCV`` with zero distortion
   are accepted) or ``ORTHOGRAPHIC`` (``fl_x`` = pixels per world unit);
-* ``*aabb`` ``[[min], [max]]`` scene bounds; ``ply_file_path``: initial point cloud;
+* ``*aabb`` ``[[min], [max]]`` scene bounds (the specimen's: the Gaussians' length scale); ``content_aabb``: the
+  box of all the views show, substrate and debris included (the Plenoxels grid spans it); ``ply_file_path``: initial point cloud;
   ``*pixel_size_um``: the images' pixel size in micrometres (SEM metadata) at ``w x h``, which
   gives lengths in micrometres (``Scene.micrometres_per_unit``: ``fl_x x pixel_size_um``, divided by
   the camera distance to the scene centre for pinhole cameras);
@@ -203,7 +204,8 @@ def read_transforms(path: str | Path, opts: ReaderOptions | None = None) -> Scen
     if not isinstance(sets, dict) or not all(isinstance(v, list) for v in sets.values()):
         raise DataError(f"{file}: 'reference_sets' must map names to lists of view names")
     scene = assemble_scene(file.parent, views, opts, bounds=data.get("aabb"), points=points,
-                           point_colors=colors, reference_sets=sets, specimen_size=_specimen_size(file, data))
+                           point_colors=colors, reference_sets=sets, specimen_size=_specimen_size(file, data),
+                           content_bounds=data.get("content_aabb"))
     scene.micrometres_per_unit = _micrometres_per_unit(file, data, scene, opts.downscale)
     return scene
 

@@ -1,6 +1,7 @@
 """The box the grid spans: the part of the point cloud that the views frame.
 
-A dataset's ``aabb`` is taken as given. Otherwise the scene's box is the point cloud's percentile box,
+A dataset's ``content_aabb`` (the box of all the views show, written by ``arcsem-calibrate``) is taken as given,
+else its ``aabb``. Otherwise the scene's box is the point cloud's percentile box,
 which on SEM data holds substrate points far outside what the views share, and a grid over it spends its
 voxels there. The grid keeps the points that lie inside every training view's frustum (in front of the
 camera, projecting into the image; inside at least half of them when fewer than ``min_points`` are in all)
@@ -27,6 +28,8 @@ def points_in_frusta(points: Tensor, cameras) -> Tensor:
 def grid_bounds(scene, min_points: int = 100, pad: float = 0.05) -> Tensor:
     """``[2, 3]`` box of the grid for ``scene`` (see the module docstring); the scene's own box when the
     dataset gives one, when there is no point cloud, or when too few points are seen."""
+    if getattr(scene, "content_bounds", None) is not None:
+        return scene.content_bounds.float()
     pts = scene.points
     if scene.bounds_source == "given" or pts is None or len(pts) < min_points:
         return scene.bounds.float()

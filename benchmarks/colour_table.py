@@ -3,6 +3,7 @@ coverage) of every stage-2 run folder under a directory, the reference views' ow
 validation chose and the guided losses that trained.
 
     .venv/bin/python benchmarks/colour_table.py DIR [DIR ...]     # run folders DIR/<scene>_<refs>_<variant>/
+    .venv/bin/python benchmarks/colour_table.py --pairs DIR        # default against pseudo_only, per scene and refs
 """
 from __future__ import annotations
 
@@ -26,7 +27,33 @@ def row(run: Path) -> str | None:
             f"{chose} | {m.get('git_revision', '')[:7]} |")
 
 
+def pairs(d: str) -> None:
+    """One row per ``<scene>_<refs>`` with both a ``default`` and a ``pseudo_only`` run (seed 0 only)."""
+    def test(run: Path) -> dict:
+        return json.loads((run / "metrics.json").read_text())["stage2"]["test"]
+
+    f = lambda x: "-" if x is None else f"{x:.2f}"
+    g = lambda a, b: "-" if a is None or b is None else f"{a - b:+.2f}"
+    print("| scene, references | default | pseudo-colours | gain (whole / masked) | inside cov. d / p | "
+          "outside cov. d / p |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for run in sorted(Path(d).glob("*_default/metrics.json")):
+        stem = run.parent.name.removesuffix("_default")
+        base = Path(d) / f"{stem}_pseudo_only"
+        if not (base / "metrics.json").is_file():
+            continue
+        a, b = test(run.parent), test(base)
+        k = lambda t, key: t.get(key)
+        print(f"| {stem} | {f(a['psnr'])} | {f(b['psnr'])} | {g(a['psnr'], b['psnr'])} / "
+              f"{g(k(a, 'psnr_masked'), k(b, 'psnr_masked'))} | {f(k(a, 'psnr_covered'))} / {f(k(b, 'psnr_covered'))} | "
+              f"{f(k(a, 'psnr_uncovered'))} / {f(k(b, 'psnr_uncovered'))} |")
+
+
 def main(dirs: list[str]) -> None:
+    if dirs and dirs[0] == "--pairs":
+        for d in dirs[1:]:
+            pairs(d)
+        return
     print("| run | held-out PSNR | masked | inside cov. | outside cov. | px outside | reference views | target, guided losses "
           "| commit |")
     print("|---|---:|---:|---:|---:|---:|---:|---|---|")

@@ -102,7 +102,8 @@ def test_stage2_with_features_that_need_no_weights(tmp_path, monkeypatch, featur
         "seed": 0, "device": "cpu", "cache_dir": str(tmp_path / "cache"),
         "train": {"steps": 3, "progress": False, "checkpoint_every": 0, "eval": ev},
         "colorize": {"steps": 3, "progress": False, "tcm_downscale": 1, "ccm_downscale": 8, "checkpoint_every": 0,
-                     "eval": ev, "features": features, "depth": "dataset", "references": "one"}})
+                     "eval": ev, "features": features, "depth": "dataset", "references": "one",
+                     "guard": {"check": False}}})  # TCM/CCM kept whatever the match check says: the features' path
     run = tmp_path / "run"
     run_stage1(cfg, scene, run)
     s2 = run_stage2(cfg, scene, run)["stage2"]

@@ -4,7 +4,7 @@ from two ``pytest --durations=0`` logs (issue 41's "make test not longer", side 
     (cd <old worktree> && .venv/bin/python -m pytest -q -p no:cacheprovider -n 2 --dist loadgroup --durations=0 \\
         -o addopts="" > /tmp/old.log)
     .venv/bin/python -m pytest ... --durations=0 -o addopts="" > /tmp/new.log        # the same command here
-    .venv/bin/python benchmarks/test_durations.py /tmp/old.log /tmp/new.log
+    .venv/bin/python benchmarks/compare_durations.py /tmp/old.log /tmp/new.log
 """
 from __future__ import annotations
 
@@ -15,10 +15,11 @@ import sys
 def durations(path: str) -> dict[str, float]:
     """``{test id: seconds}`` summed over its setup, call and teardown lines (pytest hides those under 5 ms)."""
     out: dict[str, float] = {}
-    for line in open(path, encoding="utf-8", errors="replace"):
-        m = re.match(r"^([\d.]+)s (call|setup|teardown)\s+(\S+)", line)
-        if m:
-            out[m.group(3)] = out.get(m.group(3), 0.0) + float(m.group(1))
+    with open(path, encoding="utf-8", errors="replace") as f:
+        for line in f:
+            m = re.match(r"^([\d.]+)s (call|setup|teardown)\s+(\S+)", line)
+            if m:
+                out[m.group(3)] = out.get(m.group(3), 0.0) + float(m.group(1))
     return out
 
 

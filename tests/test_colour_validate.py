@@ -79,3 +79,40 @@ def test_tcm_and_ccm_are_scored_only_where_they_act():
     g_tcm, r_tcm, g_ccm, r_ccm = _guide_scores(_Guidance(), 0, rgb, truth, space, 1, 4, covered)
     assert abs(g_tcm - 1.0) < 1e-6 and abs(r_tcm - (1 - 3 ** -0.5)) < 1e-6  # bottom only: green vs grey
     assert abs(g_ccm - 2 / 3) < 1e-6 and abs(r_ccm - 0.25) < 1e-6
+
+
+def test_the_background_counts_as_covered_when_it_has_its_own_target():
+    """The held-out view's left half is background. With ``colorize.background=auto`` (and background pixels in the
+    other references to fit its line) TCM/CCM act only on the uncovered specimen, so they are scored there; with
+    ``background=off`` they act on the background too. A guidance right on the specimen and wrong on the background
+    wins only in the first case."""
+    import dataclasses
+
+    from arcsem.colorize.validate import _guide_scores, acting_cover
+    from arcsem.configs import ColorizeConfig
+
+    class Guide:
+        def targets(self, v):
+            tcm = torch.zeros(3, 8, 8)
+            tcm[2, :, 4:], tcm[1, :, :4] = 1.0, 1.0  # right (blue) on the specimen, wrong (green) on the background
+            ccm = torch.zeros(2, 2, 3)
+            ccm[:, 1, 2], ccm[:, 0, 1] = 1.0, 1.0
+            return {"tcm_guidance": [tcm], "ccm_target": ccm, "ccm_valid": torch.ones(2, 2, dtype=torch.bool)}
+
+    truth = torch.zeros(8, 8, 3)
+    truth[:, 4:, 2], truth[:, :4, 0] = 1.0, 1.0  # blue specimen on the right, red background on the left
+    rgb = torch.full((8, 8, 3), 0.5)  # the flat guess everywhere: the target covers nothing
+    mask = torch.zeros(8, 8, dtype=torch.bool)
+    mask[:, 4:] = True
+    ok = torch.zeros(8, 8, dtype=torch.bool)
+    refs, ref_grey, ref_masks = torch.rand(1, 16, 16, 3), torch.rand(1, 16, 16), torch.zeros(1, 16, 16, dtype=torch.bool)
+    space = lambda x: [x.permute(0, 3, 1, 2)]
+    cc = ColorizeConfig()
+    scores = {}
+    for bg in ("auto", "off"):
+        covered = acting_cover(ok, mask, dataclasses.replace(cc, background=bg), refs, ref_grey, ref_masks)
+        g_tcm, r_tcm, g_ccm, r_ccm = _guide_scores(Guide(), 0, rgb, truth, space, 1, 4, covered)
+        scores[bg] = (g_tcm < r_tcm, g_ccm < r_ccm)
+    assert scores == {"auto": (True, True), "off": (False, False)}
+    # no background in the other references: no line, so the background is not covered
+    assert acting_cover(ok, mask, cc, refs, ref_grey, torch.ones(1, 16, 16, dtype=torch.bool)).sum() == 0

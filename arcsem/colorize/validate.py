@@ -12,7 +12,8 @@ specimen pixels. Closed form, no training: a few seconds per reference. The decl
   target image (the same locations, mean cosine distance); **CCM** where its targets lie closer (squared error) to
   the truth's cell colours than the target's cell means on the cells it acts on. Both are scored where they act in
   training: with ``colorize.guard.uncovered_only`` on the cells the target leaves (there the target image holds the
-  flat guess). Where they act nowhere, or lose, their weight becomes 0.
+  flat guess), less the background when ``colorize.background=auto`` gives it a target (:func:`acting_cover`).
+  Where they act nowhere, or lose, their weight becomes 0.
 
 So the chosen setting is never worse than pseudo-colours alone on the validation. The scores and the choice are
 recorded in ``metrics.json`` (``stage2.validation``).
@@ -26,11 +27,12 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ..imageops import downscale, patch_means
+from .background import fit_background
 from .pseudocolor import pseudo_colors
 from .shading import fit_shading, shade
 from .surface import surface_colors
 
-__all__ = ["GRID", "apply_choice", "held_out_targets", "target_error", "validate", "without_losses"]
+__all__ = ["GRID", "acting_cover", "apply_choice", "held_out_targets", "target_error", "validate", "without_losses"]
 
 GRID = [{"surface": s, "shading": h} for s in ("fill", "off") for h in ("auto", "off")]
 
@@ -99,6 +101,18 @@ def _guide_scores(guidance, v: int, rgb: Tensor, truth: Tensor, space, tcm_downs
     return (g_err / n, r_err / n, *c) if n else (float("nan"), float("nan"), *c)
 
 
+def acting_cover(ok: Tensor, mask: Tensor, cc, ref_colors: Tensor, ref_grey: Tensor, ref_masks: Tensor):
+    """The cells TCM/CCM leave alone in training on a held-out view, as ``[H, W]`` (None: they act everywhere):
+    with ``colorize.guard.uncovered_only``, the target's pixels ``ok``, and with ``colorize.background=auto`` (when
+    the other references give a background line) the pixels outside the specimen ``mask`` too, which the
+    background target holds. ``ref_*``: the other references' colours ``[R', H, W, 3]``, grey and masks."""
+    if not (cc.guard.enabled and cc.guard.uncovered_only):
+        return None
+    if cc.background == "auto" and fit_background(ref_colors, ref_grey, ref_masks) is not None:
+        return ok | ~mask.bool()
+    return ok
+
+
 def validate(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Tensor, ridx: list[int], images: Tensor, cc,
              guidance=None) -> dict:
     """Scores of every grid setting and the choice (:func:`apply_choice` reads it).
@@ -128,8 +142,10 @@ def validate(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Tensor, r
         for r in range(len(ridx)):
             held = guidance.without(r)
             rgb, ok = target_image(guide["rgb_" + str(r)], grey[ridx[r]], surface, shading)
-            s = _guide_scores(held, ridx[r], rgb, images[r], held.space, held.tcm_downscale, held.ccm_downscale,
-                              ok if cc.guard.enabled and cc.guard.uncovered_only else None)
+            others = [ridx[i] for i in range(len(ridx)) if i != r]
+            acts = acting_cover(ok, masks[ridx[r]], cc, images[[i for i in range(len(ridx)) if i != r]],
+                                grey[others], masks[others])
+            s = _guide_scores(held, ridx[r], rgb, images[r], held.space, held.tcm_downscale, held.ccm_downscale, acts)
             guide["tcm"].append(s[:2])
             guide["ccm"].append(s[2:])
         for k in ("tcm", "ccm"):

@@ -12,9 +12,11 @@
 #   everywhere   TCM/CCM also inside the pseudo-colour coverage (colorize.guard.uncovered_only=false)
 #   no_check     TCM/CCM kept at one reference whatever the match check says (colorize.guard.check=false)
 # Run folders: OUT_DIR/s2/<scene>_<refs>_<variant>[_s<seed>] (seed 0 has no suffix, as in earlier tables).
+# EXTRA="threads=1 ..." adds overrides to every stage-2 job (two lanes of one thread each on two cores: give the
+# lanes disjoint scenes, seeds or variants).
 set -euo pipefail
 OUT=${1:?output folder}; SCENES=${2:-synthetic diatom}; REFS=${3:-one three five}
-VARIANTS=${4:-default pseudo_only}; SEEDS=${5:-0}
+VARIANTS=${4:-default pseudo_only}; SEEDS=${5:-0}; EXTRA=${EXTRA:-}
 ARCSEM=${ARCSEM:-$(dirname "$0")/../.venv/bin/arcsem}
 overrides() {
   case $1 in
@@ -46,7 +48,7 @@ for ds in $SCENES; do
         # shellcheck disable=SC2086
         "$ARCSEM" dataset=$ds backbone=gs2d stage=color colorize=quick colorize.stage1="$OUT/s1_$ds" seed=$seed \
           colorize.references=$refs colorize.eval.video=false colorize.eval.lpips=false mesh.enabled=false \
-          colorize.progress=false hydra.run.dir="$run" $extra > "$run.log" 2>&1
+          colorize.progress=false hydra.run.dir="$run" $extra $EXTRA > "$run.log" 2>&1
       done
     done
   done

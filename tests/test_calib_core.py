@@ -212,9 +212,29 @@ def test_the_specimen_box_leaves_out_points_just_off_the_substrate():
     ground[:40, 0] = rng.uniform(-6, -4, 40)                                          # on one side, far out
     X = np.r_[X[:150], ground]
     _, Xw, frame = world_frame(views, X, stage_frame=True)
-    spec = specimen_points(frame.substrate, frame.height, len(X))
+    spec = specimen_points(frame.substrate, frame.height, Xw)
     assert spec[:150].mean() > 0.95 and not spec[150:].any()
     box = np.percentile(Xw[spec], 99, axis=0) - np.percentile(Xw[spec], 1, axis=0)
     assert box[:2].max() < 2.0                                       # the ball's 1.8, not the plane's 12
     assert np.abs(Xw[:150].mean(0)[:2]).max() < 0.1                  # the origin at the ball's centre
-    assert specimen_points(None, None, 5).all()
+    assert specimen_points(None, None, np.zeros((5, 3))).all()
+
+
+def test_debris_far_out_on_the_substrate_is_left_out_of_the_specimen_box_and_the_origin():
+    """A small cluster standing on the substrate far from the grain (debris) is above the substrate like the grain.
+    Counted in, its 1-99 percentiles stretched the built-in scene's specimen box six times and moved the origin off
+    the grain; the specimen points leave it out."""
+    from arcsem.calib.frame import above_substrate, specimen_points, world_frame
+
+    rng = np.random.default_rng(2)
+    views, X = grain_on_substrate()
+    ground = np.c_[rng.uniform(-6, 6, (600, 2)), np.full(600, -1.0)]
+    debris = np.c_[rng.normal(-5.0, 0.05, (20, 2)), -1.0 + rng.uniform(0.1, 0.3, 20)]   # 20 points, 2 % of all
+    X = np.r_[X[:150], ground, debris]
+    _, Xw, frame = world_frame(views, X, stage_frame=True)
+    above = above_substrate(frame.substrate, frame.height, len(X))
+    spec = specimen_points(frame.substrate, frame.height, Xw)
+    assert above[750:].all() and not spec[750:].any() and spec[:150].mean() > 0.95
+    box = np.percentile(Xw[spec], 99, axis=0) - np.percentile(Xw[spec], 1, axis=0)
+    assert box[:2].max() < 2.0                                       # the ball's 1.8, not 7 with the debris
+    assert np.abs(Xw[:150].mean(0)[:2]).max() < 0.1                  # the origin at the ball's centre

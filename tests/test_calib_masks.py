@@ -30,7 +30,9 @@ def test_split_debris_depends_on_the_share_rule(monkeypatch):
     """Without the share rule (every part kept) the particles would seed the specimen mask."""
     rng = np.random.default_rng(1)
     X = np.concatenate([_blob(rng, [0, 0, 1], 1.0, 300), _blob(rng, [3, 0, 0.1], 0.08, 12)])
-    monkeypatch.setattr(M, "DEBRIS_SHARE", 0.0)
+    import arcsem.calib.frame as F
+
+    monkeypatch.setattr(F, "DEBRIS_SHARE", 0.0)
     assert M.split_debris(X).all()
 
 

@@ -14,7 +14,7 @@
 * **Axes**: ``z`` along the stage normal for stage-initialised series, else along the substrate normal
   towards the cameras (without a substrate: the cameras' mean backward direction); ``x`` along the principal tilt
   axis (:func:`tilt_axes`) made orthogonal to ``z``; origin at the centre of the specimen points' box
-  (their 2nd to 98th percentiles; :func:`specimen_points`).
+  (their 2nd to 98th percentiles; :func:`specimen_points`: above the substrate, debris left out).
 """
 from __future__ import annotations
 
@@ -25,8 +25,8 @@ import numpy as np
 
 from .bundle import OrthoViews
 
-__all__ = ["Frame", "apply_frame", "find_substrate", "mirror", "refit_substrate", "specimen_points", "tilt_axes",
-           "world_frame"]
+__all__ = ["DEBRIS_SHARE", "LINK", "Frame", "above_substrate", "apply_frame", "find_substrate", "mirror", "refit_substrate",
+           "specimen_points", "split_debris", "tilt_axes", "world_frame"]
 
 
 @dataclass
@@ -43,7 +43,7 @@ class Frame:
     height: np.ndarray | None = None
 
 
-def specimen_points(substrate: np.ndarray | None, height: np.ndarray | None, n_points: int) -> np.ndarray:
+def above_substrate(substrate: np.ndarray | None, height: np.ndarray | None, n_points: int) -> np.ndarray:
     """``[N]`` bool: the points clearly above the substrate (more than three times the plane's tolerance, the
     largest distance of its inliers); every point without a substrate, or when fewer than 10 are that high.
     Points just off the plane (its scatter, points on a tilted edge of the substrate) are not the specimen:
@@ -53,6 +53,46 @@ def specimen_points(substrate: np.ndarray | None, height: np.ndarray | None, n_p
     tol = float(np.abs(height[substrate]).max()) if substrate.any() else 0.0
     spec = height > 3.0 * tol
     return spec if spec.sum() >= 10 else np.ones(n_points, bool)
+
+
+DEBRIS_SHARE = 0.2  # a part with fewer points than this share of the largest one's is debris (set by hand)
+LINK = 4.0  # two points are neighbours within LINK x the median distance of a point to its nearest one
+
+
+def split_debris(X: np.ndarray) -> np.ndarray:
+    """``[n]`` bool, True for the specimen: of the points ``X [n, 3]`` above the substrate, those in the connected
+    parts of their neighbour graph (points within :data:`LINK` times the median nearest-neighbour distance) that
+    hold at least :data:`DEBRIS_SHARE` as many points as the largest part; the rest are debris. All True for
+    fewer than 10 points."""
+    if len(X) < 10:
+        return np.ones(len(X), bool)
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(X)
+    nn = tree.query(X, k=2)[0][:, 1]
+    pairs = tree.query_pairs(LINK * float(np.median(nn)), output_type="ndarray")
+    from scipy.sparse import coo_matrix
+
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(X), len(X)))
+    _n, labels = connected_components(graph, directed=False)
+    sizes = np.bincount(labels)
+    return sizes[labels] >= DEBRIS_SHARE * sizes.max()
+
+
+def specimen_points(substrate: np.ndarray | None, height: np.ndarray | None, X: np.ndarray) -> np.ndarray:
+    """``[N]`` bool: the specimen's points of ``X [N, 3]``: those above the substrate (:func:`above_substrate`) less
+    the debris (:func:`split_debris`); without a substrate, every point. The frame's origin, the dataset's
+    ``aabb`` and the masks' seeds all take these: debris far out on the substrate, counted in, made the built-in
+    scene's specimen box six times the grain and put its origin off the grain (``aabb`` scales the Gaussians'
+    learning rates and split threshold)."""
+    above = above_substrate(substrate, height, len(X))
+    if substrate is None or height is None:
+        return above
+    idx = np.flatnonzero(above)
+    out = np.zeros(len(X), bool)
+    out[idx] = split_debris(X[idx])
+    return out
 
 
 def find_substrate(X: np.ndarray, towards: np.ndarray, max_angle: float = 60.0, iters: int = 400, seed: int = 0
@@ -184,7 +224,7 @@ def world_frame(views: OrthoViews, X: np.ndarray, stage_frame: bool, flip: bool 
     x /= np.linalg.norm(x)
     rot = np.stack([x, np.cross(z, x), z])
     height = None if plane is None else X @ plane[0] - plane[1]
-    local = X[specimen_points(sub, height, len(X))] @ rot.T
+    local = X[specimen_points(sub, height, X)] @ rot.T
     centre = rot.T @ (0.5 * (np.percentile(local, 2, axis=0) + np.percentile(local, 98, axis=0)))
     frame = Frame(rot, centre, sub, mirrored, notes, height)
     views, X = apply_frame(views, X, frame)

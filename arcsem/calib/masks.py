@@ -1,6 +1,7 @@
 """Automatic specimen masks, seeded by the sparse points.
 
-The points clearly above the substrate are first split into the specimen and debris (:func:`split_debris`): the
+The points clearly above the substrate are first split into the specimen and debris (:func:`split_debris`, in
+:mod:`.frame`, where the specimen's box and the origin take the same split): the
 connected parts of their 3-D neighbour graph, the largest one the specimen, any part with under
 :data:`DEBRIS_SHARE` of its points debris. Debris lies on the substrate like the specimen but is not what the
 user imaged; counted in, it made the masks, the masked metrics and the mesh include it.
@@ -17,35 +18,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from .frame import DEBRIS_SHARE, split_debris
+
 __all__ = ["DEBRIS_SHARE", "mask_overlay", "specimen_masks", "split_debris"]
 
 WORK_SIZE = 256
 FAR = 0.01
-DEBRIS_SHARE = 0.2  # a part with fewer points than this share of the largest one's is debris (set by hand)
-LINK = 4.0  # two points are neighbours within LINK x the median distance of a point to its nearest one
-
-
-def split_debris(X: np.ndarray) -> np.ndarray:
-    """``[n]`` bool, True for the specimen: of the points ``X [n, 3]`` above the substrate, those in the connected
-    parts of their neighbour graph (points within :data:`LINK` times the median nearest-neighbour distance) that
-    hold at least :data:`DEBRIS_SHARE` as many points as the largest part; the rest are debris. All True for
-    fewer than 10 points."""
-    if len(X) < 10:
-        return np.ones(len(X), bool)
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(X)
-    nn = tree.query(X, k=2)[0][:, 1]
-    pairs = tree.query_pairs(LINK * float(np.median(nn)), output_type="ndarray")
-    from scipy.sparse import coo_matrix
-
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(X), len(X)))
-    _n, labels = connected_components(graph, directed=False)
-    sizes = np.bincount(labels)
-    return sizes[labels] >= DEBRIS_SHARE * sizes.max()
-
-
 def mask_overlay(img8: np.ndarray, mask: np.ndarray, specimen_uv: np.ndarray, debris_uv: np.ndarray,
                  substrate_uv: np.ndarray | None) -> np.ndarray:
     """``[h, w, 3]`` BGR, at most 1400 px wide: ``img8 [H, W]`` with the mask tinted green and its outline, the

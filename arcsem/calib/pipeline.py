@@ -18,10 +18,10 @@ from ..sem.series import Series
 from .bundle import OrthoViews, StageModel, bundle_adjust, residuals
 from .factorization import init_factorization
 from .features import Features, detect_features, to_u8_stretched
-from .frame import Frame, refit_substrate, specimen_points, world_frame
+from .frame import Frame, above_substrate, refit_substrate, specimen_points, world_frame
 from .geometry import rot_z, triangulate
 from .init import init_from_stage, strongest_tracks
-from .masks import specimen_masks, split_debris
+from .masks import specimen_masks
 from .matching import PairMatches, match_descriptors, ransac_affine_fundamental
 from .perspective import PinholeViews, from_ortho, perspective_adjust
 from .refine import refine_observations
@@ -303,13 +303,12 @@ def _point_colors(feats: list[Features], obs: Observations) -> np.ndarray:
 
 
 def _masks(series: Series, cal: Calibration) -> list[np.ndarray]:
-    """Masks seeded by the specimen points (above the substrate, :func:`~.frame.specimen_points`, less the debris,
-    :func:`~.masks.split_debris`) and, as background, the substrate's and the debris' points; the points' split is
-    kept in ``cal.mask_points`` for the report."""
+    """Masks seeded by the specimen points (above the substrate less the debris, :func:`~.frame.specimen_points`)
+    and, as background, the substrate's and the debris' points; the points' split is kept in ``cal.mask_points``
+    for the report."""
     sub = cal.frame.substrate
-    above = np.flatnonzero(specimen_points(sub, cal.frame.height, len(cal.X)))
-    main = split_debris(cal.X[above]) if sub is not None else np.ones(len(above), bool)
-    spec, debris = above[main], above[~main]
+    main = specimen_points(sub, cal.frame.height, cal.X)
+    spec, debris = np.flatnonzero(main), np.flatnonzero(above_substrate(sub, cal.frame.height, len(cal.X)) & ~main)
     other = np.concatenate([np.flatnonzero(sub) if sub is not None else np.zeros(0, int), debris])
     all_v = np.arange(len(series))
     uv = lambda P: [cal.views.project(P, Observations(np.full(len(P), v), np.arange(len(P)), None, None, len(P)))

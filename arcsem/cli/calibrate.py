@@ -148,7 +148,7 @@ def _write(out: Path, series, cal, args, opts) -> None:
         for name in OUTPUTS:
             p = out / name
             shutil.rmtree(p) if p.is_dir() else p.unlink(missing_ok=True)
-    (lo, hi), (clo, chi) = _boxes(cal, specimen_points(cal.frame.substrate, cal.frame.height, len(cal.X)))
+    (lo, hi), (clo, chi) = _boxes(cal, specimen_points(cal.frame.substrate, cal.frame.height, cal.X))
     pad, cpad = 0.1 * (hi - lo), 0.1 * (chi - clo)
     extra = {"world_unit": cal.unit, "content_aabb": np.stack([clo - cpad, chi + cpad]).tolist(),
              "frames": [{"stage_tilt_deg": t, "stage_rotation_deg": r, "stage_angles_from": ts, "pixel_size_from": ps,

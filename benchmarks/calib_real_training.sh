@@ -6,6 +6,8 @@
 #   e.g. git clone https://github.com/Karido/3D-SEM /tmp/3D-SEM
 #        benchmarks/calib_real_training.sh /tmp/real /tmp/3D-SEM/res/dsa /tmp/3D-SEM/res/quarz
 # Held out: the file matching *_02.* (the middle one of the 3-view series); HOLDOUT=<glob> for others.
+# CALIB_ARGS: more arcsem-calibrate options for both variants, e.g. "--init factorization" for files without stage
+# angles (Karido's series: its README says the angles are unknown, 5-10 degrees apart).
 set -euo pipefail
 OUT=${1:?output folder}; shift
 BIN=${BIN:-$(dirname "$0")/../.venv/bin}
@@ -14,7 +16,8 @@ for series in "$@"; do
   name=$(basename "$series")
   for variant in default features12000; do
     ds="$OUT/${name}_$variant"
-    extra=(); [ "$variant" = features12000 ] && extra=(--features 12000 --dense-features 0)
+    # shellcheck disable=SC2206
+    extra=(${CALIB_ARGS:-}); [ "$variant" = features12000 ] && extra+=(--features 12000 --dense-features 0)
     [ -f "$ds/transforms.json" ] || "$BIN/arcsem-calibrate" "$series" --out "$ds" --holdout "${HOLDOUT:-*_02.*}" \
       "${extra[@]}" > "$ds.calib.log" 2>&1
     run="$OUT/${name}_${variant}_train"

@@ -100,6 +100,10 @@ class Registry:
     def _entry_points(self, group: str | None = None) -> dict[str, metadata.EntryPoint]:
         return {ep.name: ep for ep in metadata.entry_points(group=group or self.group)}
 
+    def registered(self, name: str) -> type | None:
+        """The class in memory under ``name`` (registered or already loaded), or None; loads nothing."""
+        return self._classes.get(name)
+
     def names(self) -> list[str]:
         """Every known name: registered in memory or declared as an entry point."""
         return sorted(set(self._classes) | set(self._entry_points()))

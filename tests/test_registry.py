@@ -64,6 +64,8 @@ def test_lazy_loading_loads_only_the_requested_entry_point(reg):
     assert cls.name == "b" and sys.modules["fake_holder"].LOADED == ["b"]
     assert "fake_widget_a" not in sys.modules and "fake_widget_broken" not in sys.modules
     assert reg.get("b") is cls and sys.modules["fake_holder"].LOADED == ["b"]  # cached, not re-imported
+    assert reg.registered("b") is cls and reg.registered("a") is None  # what is in memory; loads nothing
+    assert "fake_widget_a" not in sys.modules
 
 
 def test_build_validates_and_passes_runtime(reg):

@@ -21,7 +21,7 @@ def _origin(registry: Any, name: str) -> str:
     eps = {ep.name: ep for ep in metadata.entry_points(group=registry.group)}
     ep = eps.get(name)
     if ep is None:
-        cls = registry._classes.get(name)
+        cls = registry.registered(name)
         return f"registered in {cls.__module__}" if cls is not None else "?"
     dist = getattr(ep, "dist", None)
     dist_name = dist.name if dist is not None else "?"

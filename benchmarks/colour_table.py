@@ -4,6 +4,8 @@ validation chose and the guided losses that trained.
 
     .venv/bin/python benchmarks/colour_table.py DIR [DIR ...]     # run folders DIR/<scene>_<refs>_<variant>/
     .venv/bin/python benchmarks/colour_table.py --pairs DIR        # default against pseudo_only, per scene and refs
+    .venv/bin/python benchmarks/colour_table.py --seeds DIR [DIR ...]  # the same pairs per seed (_s<k> folders;
+                                                                   # a later DIR's run replaces an earlier one's)
 """
 from __future__ import annotations
 
@@ -49,7 +51,42 @@ def pairs(d: str) -> None:
               f"{f(k(a, 'psnr_uncovered'))} / {f(k(b, 'psnr_uncovered'))} |")
 
 
+def seeded(dirs: list[str]) -> None:
+    """One row per ``<scene>_<refs>``: default against pseudo_only paired by seed (whole image and outside the
+    coverage), for the seeds that have both runs."""
+    runs: dict[str, Path] = {}
+    for d in dirs:
+        runs.update({p.parent.name: p.parent for p in Path(d).glob("*/metrics.json")})
+    test = lambda name: json.loads((runs[name] / "metrics.json").read_text())["stage2"]["test"]
+    groups: dict[str, dict[int, tuple[str, str]]] = {}
+    for name in runs:
+        stem, _, seed = name.partition("_default")
+        if not stem or (seed and not seed.startswith("_s")):
+            continue
+        k = int(seed[2:]) if seed else 0
+        base = f"{stem}_pseudo_only" + (f"_s{k}" if k else "")
+        if base in runs:
+            groups.setdefault(stem, {})[k] = (name, base)
+    f = lambda x: "-" if x is None else f"{x:+.2f}"
+    print("| scene, references | seeds | default (mean) | pseudo-colours (mean) | gain per seed | smallest gain | "
+          "outside cov. gain per seed |")
+    print("|---|---|---:|---:|---|---:|---|")
+    for stem in sorted(groups):
+        seeds = sorted(groups[stem])
+        a = [test(groups[stem][k][0]) for k in seeds]
+        b = [test(groups[stem][k][1]) for k in seeds]
+        gains = [x["psnr"] - y["psnr"] for x, y in zip(a, b)]
+        out = [None if x.get("psnr_uncovered") is None or y.get("psnr_uncovered") is None
+               else x["psnr_uncovered"] - y["psnr_uncovered"] for x, y in zip(a, b)]
+        print(f"| {stem} | {', '.join(map(str, seeds))} | {sum(x['psnr'] for x in a) / len(a):.2f} | "
+              f"{sum(y['psnr'] for y in b) / len(b):.2f} | {', '.join(f(g) for g in gains)} | {f(min(gains))} | "
+              f"{', '.join(f(o) for o in out)} |")
+
+
 def main(dirs: list[str]) -> None:
+    if dirs and dirs[0] == "--seeds":
+        seeded(dirs[1:])
+        return
     if dirs and dirs[0] == "--pairs":
         for d in dirs[1:]:
             pairs(d)

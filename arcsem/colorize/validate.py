@@ -142,9 +142,9 @@ def validate(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Tensor, r
         for r in range(len(ridx)):
             held = guidance.without(r)
             rgb, ok = target_image(guide["rgb_" + str(r)], grey[ridx[r]], surface, shading)
-            others = [ridx[i] for i in range(len(ridx)) if i != r]
-            acts = acting_cover(ok, masks[ridx[r]], cc, images[[i for i in range(len(ridx)) if i != r]],
-                                grey[others], masks[others])
+            rest = [i for i in range(len(ridx)) if i != r]
+            others = [ridx[i] for i in rest]
+            acts = acting_cover(ok, masks[ridx[r]], cc, images[rest], grey[others], masks[others])
             s = _guide_scores(held, ridx[r], rgb, images[r], held.space, held.tcm_downscale, held.ccm_downscale, acts)
             guide["tcm"].append(s[:2])
             guide["ccm"].append(s[2:])

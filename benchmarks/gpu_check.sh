@@ -3,13 +3,16 @@
 #   setup    install the carried wheels (.whl/), arcsem itself, gsplat's CUDA library (.gpu/gsplat_csrc.so when
 #            carried, else built once, ~minutes, and left in $OUT for the next machine) and the built-in scene
 #            (.gpu/scene.tar.xz, made on the CPU machine: the scene generator needs pycolmap, 38 MB)
+#   quality  the demo job at more seeds (QUALITY_SEEDS, default 1 2; QUALITY_RASTERIZERS, default auto), run beside
+#            the tests, for the held-out grey and colour PSNR against the CPU's (not timed: they share the GPU)
 #   tests    pytest -m cuda
 #   probe    where a non-finite value first appears, if the gsplat 2DGS run of the tests failed (nan_probe.py)
 #   launch   gsplat's 2DGS backward at 8/16/32-px tiles and its kernels' register counts
 #   profile  stage 1 of the demo: steps/s, SM utilisation, host syncs, kernels (benchmarks/gpu/stage1_profile.py)
 #   demo     the whole `make demo` job with device=cuda, both rasterisers, nvidia-smi dmon sampling
 # then writes $OUT/gpu_check.json (device, cuda_tests_failed, stage1_steps_per_s, sm_util_pct, stage2_complete,
-# demo_wall_s, ...). Parts: GPU_CHECK_PARTS (default all).
+# demo_wall_s, quality, ...) and $OUT/runs.tar.gz (every demo job's time-stamped log and metrics.json).
+# Parts: GPU_CHECK_PARTS (default all).
 #
 #   # on the CPU machine, from the repository root (cp312 wheels for the GPU machine's Python 3.12):
 #   benchmarks/gpu/prepare.sh          # .whl/ and .gpu/scene.tar.xz (both git-ignored; 25 MB together)
@@ -17,12 +20,23 @@
 #   benchmarks/gpu_check.sh            # results in ${OUT:-/tmp/gpu_check}
 set -uo pipefail
 OUT=${OUT:-/tmp/gpu_check}
-PARTS=${GPU_CHECK_PARTS:-setup,tests,probe,profile,demo,launch}
+PARTS=${GPU_CHECK_PARTS:-setup,quality,tests,probe,profile,demo,launch}
 mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1 TQDM_DISABLE=1 ARCSEM_CACHE=/tmp/arcsem_cache PYTHONWARNINGS=ignore::DeprecationWarning
 has() { [[ ",$PARTS," == *",$1,"* ]]; }
 T0=$(date +%s)
 stamp() { echo "== $1 ($(( $(date +%s) - T0 )) s)"; }
+# demo NAME RASTERIZER SEED [OVERRIDE ...]: one demo job in /tmp/NAME, its output time-stamped in /tmp/NAME.log,
+# its exit status in /tmp/NAME.rc and its wall seconds in /tmp/NAME.wall; a colour cache of its own (no job reuses
+# another's pseudo-colours or matches)
+demo() {
+  local name=$1 r=$2 seed=$3 s; shift 3
+  s=$(date +%s.%N)
+  env -u TQDM_DISABLE TQDM_MININTERVAL=5 timeout "${DEMO_TIMEOUT:-300}" arcsem experiment=demo device=cuda backbone.rasterizer="$r" seed="$seed" "$@" \
+    colorize.cache_dir="/tmp/$name.cc" hydra.run.dir="/tmp/$name" 2>&1 | python3 benchmarks/gpu/summary.py --stamp > "/tmp/$name.log"
+  echo "${PIPESTATUS[0]}" > "/tmp/$name.rc"
+  python3 -c "print(round($(date +%s.%N) - $s, 1))" > "/tmp/$name.wall"
+}
 
 if has setup; then
   stamp setup
@@ -35,12 +49,39 @@ if has setup; then
     python3 benchmarks/gpu/gsplat_build.py --out "$OUT/gsplat_csrc.so"
   fi
   python3 -c "import torch, gsplat; print('torch', torch.__version__, 'CUDA', torch.version.cuda, torch.cuda.get_device_name(), 'gsplat', gsplat.__version__)"
+  python3 -c "import torch; print(torch.cuda.get_device_name())" > "$OUT/device.txt"
+fi
+
+if has quality; then
+  stamp "quality: seeds ${QUALITY_SEEDS:-1 2}, started beside the tests"
+  nvidia-smi dmon -s u -d 1 -o T > /tmp/dmon_quality.txt 2>&1 & QDMON=$!
+  QPIDS=()
+  for seed in ${QUALITY_SEEDS:-1 2}; do
+    for r in ${QUALITY_RASTERIZERS:-auto}; do
+      demo "q_${r}_s$seed" "$r" "$seed" threads=4 & QPIDS+=($!)
+    done
+  done
 fi
 
 if has tests; then
   stamp tests
   timeout "${TESTS_TIMEOUT:-420}" python3 -m pytest -q -m cuda tests/test_cuda.py tests/test_gsplat_bridge.py -p no:cacheprovider \
     -o addopts="" -W ignore::DeprecationWarning 2>&1 | tee "$OUT/cuda_tests.log" | tail -25
+fi
+
+if has quality; then
+  wait "${QPIDS[@]}"
+  kill $QDMON 2>/dev/null
+  stamp "quality jobs done"
+  for seed in ${QUALITY_SEEDS:-1 2}; do
+    for r in ${QUALITY_RASTERIZERS:-auto}; do
+      n="q_${r}_s$seed"
+      echo "quality $n: exit $(cat /tmp/$n.rc) in $(cat /tmp/$n.wall) s"
+      python3 benchmarks/gpu/summary.py --demo "/tmp/$n" "$r" "$seed" "$(cat /tmp/$n.rc)" "$(cat /tmp/$n.wall)" \
+        /tmp/dmon_quality.txt "$OUT/quality_metrics.json" > /dev/null
+    done
+  done
+  python3 benchmarks/gpu/summary.py --check "$OUT" > /dev/null
 fi
 
 if has probe && grep -q "FAILED tests/test_cuda.py::test_stages_end_to_end_on_cuda\[gs2d-stages3" "$OUT/cuda_tests.log" 2>/dev/null; then
@@ -64,17 +105,15 @@ fi
 
 if has demo; then
   stamp demo
-  for r in ${DEMO_RASTERIZERS:-auto gsplat}; do
+  for r in ${DEMO_RASTERIZERS:-gsplat auto}; do
     nvidia-smi dmon -s u -d 1 -o T > "/tmp/dmon_$r.txt" 2>&1 & DMON=$!
-    s=$(date +%s.%N)
-    timeout "${DEMO_TIMEOUT:-300}" arcsem experiment=demo device=cuda backbone.rasterizer=$r hydra.run.dir="/tmp/demo_$r" \
-      > "/tmp/demo_$r.log" 2>&1
-    rc=$?
-    wall=$(python3 -c "print(round($(date +%s.%N) - $s, 1))")
+    demo "demo_$r" "$r" 0
     kill $DMON 2>/dev/null
-    echo "demo $r: exit $rc in $wall s"
-    { echo "=== demo $r: exit $rc, $wall s"; tail -40 "/tmp/demo_$r.log"; echo "--- dmon"; cat "/tmp/dmon_$r.txt"; } >> "$OUT/demo.log"
-    python3 benchmarks/gpu/summary.py --demo "/tmp/demo_$r" "$r" "$rc" "$wall" "/tmp/dmon_$r.txt" "$OUT/demo_metrics.json"
+    echo "demo $r: exit $(cat /tmp/demo_$r.rc) in $(cat /tmp/demo_$r.wall) s"
+    { echo "=== demo $r: exit $(cat /tmp/demo_$r.rc), $(cat /tmp/demo_$r.wall) s"; tail -40 "/tmp/demo_$r.log"
+      echo "--- dmon"; cat "/tmp/dmon_$r.txt"; } >> "$OUT/demo.log"
+    python3 benchmarks/gpu/summary.py --demo "/tmp/demo_$r" "$r" 0 "$(cat /tmp/demo_$r.rc)" "$(cat /tmp/demo_$r.wall)" \
+      "/tmp/dmon_$r.txt" "$OUT/demo_metrics.json"
     python3 benchmarks/gpu/summary.py --check "$OUT" > /dev/null
   done
 fi
@@ -85,4 +124,5 @@ if has launch; then
 fi
 
 stamp summary
+(cd /tmp && tar -czf "$OUT/runs.tar.gz" --ignore-failed-read ./q_*.log ./demo_*.log ./q_*/metrics.json ./demo_*/metrics.json 2>/dev/null)
 python3 benchmarks/gpu/summary.py --check "$OUT"

@@ -5,6 +5,8 @@
 #            (.gpu/scene.tar.xz, made on the CPU machine: the scene generator needs pycolmap, 38 MB)
 #   quality  the demo job at more seeds (QUALITY_SEEDS, default 1 2; QUALITY_RASTERIZERS, default auto), run beside
 #            the tests, for the held-out grey and colour PSNR against the CPU's (not timed: they share the GPU)
+#   demoprobe  stage 1 of the demo on gsplat with every gradient at gsplat watched (nan_probe.py --demo), beside the
+#            tests
 #   tests    pytest -m cuda
 #   probe    where a non-finite value first appears, if the gsplat 2DGS run of the tests failed (nan_probe.py)
 #   launch   gsplat's 2DGS backward at 8/16/32-px tiles and its kernels' register counts
@@ -20,12 +22,13 @@
 #   benchmarks/gpu_check.sh            # results in ${OUT:-/tmp/gpu_check}
 set -uo pipefail
 OUT=${OUT:-/tmp/gpu_check}
-PARTS=${GPU_CHECK_PARTS:-setup,quality,tests,probe,profile,demo,launch}
+PARTS=${GPU_CHECK_PARTS:-setup,quality,tests,probe,profile,demo,launch}  # demoprobe: only when named
 mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1 TQDM_DISABLE=1 ARCSEM_CACHE=/tmp/arcsem_cache PYTHONWARNINGS=ignore::DeprecationWarning
 has() { [[ ",$PARTS," == *",$1,"* ]]; }
 T0=$(date +%s)
 stamp() { echo "== $1 ($(( $(date +%s) - T0 )) s)"; }
+BG=()  # jobs run beside the tests (quality, demoprobe)
 # demo NAME RASTERIZER SEED [OVERRIDE ...]: one demo job in /tmp/NAME, its output time-stamped in /tmp/NAME.log,
 # its exit status in /tmp/NAME.rc and its wall seconds in /tmp/NAME.wall; a colour cache of its own (no job reuses
 # another's pseudo-colours or matches)
@@ -55,12 +58,17 @@ fi
 if has quality; then
   stamp "quality: seeds ${QUALITY_SEEDS:-1 2}, started beside the tests"
   nvidia-smi dmon -s u -d 1 -o T > /tmp/dmon_quality.txt 2>&1 & QDMON=$!
-  QPIDS=()
   for seed in ${QUALITY_SEEDS:-1 2}; do
     for r in ${QUALITY_RASTERIZERS:-auto}; do
-      demo "q_${r}_s$seed" "$r" "$seed" threads=4 & QPIDS+=($!)
+      demo "q_${r}_s$seed" "$r" "$seed" threads=4 & BG+=($!)
     done
   done
+fi
+
+if has demoprobe; then
+  stamp "demo probe (beside the tests)"
+  (timeout "${DEMO_TIMEOUT:-300}" python3 benchmarks/gpu/nan_probe.py --demo threads=4 > "$OUT/demo_probe.log" 2>&1) &
+  BG+=($!)
 fi
 
 if has tests; then
@@ -69,10 +77,14 @@ if has tests; then
     -o addopts="" -W ignore::DeprecationWarning 2>&1 | tee "$OUT/cuda_tests.log" | tail -25
 fi
 
+if [ ${#BG[@]} -gt 0 ]; then
+  wait "${BG[@]}"
+  stamp "background jobs done"
+  tail -15 "$OUT/demo_probe.log" 2>/dev/null
+fi
+
 if has quality; then
-  wait "${QPIDS[@]}"
   kill $QDMON 2>/dev/null
-  stamp "quality jobs done"
   for seed in ${QUALITY_SEEDS:-1 2}; do
     for r in ${QUALITY_RASTERIZERS:-auto}; do
       n="q_${r}_s$seed"

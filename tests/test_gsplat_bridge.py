@@ -367,3 +367,34 @@ def test_gsplat_2dgs_draws_the_splats_ours_draws():
     drawn = drawn_2dgs(means, quats, scales, cams.world_to_cam, 0.01)
     assert drawn.shape == radius.shape and 0 < int((~drawn).sum()) < drawn.numel()
     assert torch.equal(drawn, radius > 0)
+
+
+def test_gsplat_2dgs_projects_no_splat_ours_culls():
+    """The splats ours does not draw reach gsplat at the camera's centre (:func:`culled_at_eye`), where gsplat's
+    2DGS projection (its PyTorch reference, the CUDA kernel's rule: depth at most ``near_plane``) drops them before
+    anything else; given only opacity 0 they were still projected (radius > 0), and their disk crossing the camera
+    plane makes that projection divide by about zero. The drawn splats are projected as before, and the culled
+    rows get no gradient."""
+    from arcsem.backbones.gaussians.gsplat_bridge import culled_at_eye, drawn_2dgs
+
+    (means, quats, scales, _, _), cams = _scene("gs2d", "pinhole", seed=7)
+    means, scales = means.clone(), scales.clone()
+    means[:8, 2] = torch.linspace(-4.2, -3.6, 8, dtype=means.dtype)  # near the first camera's plane (z = -4)
+    scales[:8] = torch.linspace(0.05, 0.6, 8, dtype=scales.dtype)[:, None]
+    cams = cams[0:1]
+    drawn = drawn_2dgs(means, quats, scales, cams.world_to_cam, 0.01)[0]
+    viewmats, Ks, _ = gsplat_cameras(cams, two_d=True)
+    scales3 = torch.cat([scales, torch.ones_like(scales[:, :1])], -1)
+
+    def radii(m):
+        return _fully_fused_projection_2dgs(m, quats, scales3, viewmats, Ks, cams.width, cams.height)[0][0].amax(-1)
+
+    before = radii(means)
+    assert int((~drawn).sum()) > 0 and bool((before[~drawn] > 0).any())  # opacity 0 alone: still projected
+    leaf = means.clone().requires_grad_(True)
+    handed = culled_at_eye(leaf, drawn, cams.world_to_cam[0])
+    after = radii(handed.detach())
+    assert bool((after[~drawn] == 0).all()) and torch.equal(after[drawn], before[drawn])
+    assert torch.equal(handed[drawn], means[drawn])
+    handed.square().sum().backward()
+    assert bool((leaf.grad[~drawn] == 0).all()) and bool((leaf.grad[drawn] != 0).any())

@@ -26,7 +26,8 @@ code; ours on the projected splat centre: the two differ under perspective where
 narrower than the filter) and compiled in at the official ``lowpass_sigma=1/sqrt(2)`` (the
 quick preset's 2DGS value, 1/sqrt(8), composes to it on gsplat: conf/tuning/quick_gs2d.yaml); its 2DGS backward
 launches on tiles of at most 16 px (:func:`require_2dgs_tile`). gsplat would also draw 2-D splats whose 3-sigma
-disk crosses the camera plane, which ours culls; the bridge culls them too (:func:`drawn_2dgs`).
+disk crosses the camera plane, which ours culls; the bridge culls them too (:func:`drawn_2dgs`), by handing them
+to gsplat at the camera's centre, where its projection drops them before any arithmetic (:func:`culled_at_eye`).
 """
 from __future__ import annotations
 
@@ -39,7 +40,8 @@ from arcsem.rotations import quat_to_rotmat
 
 from .config import LOWPASS_SIGMA
 
-__all__ = ["drawn_2dgs", "gsplat_cameras", "render_gsplat_2dgs", "render_gsplat_3dgs", "require_2dgs_tile", "require_gsplat",
+__all__ = ["culled_at_eye", "drawn_2dgs", "gsplat_cameras", "render_gsplat_2dgs", "render_gsplat_3dgs", "require_2dgs_tile",
+           "require_gsplat",
            "require_lowpass"]
 
 KEY = "backbone.rasterizer"
@@ -159,6 +161,19 @@ def drawn_2dgs(means: Tensor, quats: Tensor, scales: Tensor, world_to_cam: Tenso
     return (zc > near) & (9 * ((zu * s[:, 0]) ** 2 + (zv * s[:, 1]) ** 2) < zc ** 2)
 
 
+def culled_at_eye(means: Tensor, drawn: Tensor, world_to_cam: Tensor) -> Tensor:
+    """``[N, 3]``: ``means`` where ``drawn`` (``[N]``), else the centre of the camera ``world_to_cam`` (``[4, 4]``).
+
+    gsplat's 2DGS projection drops a splat whose camera depth is at most ``near_plane`` before computing anything
+    else, and its backward skips dropped splats. A splat given only opacity 0 is still projected and
+    differentiated, and where its disk crosses the camera plane the projection divides by about zero (its
+    ``distance``); a splat at the eye (depth 0) is dropped first. The gradient of a culled row is zero, as in ours.
+    """
+    R, t = world_to_cam[:3, :3].to(means), world_to_cam[:3, 3].to(means)
+    eye = -(R.T @ t)  # [3]
+    return torch.where(drawn[:, None], means, eye)
+
+
 def _render_gsplat_2dgs_one(means, quats, scales, opacities, colors, cams, background, tile, near, dist_depth):
     from gsplat import rasterization_2dgs
 
@@ -172,7 +187,8 @@ def _render_gsplat_2dgs_one(means, quats, scales, opacities, colors, cams, backg
     scales3 = torch.cat([scales, torch.ones_like(scales[:, :1])], -1)  # the third is not read (module doc)
     drawn = drawn_2dgs(means, quats, scales, cams.world_to_cam, near)  # [1, N]
     out, alpha, normal, _, _, median, meta = rasterization_2dgs(
-        means, quats, scales3, opacities * drawn[0], feats, viewmats, Ks, cams.width, cams.height, near_plane=near,
+        culled_at_eye(means, drawn[0], cams.world_to_cam[0]), quats, scales3, opacities * drawn[0], feats,
+        viewmats, Ks, cams.width, cams.height, near_plane=near,
         packed=False, tile_size=tile, render_mode="RGB+D")
     depth = torch.where(alpha > 0, out[..., 5:6] / alpha.clamp_min(1e-10), torch.zeros_like(alpha))
     dist = (alpha * out[..., 4:5] - out[..., 3:4] ** 2).clamp_min(0)

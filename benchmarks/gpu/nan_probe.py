@@ -57,6 +57,13 @@ def watch_gsplat(state: dict, limit: int = 12) -> None:
     gsplat.rasterization_2dgs = wrapped
 
 
+def every_step(loop) -> None:
+    """The trainer's finiteness notes read every step (on a GPU: every ``log_every`` steps), so a failure names its
+    step and the gradients of that step are still there."""
+    init = loop._Health.__init__
+    loop._Health.__init__ = lambda self, every: init(self, 1)
+
+
 def demo(overrides: list[str]) -> int:
     from test_config import compose_with
 
@@ -65,7 +72,7 @@ def demo(overrides: list[str]) -> int:
 
     tmp = Path(tempfile.mkdtemp())
     cfg = compose_with("experiment=demo", "stage=gray", "device=cuda", "backbone.rasterizer=gsplat",
-                       "train.check_every=1", "mesh.enabled=false", "train.progress=false", *overrides)
+                       "mesh.enabled=false", "train.progress=false", *overrides)
     state = {"step": 0, "events": 0}
     health_record = loop._Health.record
 
@@ -79,6 +86,7 @@ def demo(overrides: list[str]) -> int:
         return health_record(self, run, step, terms, params, grads)
 
     loop._Health.record = record
+    every_step(loop)
     watch_gsplat(state)
     try:
         metrics = app.run(cfg, run_dir=tmp / "run")
@@ -108,7 +116,7 @@ def main(overrides: list[str]) -> int:
     cv2.imwrite(str(tmp / "view_01.png"), np.full((24, 32, 3), (0, 0, 200), np.uint8))
     cfg = compose_with("dataset=transforms", f"dataset.path={scene.parent}", "stage=gray", "backbone=gs2d",
                        "device=cuda", "act=paper", "train.width=null", "train.steps=20", "train.eval.lpips=false",
-                       "train.progress=false", "train.check_every=1", f"cache_dir={tmp / 'cache'}",
+                       "train.progress=false", f"cache_dir={tmp / 'cache'}",
                        "mesh.enabled=false", "backbone.rasterizer=gsplat", *overrides)
     health_record = loop._Health.record
 
@@ -119,6 +127,7 @@ def main(overrides: list[str]) -> int:
         return health_record(self, run, step, terms, params, grads)
 
     loop._Health.record = record
+    every_step(loop)
     torch.autograd.set_detect_anomaly(True)
     try:
         metrics = app.run(cfg, run_dir=tmp / "run")

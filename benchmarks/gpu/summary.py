@@ -72,7 +72,9 @@ def check(out_dir: str) -> None:
         "cuda_tests_passed": count("passed") if log else None,
         "cuda_tests_failed": (count("failed") + count("error")) if log else None,
         "stage1_steps_per_s": default.get("stage1_steps_per_s"),
-        "sm_util_pct": (prof.get("gs2d") or {}).get("sm_util_pct"),
+        # stage 1's profile (steps 50-250) when one ran, else the whole demo job's dmon mean
+        "sm_util_pct": (prof.get("gs2d") or {}).get("sm_util_pct") or default.get("sm_util_pct_whole_job"),
+        "sm_util_from": "stage-1 profile" if "gs2d" in prof else ("whole demo job" if default else None),
         "stage2_complete": default.get("stage2_complete"),
         "demo_wall_s": default.get("wall_s"),
         "demo": demos,

@@ -6,10 +6,13 @@ validation chose and the guided losses that trained.
     .venv/bin/python benchmarks/colour_table.py --pairs DIR        # default against pseudo_only, per scene and refs
     .venv/bin/python benchmarks/colour_table.py --seeds DIR [DIR ...]  # the same pairs per seed (_s<k> folders;
                                                                    # a later DIR's run replaces an earlier one's)
+    .venv/bin/python benchmarks/colour_table.py --ablations DIR [DIR ...]  # the default against every other variant
+                                                                   # per seed, outside the coverage, and its spread
 """
 from __future__ import annotations
 
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -51,41 +54,90 @@ def pairs(d: str) -> None:
               f"{f(k(a, 'psnr_uncovered'))} / {f(k(b, 'psnr_uncovered'))} |")
 
 
-def seeded(dirs: list[str]) -> None:
-    """One row per ``<scene>_<refs>``: default against pseudo_only paired by seed (whole image and outside the
-    coverage), for the seeds that have both runs."""
+def _runs(dirs: list[str]) -> dict[str, Path]:
+    """Run folders by name; a later DIR's run replaces an earlier one's."""
     runs: dict[str, Path] = {}
     for d in dirs:
         runs.update({p.parent.name: p.parent for p in Path(d).glob("*/metrics.json")})
-    test = lambda name: json.loads((runs[name] / "metrics.json").read_text())["stage2"]["test"]
+    return runs
+
+
+def _paired(runs: dict[str, Path], variant: str) -> dict[str, dict[int, tuple[str, str]]]:
+    """``<scene>_<refs>`` -> seed -> (the default's run, ``variant``'s run), for the seeds that have both."""
     groups: dict[str, dict[int, tuple[str, str]]] = {}
     for name in runs:
         stem, _, seed = name.partition("_default")
         if not stem or (seed and not seed.startswith("_s")):
             continue
         k = int(seed[2:]) if seed else 0
-        base = f"{stem}_pseudo_only" + (f"_s{k}" if k else "")
+        base = f"{stem}_{variant}" + (f"_s{k}" if k else "")
         if base in runs:
             groups.setdefault(stem, {})[k] = (name, base)
+    return groups
+
+
+def _test(run: Path) -> dict:
+    return json.loads((run / "metrics.json").read_text())["stage2"]["test"]
+
+
+def _outside(a: dict, b: dict) -> float | None:
+    if a.get("psnr_uncovered") is None or b.get("psnr_uncovered") is None:
+        return None
+    return a["psnr_uncovered"] - b["psnr_uncovered"]
+
+
+def seeded(dirs: list[str]) -> None:
+    """One row per ``<scene>_<refs>``: default against pseudo_only paired by seed (whole image and outside the
+    coverage), for the seeds that have both runs."""
+    runs = _runs(dirs)
+    groups = _paired(runs, "pseudo_only")
     f = lambda x: "-" if x is None else f"{x:+.2f}"
     print("| scene, references | seeds | default (mean) | pseudo-colours (mean) | gain per seed | smallest gain | "
           "outside cov. gain per seed |")
     print("|---|---|---:|---:|---|---:|---|")
     for stem in sorted(groups):
         seeds = sorted(groups[stem])
-        a = [test(groups[stem][k][0]) for k in seeds]
-        b = [test(groups[stem][k][1]) for k in seeds]
+        a = [_test(runs[groups[stem][k][0]]) for k in seeds]
+        b = [_test(runs[groups[stem][k][1]]) for k in seeds]
         gains = [x["psnr"] - y["psnr"] for x, y in zip(a, b)]
-        out = [None if x.get("psnr_uncovered") is None or y.get("psnr_uncovered") is None
-               else x["psnr_uncovered"] - y["psnr_uncovered"] for x, y in zip(a, b)]
+        out = [_outside(x, y) for x, y in zip(a, b)]
         print(f"| {stem} | {', '.join(map(str, seeds))} | {sum(x['psnr'] for x in a) / len(a):.2f} | "
               f"{sum(y['psnr'] for y in b) / len(b):.2f} | {', '.join(f(g) for g in gains)} | {f(min(gains))} | "
               f"{', '.join(f(o) for o in out)} |")
 
 
+def ablations(dirs: list[str]) -> None:
+    """One row per ``<scene>_<refs>`` and variant other than the default and pseudo_only: the default's gain over it
+    per seed, whole and outside the coverage, and the seed spread (max - min over the seeds) of the default's own
+    outside-coverage PSNR, which issue 38's third line asks the mean gain to exceed."""
+    runs = _runs(dirs)
+    named = [re.search(r"_(?:one|three|five)_(.+?)(?:_s\d+)?$", name) for name in runs]
+    variants = sorted({m.group(1) for m in named if m} - {"default", "pseudo_only"})
+    f = lambda x: "-" if x is None else f"{x:+.2f}"
+    print("| scene, references | ablation | seeds | gain per seed (whole) | gain per seed (outside cov.) | "
+          "mean gain outside | default's spread outside |")
+    print("|---|---|---|---|---|---:|---:|")
+    for variant in variants:
+        groups = _paired(runs, variant)
+        for stem in sorted(groups):
+            seeds = sorted(groups[stem])
+            a = [_test(runs[groups[stem][k][0]]) for k in seeds]
+            b = [_test(runs[groups[stem][k][1]]) for k in seeds]
+            out = [_outside(x, y) for x, y in zip(a, b)]
+            own = [x.get("psnr_uncovered") for x in a if x.get("psnr_uncovered") is not None]
+            mean = sum(out) / len(out) if None not in out else None
+            spread = max(own) - min(own) if len(own) > 1 else None
+            print(f"| {stem} | {variant} | {', '.join(map(str, seeds))} | "
+                  f"{', '.join(f(x['psnr'] - y['psnr']) for x, y in zip(a, b))} | {', '.join(f(o) for o in out)} | "
+                  f"{f(mean)} | {'-' if spread is None else f'{spread:.2f}'} |")
+
+
 def main(dirs: list[str]) -> None:
     if dirs and dirs[0] == "--seeds":
         seeded(dirs[1:])
+        return
+    if dirs and dirs[0] == "--ablations":
+        ablations(dirs[1:])
         return
     if dirs and dirs[0] == "--pairs":
         for d in dirs[1:]:

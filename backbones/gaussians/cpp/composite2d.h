@@ -25,7 +25,6 @@
 
 #include "api.h"
 #include "common.h"
-#include "tiles.h"
 
 namespace arcsem {
 namespace c2d {
@@ -189,7 +188,7 @@ void gather(const Entry2<T>* ent, const int64_t* ids, const Grid& gr, int64_t ct
   }
 }
 
-// Per-tile pixel state, lane-major (tiles.h; fields used by the forward or the backward pass).
+// Per-tile pixel state, lane-major as in composite3d.cpp (fields used by the forward or the backward pass).
 template <typename T>
 struct Tile2 {
   int stride = 0;
@@ -200,7 +199,7 @@ struct Tile2 {
   std::vector<int32_t> last, medi;
   std::vector<int> row_live;
   void reset(int64_t tile) {
-    stride = lane_stride(tile);
+    stride = int((tile + kLanes - 1) / kLanes * kLanes);
     np = size_t(stride) * size_t(tile);
     for (auto* v : {&tr, &live, &wsum, &wz, &m1, &m2, &dist, &mref, &med, &s, &tf, &ga, &gd, &gm, &gdis})
       v->assign(np, T(0));
@@ -211,7 +210,7 @@ struct Tile2 {
     row_live.assign(size_t(tile), 0);
   }
   // component k of the K2-vectors (acc, go) of pixel (ly, lx) is at vec(ly, lx) + k * kLanes (blocks of kLanes pixels)
-  size_t vec(int ly, int lx) const { return lane_vec<K2>(stride, ly, lx); }
+  size_t vec(int ly, int lx) const { return size_t(ly * stride + lx / kLanes * kLanes) * K2 + lx % kLanes; }
 };
 
 }  // namespace c2d

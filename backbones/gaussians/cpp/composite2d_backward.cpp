@@ -21,33 +21,36 @@ struct Saved2 {  // per-pixel values of the forward pass and output gradients (n
 // the pixel state of tile ct for its backward pass: gradients of the composited sums and the forward's per-pixel values
 template <typename T>
 void load_tile(const Grid& gr, int64_t ct, int64_t start, const Saved2<T>& sv, const T* bg, Tile2<T>& st) {
-  for_tile_pixels(gr, ct, st.stride, [&](int64_t i, int64_t pix, int ly, int lx) {
-    const T a = sv.alpha[pix];
-    T* go = &st.go[st.vec(ly, lx)];
-    T ga = sv.g_alpha ? sv.g_alpha[pix] : T(0);
-    for (int k = 0; k < 3; ++k) {  // rgb = sum w c + (1 - alpha) bg
-      const T gk = sv.g_rgb ? sv.g_rgb[3 * pix + k] : T(0);
-      go[k * kLanes] = gk;
-      go[(3 + k) * kLanes] = sv.g_nrm ? sv.g_nrm[3 * pix + k] : T(0);
-      if (bg) ga -= gk * bg[k];
+  const int64_t c = ct / gr.tiles();
+  for (int64_t ly = 0; ly < gr.ny(ct); ++ly)
+    for (int64_t lx = 0; lx < gr.nx(ct); ++lx) {
+      const int64_t i = ly * st.stride + lx, pix = (c * gr.H + gr.y0(ct) + ly) * gr.W + gr.x0(ct) + lx;
+      const T a = sv.alpha[pix];
+      T* go = &st.go[st.vec(int(ly), int(lx))];
+      T ga = sv.g_alpha ? sv.g_alpha[pix] : T(0);
+      for (int k = 0; k < 3; ++k) {  // rgb = sum w c + (1 - alpha) bg
+        const T gk = sv.g_rgb ? sv.g_rgb[3 * pix + k] : T(0);
+        go[k * kLanes] = gk;
+        go[(3 + k) * kLanes] = sv.g_nrm ? sv.g_nrm[3 * pix + k] : T(0);
+        if (bg) ga -= gk * bg[k];
+      }
+      T gd = 0;  // depth = sum w z / alpha
+      if (sv.g_depth && a > T(0)) {
+        const T ac = std::max(a, T(1e-30));
+        gd = sv.g_depth[pix] / ac;
+        if (a >= T(1e-30)) ga -= sv.g_depth[pix] * sv.wz[pix] / (ac * ac);
+      }
+      st.ga[i] = ga;
+      st.gd[i] = gd;
+      st.gm[i] = sv.g_med ? sv.g_med[pix] : T(0);
+      st.gdis[i] = sv.g_dist ? sv.g_dist[pix] : T(0);
+      st.tf[i] = st.tr[i] = sv.tf[pix];
+      st.m1[i] = sv.m1[pix];
+      st.m2[i] = sv.m2[pix];
+      st.mref[i] = sv.mref[pix];
+      st.last[i] = sv.last[pix] < 0 ? -1 : int32_t(sv.last[pix] - start);
+      st.medi[i] = sv.medi[pix] < 0 ? -1 : int32_t(sv.medi[pix] - start);
     }
-    T gd = 0;  // depth = sum w z / alpha
-    if (sv.g_depth && a > T(0)) {
-      const T ac = std::max(a, T(1e-30));
-      gd = sv.g_depth[pix] / ac;
-      if (a >= T(1e-30)) ga -= sv.g_depth[pix] * sv.wz[pix] / (ac * ac);
-    }
-    st.ga[i] = ga;
-    st.gd[i] = gd;
-    st.gm[i] = sv.g_med ? sv.g_med[pix] : T(0);
-    st.gdis[i] = sv.g_dist ? sv.g_dist[pix] : T(0);
-    st.tf[i] = st.tr[i] = sv.tf[pix];
-    st.m1[i] = sv.m1[pix];
-    st.m2[i] = sv.m2[pix];
-    st.mref[i] = sv.mref[pix];
-    st.last[i] = sv.last[pix] < 0 ? -1 : int32_t(sv.last[pix] - start);
-    st.medi[i] = sv.medi[pix] < 0 ? -1 : int32_t(sv.medi[pix] - start);
-  });
 }
 
 // pair q on NL pixels of row y from column c: adds the pixels' gradients into acc [D2][kLanes] (lanes < NL)
@@ -131,7 +134,12 @@ template <typename T, bool Geo>
 int64_t backward_tile(const Pair2<T>* pr, int ny, const T* mc, T near, T lp, int64_t x0, int64_t y0, Tile2<T>& st,
                       T* rows) {
   constexpr int D = Geo ? D2 : 3;
-  const int64_t jmax = last_composited(st, ny);  // row_live[y]: the last pair row y composited (-1: none)
+  int64_t jmax = -1;
+  for (int y = 0; y < ny; ++y) {  // row_live[y]: the last pair any pixel of row y composited (-1: none)
+    st.row_live[y] = -1;
+    for (int x = 0; x < st.stride; ++x) st.row_live[y] = std::max(st.row_live[y], st.last[y * st.stride + x]);
+    jmax = std::max<int64_t>(jmax, st.row_live[y]);
+  }
   alignas(64) T acc[D][kLanes];
   for (int64_t j = jmax; j >= 0; --j) {
     const Pair2<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
@@ -185,7 +193,10 @@ Grads2D backward_impl(const Surfels2D& s, const TileLists& l, const Grid& gr, co
                      grad_or_null<T>(og[2]), grad_or_null<T>(og[3]), grad_or_null<T>(og[4]), grad_or_null<T>(og[5])};
   const int64_t D = geometry ? D2 : 3;
   PairRows<T> rows(P, D);
-  for_each_tile<Tile2<T>>(gr, [&](int64_t ct, Tile2<T>& st) {
+  std::vector<Tile2<T>> states(num_workers());
+  parallel_chunks(gr.C * gr.tiles(), [&](int64_t ct, int w) {
+    Tile2<T>& st = states[w];
+    st.reset(gr.tile);
     const int64_t start = in.off[ct], n = in.off[ct + 1] - start;
     load_tile(gr, ct, start, sv, in.bg, st);
     const T* mc = in.mc + 3 * (ct / gr.tiles());

@@ -14,7 +14,6 @@
 
 #include "api.h"
 #include "common.h"
-#include "tiles.h"
 
 namespace arcsem {
 namespace {
@@ -30,14 +29,15 @@ struct Pair3 {
   int32_t x0, x1, y0, y1;
 };
 
-// Per-tile pixel state, lane-major (tiles.h): the K3-vectors acc, go of pixel (ly, lx) at vec(ly, lx) + k * kLanes.
+// Per-tile pixel state, lane-major: pixel (ly, lx) at ly * stride + lx, stride = tile rounded up to kLanes; the
+// K-vectors (acc, go) in blocks of kLanes pixels: component k of pixel (ly, lx) at vec(ly, lx) + k * kLanes.
 template <typename T>
 struct Tile3 {
   int stride = 0, rows = 0;
   std::vector<T> tr, live, wsum, acc, sg, go, ga, tf;
   std::vector<int32_t> last, row_live;
   void reset(int64_t tile) {
-    stride = lane_stride(tile);
+    stride = int((tile + kLanes - 1) / kLanes * kLanes);
     rows = int(tile);
     const size_t n = size_t(stride) * rows;
     for (auto* v : {&tr, &live, &wsum, &sg, &ga, &tf}) v->assign(n, T(0));
@@ -46,7 +46,7 @@ struct Tile3 {
     last.assign(n, -1);
     row_live.assign(rows, 0);
   }
-  size_t vec(int ly, int lx) const { return lane_vec<K3>(stride, ly, lx); }
+  size_t vec(int ly, int lx) const { return size_t(ly * stride + lx / kLanes * kLanes) * K3 + lx % kLanes; }
 };
 
 template <typename T>
@@ -93,48 +93,53 @@ inline void eval3(const Pair3<T>& q, int lx, T dy, T& dx, T& g, T& alpha, bool& 
   ok = (lx >= q.x0) & (lx <= q.x1) & (power <= T(0)) & (alpha >= T(kMinAlpha));  // no branches: vectorised
 }
 
-// front to back over the n pairs of tile ct, gathered into pr as far as the compositing goes (tiles.h); leaves the
-// pixels' state in st
+// front to back over the n pairs of tile ct, gathered into pr in batches as far as the compositing goes (the
+// pairs after every pixel stopped are not needed, not even by the backward pass); leaves the pixels' state in st
 template <typename T>
 void forward_tile(const In3<T>& in, const Grid& gr, int64_t ct, Pair3<T>* pr, int64_t n, Tile3<T>& st) {
   const int S = st.stride;
   int live_total = start_tile(st, int(gr.nx(ct)), int(gr.ny(ct)));
-  front_to_back(n, live_total, [&](int64_t j0, int64_t j1) { gather(in, gr, ct, j0, j1, pr); }, [&](int64_t j) {
+  for (int64_t j = 0, have = 0; j < n && live_total > 0; ++j) {
+    if (j == have) gather(in, gr, ct, j, have = std::min(n, j + kGatherBatch), pr);
     const Pair3<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
-    if (q.x1 < q.x0 || q.y1 < q.y0) return;
-    live_row_blocks<4>(q, st.row_live, live_total, [&](int y, auto lanes, int c) {
-      constexpr int NL = decltype(lanes)::value;
+    if (q.x1 < q.x0 || q.y1 < q.y0) continue;
+    for (int y = q.y0; y <= q.y1; ++y) {
+      if (st.row_live[y] == 0) continue;
       const T dy = (T(y) + T(0.5)) - q.my;
-      const int base = y * S + c;
-      T *tr = st.tr.data() + base, *lv = st.live.data() + base, *acc = st.acc.data() + st.vec(y, c),
-        *ws = st.wsum.data() + base;
-      int32_t* ls = st.last.data() + base;
-      int stops = 0;
+      for_lane_blocks<4>(q.x0, q.x1, [&](auto lanes, int c) {
+        constexpr int NL = decltype(lanes)::value;
+        const int base = y * S + c;
+        T *tr = st.tr.data() + base, *lv = st.live.data() + base, *acc = st.acc.data() + st.vec(y, c),
+          *ws = st.wsum.data() + base;
+        int32_t* ls = st.last.data() + base;
+        int stops = 0;
 #pragma omp simd reduction(+ : stops)
-      for (int i = 0; i < NL; ++i) {
-        T dx, g, alpha;
-        bool ok;
-        eval3(q, c + i, dy, dx, g, alpha, ok);
-        // state read once, written back with full stores (masked stores would stall the next pair's loads of
-        // the same pixels: no store-to-load forwarding)
-        const T T0 = tr[i], lv0 = lv[i];
-        const int32_t ls0 = ls[i];
-        ok = ok & (lv0 > T(0));
-        const T next = T0 * (T(1) - alpha);
-        const bool stop = ok & (next < T(kMinT));
-        const bool use = ok & !stop;
-        const T w = use ? alpha * T0 : T(0);
+        for (int i = 0; i < NL; ++i) {
+          T dx, g, alpha;
+          bool ok;
+          eval3(q, c + i, dy, dx, g, alpha, ok);
+          // state read once, written back with full stores (masked stores would stall the next pair's loads of
+          // the same pixels: no store-to-load forwarding)
+          const T T0 = tr[i], lv0 = lv[i];
+          const int32_t ls0 = ls[i];
+          ok = ok & (lv0 > T(0));
+          const T next = T0 * (T(1) - alpha);
+          const bool stop = ok & (next < T(kMinT));
+          const bool use = ok & !stop;
+          const T w = use ? alpha * T0 : T(0);
 #pragma GCC unroll 8
-        for (int k = 0; k < K3; ++k) acc[k * kLanes + i] += w * q.f[k];
-        ws[i] += w;
-        tr[i] = use ? next : T0;
-        ls[i] = use ? int32_t(j) : ls0;
-        lv[i] = stop ? T(0) : lv0;
-        stops += stop ? 1 : 0;
-      }
-      return stops;
-    });
-  });
+          for (int k = 0; k < K3; ++k) acc[k * kLanes + i] += w * q.f[k];
+          ws[i] += w;
+          tr[i] = use ? next : T0;
+          ls[i] = use ? int32_t(j) : ls0;
+          lv[i] = stop ? T(0) : lv0;
+          stops += stop ? 1 : 0;
+        }
+        st.row_live[y] -= stops;
+        live_total -= stops;
+      });
+    }
+  }
 }
 
 template <typename T>
@@ -154,19 +159,24 @@ Composite3D forward_impl(const Splats3D& s, const TileLists& l, const Grid& gr) 
   T *rgb = r.rgb.data_ptr<T>(), *tf = r.t_final.data_ptr<T>(), *wz = r.wz.data_ptr<T>(), *al = r.alpha.data_ptr<T>(),
     *dep = r.depth.data_ptr<T>();
   int32_t* last = r.last.data_ptr<int32_t>();
-  for_each_tile<Tile3<T>>(gr, [&](int64_t ct, Tile3<T>& st) {
-    const int64_t start = in.off[ct], n = in.off[ct + 1] - start;
+  std::vector<Tile3<T>> states(num_workers());
+  parallel_chunks(gr.C * gr.tiles(), [&](int64_t ct, int w) {
+    Tile3<T>& st = states[w];
+    st.reset(gr.tile);
+    const int64_t start = in.off[ct], n = in.off[ct + 1] - start, c = ct / gr.tiles();
     forward_tile(in, gr, ct, pairs + start, n, st);
-    for_tile_pixels(gr, ct, st.stride, [&](int64_t i, int64_t pix, int ly, int lx) {
-      const T* f = st.acc.data() + st.vec(ly, lx);
-      const T a = st.wsum[i];  // = 1 - T, without its cancellation for faint pixels
-      for (int k = 0; k < 3; ++k) rgb[3 * pix + k] = f[k * kLanes] + (in.bg ? st.tr[i] * in.bg[k] : T(0));
-      tf[pix] = st.tr[i];
-      al[pix] = a;
-      wz[pix] = f[3 * kLanes];
-      dep[pix] = a > T(0) ? wz[pix] / std::max(a, T(1e-30)) : T(0);
-      last[pix] = st.last[i] < 0 ? -1 : int32_t(start + st.last[i]);
-    });
+    for (int ly = 0; ly < int(gr.ny(ct)); ++ly)
+      for (int lx = 0; lx < int(gr.nx(ct)); ++lx) {
+        const int64_t i = ly * st.stride + lx, pix = (c * gr.H + gr.y0(ct) + ly) * gr.W + gr.x0(ct) + lx;
+        const T* f = st.acc.data() + st.vec(ly, lx);
+        const T a = st.wsum[i];  // = 1 - T, without its cancellation for faint pixels
+        for (int k = 0; k < 3; ++k) rgb[3 * pix + k] = f[k * kLanes] + (in.bg ? st.tr[i] * in.bg[k] : T(0));
+        tf[pix] = st.tr[i];
+        al[pix] = a;
+        wz[pix] = f[3 * kLanes];
+        dep[pix] = a > T(0) ? wz[pix] / std::max(a, T(1e-30)) : T(0);
+        last[pix] = st.last[i] < 0 ? -1 : int32_t(start + st.last[i]);
+      }
   });
   return r;
 }
@@ -176,7 +186,12 @@ Composite3D forward_impl(const Splats3D& s, const TileLists& l, const Grid& gr) 
 template <typename T>
 int64_t backward_tile(const Pair3<T>* pr, int ny, Tile3<T>& st, T* grow) {
   const int S = st.stride;
-  const int64_t jmax = last_composited(st, ny);  // row_live[y]: the last pair row y composited (-1: none)
+  int64_t jmax = -1;
+  for (int y = 0; y < ny; ++y) {  // row_live[y]: the last pair any pixel of row y composited (-1: none)
+    st.row_live[y] = -1;
+    for (int x = 0; x < S; ++x) st.row_live[y] = std::max(st.row_live[y], st.last[y * S + x]);
+    jmax = std::max<int64_t>(jmax, st.row_live[y]);
+  }
   alignas(64) T acc[D3][kLanes];
   for (int32_t j = int32_t(jmax); j >= 0; --j) {
     const Pair3<T> q = pr[j];  // a local copy: its fields are loop invariants of the lane loops (no aliasing)
@@ -238,29 +253,34 @@ Grads3D backward_impl(const Splats3D& s, const TileLists& l, const Grid& gr, con
   const int32_t* last = fw.last.data_ptr<int32_t>();
   const T *gr_rgb = grad_or_null<T>(g_rgb), *gr_al = grad_or_null<T>(g_alpha), *gr_dep = grad_or_null<T>(g_depth);
   PairRows<T> rows(P, D3);
-  for_each_tile<Tile3<T>>(gr, [&](int64_t ct, Tile3<T>& st) {
-    const int64_t start = in.off[ct];
-    for_tile_pixels(gr, ct, st.stride, [&](int64_t i, int64_t pix, int ly, int lx) {
-      T* go = st.go.data() + st.vec(ly, lx);
-      // rgb = f + (1 - alpha) bg, depth = wz / alpha: gradients to the composited features and to alpha
-      const T a = al[pix];
-      T ga = gr_al ? gr_al[pix] : T(0);
-      for (int k = 0; k < 3; ++k) {
-        const T gk = gr_rgb ? gr_rgb[3 * pix + k] : T(0);
-        go[k * kLanes] = gk;
-        if (in.bg) ga -= gk * in.bg[k];
+  std::vector<Tile3<T>> states(num_workers());
+  parallel_chunks(gr.C * gr.tiles(), [&](int64_t ct, int w) {
+    Tile3<T>& st = states[w];
+    st.reset(gr.tile);
+    const int64_t start = in.off[ct], c = ct / gr.tiles();
+    for (int ly = 0; ly < int(gr.ny(ct)); ++ly)
+      for (int lx = 0; lx < int(gr.nx(ct)); ++lx) {
+        const int64_t i = ly * st.stride + lx, pix = (c * gr.H + gr.y0(ct) + ly) * gr.W + gr.x0(ct) + lx;
+        T* go = st.go.data() + st.vec(ly, lx);
+        // rgb = f + (1 - alpha) bg, depth = wz / alpha: gradients to the composited features and to alpha
+        const T a = al[pix];
+        T ga = gr_al ? gr_al[pix] : T(0);
+        for (int k = 0; k < 3; ++k) {
+          const T gk = gr_rgb ? gr_rgb[3 * pix + k] : T(0);
+          go[k * kLanes] = gk;
+          if (in.bg) ga -= gk * in.bg[k];
+        }
+        T gw = 0;
+        if (gr_dep && a > T(0)) {
+          const T ac = std::max(a, T(1e-30));
+          gw = gr_dep[pix] / ac;
+          if (a >= T(1e-30)) ga -= gr_dep[pix] * wz[pix] / (ac * ac);
+        }
+        go[3 * kLanes] = gw;
+        st.ga[i] = ga;
+        st.tf[i] = st.tr[i] = tf[pix];
+        st.last[i] = last[pix] < 0 ? -1 : int32_t(last[pix] - start);
       }
-      T gw = 0;
-      if (gr_dep && a > T(0)) {
-        const T ac = std::max(a, T(1e-30));
-        gw = gr_dep[pix] / ac;
-        if (a >= T(1e-30)) ga -= gr_dep[pix] * wz[pix] / (ac * ac);
-      }
-      go[3 * kLanes] = gw;
-      st.ga[i] = ga;
-      st.tf[i] = st.tr[i] = tf[pix];
-      st.last[i] = last[pix] < 0 ? -1 : int32_t(last[pix] - start);
-    });
     rows.mark(start, in.off[ct + 1] - start, backward_tile(pairs + start, int(gr.ny(ct)), st, rows.tile(start)));
   });
   Grads3D g;

@@ -41,8 +41,7 @@ from arcsem.rotations import quat_to_rotmat
 from .config import LOWPASS_SIGMA
 
 __all__ = ["culled_at_eye", "drawn_2dgs", "gsplat_cameras", "render_gsplat_2dgs", "render_gsplat_3dgs", "require_2dgs_tile",
-           "require_gsplat",
-           "require_lowpass"]
+           "require_gsplat", "require_lowpass"]
 
 KEY = "backbone.rasterizer"
 

@@ -107,6 +107,7 @@ def stamp() -> None:
     t0, rest, since = time.monotonic(), b"", 0.0
     while chunk := os.read(sys.stdin.fileno(), 65536):
         now = time.monotonic() - t0
+        since = since if rest else now  # a line that starts in this chunk starts now
         *lines, tail = re.split(rb"[\r\n]", rest + chunk)
         for i, line in enumerate(lines):
             if line.strip():

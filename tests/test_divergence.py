@@ -122,3 +122,15 @@ def test_deferred_checks_name_the_first_bad_step_and_write_nothing_after_it(tmp_
     assert msg.startswith("step 3: parameter group 'image' is not finite (after the optimiser step)"), msg
     assert msg.endswith(f"the checkpoint on disk is from step 2 ({ckpt})"), msg
     assert load_checkpoint(ckpt)["step"] == 2
+
+
+def test_one_late_heavy_batch_is_not_read_as_a_worse_model():
+    """Stage 2 of the demo warned on every seed-0 run: step 1 was a pseudo-colour view (0.127), the last logged step a
+    reference view (20x weight, 0.40), while every other late step was far below step 1. A median of the tail does
+    not warn; a tail that is high throughout still does."""
+    steps = [1, *range(50, 601, 50)]
+    mixed = [0.127, 0.09, 0.35, 0.05, 0.04, 0.38, 0.035, 0.03, 0.03, 0.37, 0.028, 0.027, 0.40]
+    assert loss_trend_warning([{"step": s, "loss": v} for s, v in zip(steps, mixed)], "stage 2") is None
+    worse = [0.127, *(0.2 + 0.01 * k for k in range(12))]
+    warning = loss_trend_warning([{"step": s, "loss": v} for s, v in zip(steps, worse)], "stage 2")
+    assert warning is not None and "from 0.127 at step 1 to 0.3" in warning and "median of the last 3" in warning

@@ -342,17 +342,22 @@ def _loop(run: _Run, losses: LossSet, batch_hook, evaluate, on_step, bar, stop: 
 
 
 def loss_trend_warning(history: list[dict], desc: str) -> str | None:
-    """A warning when training made the loss worse: the mean of the last tenth of the logged losses is above
-    the first logged one (step 1), as when a learning rate is far too high. None otherwise."""
+    """A warning when training made the loss worse: the median of the last fifth of the logged losses (at least
+    three) is above the first logged one (step 1), as when a learning rate is far too high. None otherwise.
+
+    The median, not the mean or the last value: a logged loss is one batch's, and batches differ in kind (stage 2's
+    reference views carry a 20x weight against a pseudo-colour view's), so a single late reference view must not read
+    as the run getting worse."""
     logged = [(h["step"], h["loss"]) for h in history if math.isfinite(h.get("loss", math.nan))]
-    if len(logged) < 3:
+    if len(logged) < 4:
         return None
-    tail = [v for _, v in logged[-max(1, len(logged) // 10):]]
-    first, last = logged[0][1], sum(tail) / len(tail)
+    tail = sorted(v for _, v in logged[1:][-max(3, len(logged) // 5):])
+    first, last = logged[0][1], tail[len(tail) // 2]
     if last <= first:
         return None
-    return (f"{desc}: the training loss rose from {first:.4g} at step {logged[0][0]} to {last:.4g} at the end; "
-            "the model got worse while training (a learning rate too high? see train.optim)")
+    return (f"{desc}: the training loss rose from {first:.4g} at step {logged[0][0]} to {last:.4g} (the median of "
+            f"the last {len(tail)} logged steps); the model got worse while training (a learning rate too high? see "
+            "train.optim)")
 
 
 def _periodic(run: _Run, evaluate, bar) -> None:

@@ -5,7 +5,7 @@ VENV    := .venv
 BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.arcsem-installed
 EXT     := $(VENV)/.arcsem-ext
-CPP     := $(wildcard backbones/gaussians/cpp/*.cpp backbones/gaussians/cpp/*.h losses/cpp/*.cpp)
+CPP     := $(wildcard backbones/gaussians/cpp/*.cpp backbones/gaussians/cpp/*.h losses/cpp/*.cpp arcsem/mesh/cpp/*.cpp)
 JOBS    ?= 2
 export PIP_DISABLE_PIP_VERSION_CHECK=1
 
@@ -22,6 +22,7 @@ $(STAMP): pyproject.toml constraints.txt examples/mip_splatting/pyproject.toml
 $(EXT): $(STAMP) $(CPP)
 	-$(BIN)/python -m arcsem.backbones.gaussians.fused
 	-$(BIN)/python -m arcsem.losses.fused
+	-$(BIN)/python -m arcsem.mesh.fused
 	@touch $(EXT)
 
 demo: $(EXT)

@@ -243,6 +243,7 @@ class MeshConfig:
     min_component: float = 0.05  # drop components with fewer faces than this x the largest's
     formats: list[str] = field(default_factory=lambda: ["ply", "glb"])
     chamfer_points: int = 1_000_000  # mesh samples for the Chamfer distance (built-in scene; see groundtruth.py)
+    impl: str = "auto"  # TSDF fusion: auto (the fused C++ kernel where it builds) | torch (the reference) | cpp
 
     def check(self) -> None:
         """ConfigError for a rule the field types cannot say: known formats, a positive voxel, >= 1-voxel trunc."""
@@ -253,6 +254,8 @@ class MeshConfig:
             raise ConfigError(f"mesh.voxel_size must be > 0 (scene units) or null, got {self.voxel_size}")
         if not self.trunc >= 1:
             raise ConfigError(f"mesh.trunc must be >= 1 voxel, got {self.trunc}")
+        if self.impl not in ("auto", "torch", "cpp"):
+            raise ConfigError(f"mesh.impl: '{self.impl}' is not one of auto, torch, cpp")
 
 
 @dataclass

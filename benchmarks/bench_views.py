@@ -1,12 +1,12 @@
 """Per-view costs on a finished Gaussian run: the fused compositing kernels and TSDF fusion.
 
     .venv/bin/python benchmarks/bench_views.py RUN [--threads 1]              # RUN: a stage-1 run folder (the demo's)
-    .venv/bin/python benchmarks/bench_views.py RUN --part tsdf                 # 5.2 M voxels, one 288x192 view
+    .venv/bin/python benchmarks/bench_views.py --part tsdf [--threads 2]      # 5.2 M voxels, one 288x192 view, torch vs cpp
 
 ``render``: the run's stage-1 model (``RUN/checkpoints/last.pt``, its own config) renders its training views, forward
 only and forward + backward of ``sum(rgb)``; prints ms per view (median over the views of ``--repeats`` passes) and
 the fused kernels' own time a view (``torch.profiler``: ``--passes`` passes over all views; the median pass, then
-each). ``tsdf``: :meth:`TSDFVolume.integrate` of one view (a depth map with holes and background pixels) into the
+each). ``tsdf``: :meth:`TSDFVolume.integrate` of one view, each ``--impl`` in turn, (a depth map with holes and background pixels) into the
 demo's grid size, median of 5. Compare commits by running this script in each checkout (its venv) on the same run
 folder, alternately.
 """
@@ -62,12 +62,12 @@ def render_part(run: Path, repeats: int, passes: int) -> None:
         print(f"{key}: {statistics.median(ms):.2f} ms a view ({', '.join(f'{m:.2f}' for m in ms)})")
 
 
-def tsdf_part() -> None:
+def tsdf_part(impls: list[str]) -> None:
     from arcsem.cameras import Cameras, look_at
     from arcsem.mesh.tsdf import TSDFVolume, make_grid
 
     grid = make_grid(torch.tensor([[-1.3, -1.3, -1.0], [1.3, 1.3, 1.1]], dtype=torch.float64), 0.01447)
-    vol = TSDFVolume(grid, 6 * 0.01447)
+    vols = {impl: TSDFVolume(grid, 6 * 0.01447, impl=impl) for impl in impls}
     eye = torch.tensor([[0.0, 0.0, -4.0]], dtype=torch.float64)
     w2c = look_at(eye, torch.zeros_like(eye), torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64))
     cam = Cameras(w2c, torch.tensor([[[300.0, 0, 144], [0, 300.0, 96], [0, 0, 1]]], dtype=torch.float64), 288, 192,
@@ -76,13 +76,18 @@ def tsdf_part() -> None:
     depth = 3.5 + torch.rand(192, 288, generator=g)
     valid = torch.rand(192, 288, generator=g) > 0.3
     rgb = torch.rand(192, 288, 3, generator=g)
-    times = []
-    for _ in range(6):
-        t0 = time.perf_counter()
-        vol.integrate(cam, depth, valid, rgb, ~valid)
-        times.append(time.perf_counter() - t0)
+    times: dict[str, list[float]] = {impl: [] for impl in impls}
+    for _ in range(6):  # the implementations alternate, view after view
+        for impl, vol in vols.items():
+            t0 = time.perf_counter()
+            vol.integrate(cam, depth, valid, rgb, ~valid)
+            times[impl].append(time.perf_counter() - t0)
     n = grid.shape[0] * grid.shape[1] * grid.shape[2]
-    print(f"TSDF integrate, {n / 1e6:.1f} M voxels {grid.shape}: {statistics.median(times[1:]):.3f} s a view")
+    med = {impl: statistics.median(t[1:]) for impl, t in times.items()}
+    for impl in impls:
+        print(f"TSDF integrate ({impl}), {n / 1e6:.1f} M voxels {grid.shape}: {med[impl]:.3f} s a view")
+    if len(impls) == 2:
+        print(f"{impls[0]} / {impls[1]}: {med[impls[0]] / med[impls[1]]:.1f}x")
 
 
 def main() -> None:
@@ -92,10 +97,11 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--passes", type=int, default=3, help="profiled passes over the views (kernel times)")
+    ap.add_argument("--impl", nargs="+", default=["torch", "cpp"], help="TSDF paths to time side by side (--part tsdf)")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     if a.part == "tsdf":
-        tsdf_part()
+        tsdf_part(a.impl)
     elif a.run is None:
         ap.error("--part render needs a run folder")
     else:

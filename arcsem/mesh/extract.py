@@ -76,7 +76,7 @@ def fuse_views(backbone, scene, cfg: MeshConfig, progress: bool = False) -> tupl
     centre = scene.bounds.double().mean(0)
     voxel = cfg.voxel_size or cfg.voxel_factor * pixel_footprint(scene.train.cameras, centre)
     grid = make_grid(scene.bounds, voxel, pad=int(np.ceil(cfg.trunc)) + 1, max_voxels=cfg.max_voxels)
-    vol = TSDFVolume(grid, cfg.trunc * grid.voxel)
+    vol = TSDFVolume(grid, cfg.trunc * grid.voxel, impl=cfg.impl)
     views = _views(scene, cfg)
     for cam, mask in tqdm(views, desc="mesh: fusing views", disable=not progress, leave=False):
         lay = render_layers(backbone, cam, cfg.alpha_min, normals=False)

@@ -60,9 +60,13 @@ def make_grid(bounds: Tensor, voxel: float, pad: int = 2, max_voxels: int = 2**2
 class TSDFVolume:
     """Running TSDF, weight and colour on a :class:`Grid` (float32, flat C-order arrays)."""
 
-    def __init__(self, grid: Grid, trunc: float, chunk: int = 1 << 21):
+    def __init__(self, grid: Grid, trunc: float, chunk: int = 1 << 21, impl: str = "auto"):
+        """``impl``: ``auto|torch|cpp``, the path :meth:`integrate` takes (``mesh.impl``; :mod:`.fused`)."""
+        from .fused import usable
+
         n = grid.shape[0] * grid.shape[1] * grid.shape[2]
         self.grid, self.trunc, self.chunk = grid, float(trunc), int(chunk)
+        self.fused = usable(impl, "cpu")
         # voxel centres relative to the grid's centre, float32 (12 bytes a voxel): projecting relative
         # coordinates keeps float32 exact enough for cameras tens of specimen sizes away
         self.middle = grid.origin + (torch.tensor(grid.shape, dtype=torch.float64) - 1) / 2 * grid.voxel
@@ -87,6 +91,13 @@ class TSDFVolume:
             table = torch.where(background.reshape(-1).bool() & ~valid, torch.tensor(float("inf")), table)
         table = torch.cat([table, table.new_tensor([float("nan")])])
         rgb = rgb.float().reshape(-1, 3) if rgb is not None else None
+        if self.fused and table.device.type == "cpu" and cam.K.device.type == "cpu":
+            from .fused import integrate
+
+            integrate(self.points, cam.world_to_cam[0, :3], cam.K[0], bool(cam.is_ortho), W, H, table.contiguous(),
+                      None if rgb is None else rgb.contiguous(), self.trunc, self.tsdf, self.weight, self.color,
+                      self.color_weight)
+            return
         n = self.tsdf.numel()
         for start in range(0, n, self.chunk):
             stop = min(start + self.chunk, n)

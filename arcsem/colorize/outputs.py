@@ -18,7 +18,7 @@ def colour_split(split, idx: list[int]):
     return dataclasses.replace(sub, images=sub.colors, clean=None, depths=None)
 
 
-def evaluate_colour(backbone, scene, refs, run_dir: Path, cc) -> dict:
+def evaluate_colour(backbone, scene, refs, run_dir: Path, cc, progress: bool = False) -> dict:
     """PSNR/SSIM/LPIPS (whole image and ``_masked``) vs ground-truth colour over non-reference training
     views (``train_nonref``), reference views (``train_ref``) and held-out views (``test``)."""
     from ..train.evaluate import evaluate_split, write_views_csv
@@ -42,7 +42,8 @@ def evaluate_colour(backbone, scene, refs, run_dir: Path, cc) -> dict:
             continue
         limit = cc.eval.max_train_views if name.startswith("train") else None
         r, summary, _ = evaluate_split(backbone, colour_split(split, idx), split_name=name, length_scale=scene.scale[0],
-                                       with_lpips=cc.eval.lpips, max_views=limit, metrics=cc.eval.metrics)
+                                       with_lpips=cc.eval.lpips, max_views=limit, metrics=cc.eval.metrics,
+                                       progress=progress)
         weights.add(summary.pop("lpips_weights", "skipped"))
         for k in [k for k in summary if k.startswith("depth")]:
             summary.pop(k)
@@ -62,7 +63,8 @@ def _png(folder: Path, name: str, img: torch.Tensor) -> None:
     imageio.imwrite(out_path(folder, name, ".png"), to_uint8(img))
 
 
-def write_outputs(backbone, scene, run_dir: Path, cc, pseudo: torch.Tensor, valid: torch.Tensor) -> dict:
+def write_outputs(backbone, scene, run_dir: Path, cc, pseudo: torch.Tensor, valid: torch.Tensor,
+                  progress: bool = False) -> dict:
     """``colored/<view name>.png`` (every training view), ``colorize/pseudo/<name>.png``, the held-out views
     (:func:`write_heldout`), ``colored_turntable.*`` and ``colored_model.<ext>``; returns their paths."""
     from ..train.stage1 import turntable
@@ -75,7 +77,8 @@ def write_outputs(backbone, scene, run_dir: Path, cc, pseudo: torch.Tensor, vali
             _png(run_dir / "colorize" / "pseudo", split.names[i], pseudo[i] * valid[i][..., None])
     out = {"colored_dir": str(run_dir / "colored"), **write_heldout(backbone, scene.test, run_dir)}
     if cc.eval.video:
-        out["video"] = str(turntable(backbone, scene, run_dir / "colored_turntable", cc.eval.video_frames, cc.eval.fps))
+        out["video"] = str(turntable(backbone, scene, run_dir / "colored_turntable", cc.eval.video_frames, cc.eval.fps,
+                                     progress=progress))
     suffix = backbone.export_suffix
     try:
         backbone.export(str(run_dir / f"colored_model{suffix}"))

@@ -337,10 +337,10 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
                 batch_hook=hook)
     backbone.eval()
     features = finfo["label"] if guidance is not None else "unused"
-    result = evaluate_colour(backbone, scene, refs, run_dir, cc)
+    result = evaluate_colour(backbone, scene, refs, run_dir, cc, progress=cc.progress)
     for part, extra in coverage_metrics(backbone, scene, refs, masks, pinfo["valid2d"], cc).items():
         result.setdefault(part, {}).update(extra)
-    result.update(write_outputs(backbone, scene, run_dir, cc, pseudo, valid))
+    result.update(write_outputs(backbone, scene, run_dir, cc, pseudo, valid, progress=cc.progress))
     result.update(write_colored_products(rc, backbone, scene, run_dir, res.steps, cc.progress))
     result.update(
         features=features, references=refs.names, losses=sorted(losses.terms), steps=res.steps, time_s=res.time_s,

@@ -82,11 +82,11 @@ def _image_row(pred, gt, mask, with_lpips: bool, convention: str) -> dict[str, A
 
 def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test", length_scale: float = 1.0,
                    out_dir: str | Path | None = None, with_lpips: bool = True, max_views: int | None = None,
-                   protocol: str = "auto", metrics: str = "3dgs",
+                   protocol: str = "auto", metrics: str = "3dgs", progress: bool = False,
                    ) -> tuple[list[dict[str, Any]], dict[str, Any], list[torch.Tensor]]:
     """Render and score every view of ``split`` (up to ``max_views``, evenly spaced) under ``protocol``
     (:data:`PROTOCOLS`; ``auto``: ``clean`` where the split has noise-free images, else ``paper``) with the
-    metric convention ``metrics`` (:data:`arcsem.metrics.CONVENTIONS`).
+    metric convention ``metrics`` (:data:`arcsem.metrics.CONVENTIONS`); ``progress``: a tqdm bar over the views.
 
     Returns:
         rows: one dict per view (``split``, ``name``, metrics, ``depth_mae``, ``depth_mae_pct``).
@@ -103,8 +103,10 @@ def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test
     render_dir = Path(out_dir) / "renders" / split_name if out_dir is not None else None
     if render_dir is not None:
         render_dir.mkdir(parents=True, exist_ok=True)
+    from tqdm import tqdm
+
     rows, errors, weights = [], [], set()
-    for i in (int(v) for v in views):
+    for i in tqdm([int(v) for v in views], desc=f"evaluating {split_name} views", disable=not progress, leave=False):
         out = render_view(backbone, split, i, protocol)
         pred, mask = out["rgb"].clamp(0, 1), None if split.masks is None else split.masks[i]
         row = {"split": split_name, "name": split.names[i], **_image_row(pred, target[i], mask, with_lpips, metrics)}

@@ -154,7 +154,7 @@ def run_stage1(cfg: Any, scene: Scene, run_dir: str | Path) -> dict:
     if warning:
         log.warning(warning)
     backbone.eval()
-    result = evaluate(backbone, scene, run_dir, tc.eval)
+    result = evaluate(backbone, scene, run_dir, tc.eval, progress=tc.progress)
     export = _export(backbone, run_dir)
     result.update(write_products(rc, backbone, scene, run_dir, iteration=res.steps, progress=tc.progress))
     return {"stage1": {**result, "steps": res.steps, "time_s": res.time_s, "steps_per_s": res.steps_per_s,
@@ -165,13 +165,14 @@ def run_stage1(cfg: Any, scene: Scene, run_dir: str | Path) -> dict:
                        "warnings": [warning] if warning else []}}
 
 
-def evaluate(backbone, scene: Scene, run_dir: str | Path | None, ec: EvalConfig | None = None) -> dict:
+def evaluate(backbone, scene: Scene, run_dir: str | Path | None, ec: EvalConfig | None = None,
+             progress: bool = False) -> dict:
     """Final evaluation, two protocols (:data:`~arcsem.train.evaluate.PROTOCOLS`, recorded as ``protocols``):
 
     * ``train_paper``: training views, each with its own ACT, against the observed images (the paper's Table 1);
     * ``train`` and ``test``: training and held-out views as ``auto`` scores them: the mean ACT against the
       noise-free images where the dataset has them (the synthetic scenes), else as ``train_paper``;
-    plus depth error, per-view CSV, renders and the turntable video.
+    plus depth error, per-view CSV, renders and the turntable video (``progress``: tqdm bars for each).
     """
     ec = ec or EvalConfig()
     out_dir = Path(run_dir) if run_dir is not None and ec.renders else None
@@ -184,7 +185,8 @@ def evaluate(backbone, scene: Scene, run_dir: str | Path | None, ec: EvalConfig 
             result[sname] = {}
             continue
         r, summary, _ = evaluate_split(backbone, split, split_name=sname, length_scale=scene.scale[0], out_dir=where,
-                                       with_lpips=ec.lpips, max_views=limit, protocol=protocol, metrics=ec.metrics)
+                                       with_lpips=ec.lpips, max_views=limit, protocol=protocol, metrics=ec.metrics,
+                                       progress=progress)
         rows += r
         for k in ("depth_mae", "depth_mae_pct"):
             if k in summary and sname != "train_paper":
@@ -206,19 +208,22 @@ def evaluate(backbone, scene: Scene, run_dir: str | Path | None, ec: EvalConfig 
     if run_dir is not None:
         write_views_csv(Path(run_dir) / "views.csv", rows)
         if ec.video:
-            result["video"] = str(turntable(backbone, scene, Path(run_dir) / "turntable", ec.video_frames, ec.fps))
+            result["video"] = str(turntable(backbone, scene, Path(run_dir) / "turntable", ec.video_frames, ec.fps,
+                                            progress=progress))
     return result
 
 
-def turntable(backbone, scene: Scene, path: Path, frames: int = 60, fps: int = 20) -> Path:
+def turntable(backbone, scene: Scene, path: Path, frames: int = 60, fps: int = 20, progress: bool = False) -> Path:
     """Render ``frames`` novel views on a full orbit around the specimen (mean ACT; :mod:`arcsem.orbit`,
-    20 degrees above the orbit plane) and write a video."""
+    20 degrees above the orbit plane) and write a video (``progress``: a tqdm bar over the frames)."""
+    from tqdm import tqdm
+
     from ..orbit import OrbitConfig, orbit_cameras
 
     cams = orbit_cameras(scene.train.cameras, scene.bounds, OrbitConfig(frames=frames))
     images = []
     with torch.no_grad():
-        for k in range(frames):
+        for k in tqdm(range(frames), desc=f"{path.name}: rendering", disable=not progress, leave=False):
             images.append(to_uint8(backbone.render(cams[k : k + 1])["rgb"][0].cpu()))
     return write_video(path, images, fps)
 

@@ -6,24 +6,31 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.arcsem-installed
 EXT     := $(VENV)/.arcsem-ext
 CPP     := $(wildcard backbones/gaussians/cpp/*.cpp backbones/gaussians/cpp/*.h losses/cpp/*.cpp arcsem/mesh/cpp/*.cpp)
+PLX     := $(VENV)/.arcsem-ext-plenoxels
+PLX_CPP := $(wildcard backbones/plenoxels/cpp/*.cpp backbones/plenoxels/cpp/*.h)
 JOBS    ?= 2
 export PIP_DISABLE_PIP_VERSION_CHECK=1
 
 .PHONY: setup demo test lint clean-venv browser slurm
 
-setup: $(EXT)
+setup: $(EXT) $(PLX)
 
 $(STAMP): pyproject.toml constraints.txt examples/mip_splatting/pyproject.toml
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test]" -e examples/mip_splatting
 	@touch $(STAMP)
 
-# JIT-build the fused C++ rasteriser once (about a minute); failure is not fatal: PyTorch path is used.
+# JIT-build the fused C++ kernels once (a minute or so each); failure is not fatal: the PyTorch path is used.
+# The demo's (Gaussian rasterisers, losses, TSDF fusion), then Plenoxels' marcher for setup and the tests.
 $(EXT): $(STAMP) $(CPP)
 	-$(BIN)/python -m arcsem.backbones.gaussians.fused
 	-$(BIN)/python -m arcsem.losses.fused
 	-$(BIN)/python -m arcsem.mesh.fused
 	@touch $(EXT)
+
+$(PLX): $(STAMP) $(PLX_CPP)
+	-$(BIN)/python -m arcsem.backbones.plenoxels.fused
+	@touch $(PLX)
 
 demo: $(EXT)
 	$(BIN)/arcsem experiment=demo
@@ -51,7 +58,7 @@ slurm:
 lint: $(STAMP)
 	$(BIN)/ruff check .
 
-test: lint $(EXT) browser slurm
+test: lint $(EXT) $(PLX) browser slurm
 	$(BIN)/python -m pytest -q -rs -n $(JOBS) --dist loadgroup
 
 clean-venv:

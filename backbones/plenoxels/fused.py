@@ -151,3 +151,12 @@ def max_weights(density: Tensor, index: Tensor, coords: Tensor, bounds: Tensor, 
                    bounds, dens, empty, empty, empty, shift=SKIP_SHIFT, step=step, scale=scale, stop=stop, degree=0,
                    act=False)
     return load_extension().max_weights(*args)
+
+
+if __name__ == "__main__":  # `python -m arcsem.backbones.plenoxels.fused`: build now (make setup does this)
+    import time
+
+    t0 = time.perf_counter()
+    ok = load_extension() is not None
+    print(f"fused C++ Plenoxels ray marcher: {'ready' if ok else 'unavailable, PyTorch path will be used'} "
+          f"({time.perf_counter() - t0:.1f} s)")

@@ -103,7 +103,9 @@ def write_heldout(backbone, test, run_dir: Path) -> dict:
 
 
 def write_colored_products(cfg, backbone, scene, run_dir: Path, steps: int, progress: bool) -> dict:
-    """The coloured mesh (``colored_mesh.*``) and viewer folder (``colored_viewer/``)."""
+    """The coloured mesh (``colored_mesh.*``) and viewer folder (``colored_viewer/``). The mesh is not scored against
+    the true surface again: stage 2 freezes the geometry, so its Chamfer distance is stage 1's (``stage1.mesh.gt``)."""
     from ..train.products import write_products
 
-    return write_products(cfg, backbone, scene, run_dir, prefix="colored_", iteration=steps, progress=progress)
+    return write_products(cfg, backbone, scene, run_dir, prefix="colored_", iteration=steps, progress=progress,
+                          evaluate=False)

@@ -14,8 +14,9 @@ __all__ = ["write_products"]
 
 
 def write_products(cfg: Any, backbone, scene, run_dir: str | Path, prefix: str = "", iteration: int = 0,
-                   progress: bool = False) -> dict:
-    """Write ``<prefix>mesh.*`` and ``<prefix>viewer/`` into ``run_dir``; returns their metrics and paths."""
+                   progress: bool = False, evaluate: bool = True) -> dict:
+    """Write ``<prefix>mesh.*`` and ``<prefix>viewer/`` into ``run_dir``; returns their metrics and paths.
+    ``evaluate``: score the mesh against the built-in scene's true surface (:func:`arcsem.mesh.export_mesh`)."""
     from ..mesh import export_mesh
     from ..runconfig import run_config
 
@@ -23,7 +24,7 @@ def write_products(cfg: Any, backbone, scene, run_dir: str | Path, prefix: str =
     mc = run_config(cfg).mesh  # a run's: validated once, however many products it writes
     out: dict[str, Any] = {}
     if mc.enabled and "depth" in backbone.provides:
-        out["mesh"] = export_mesh(backbone, scene, run_dir / f"{prefix}mesh", mc, progress=progress)
+        out["mesh"] = export_mesh(backbone, scene, run_dir / f"{prefix}mesh", mc, progress=progress, evaluate=evaluate)
     split = scene.train
     try:
         out["viewer"] = backbone.export_viewer(str(run_dir / f"{prefix}viewer"), split.cameras, split.names,

@@ -42,6 +42,8 @@ class ColorTargets:
         tcm_downscale: renders are scaled down by this before ``tcm_space``.
         ccm_target: ``[C, hc, wc, 3]`` matched reference cell colours; ``ccm_valid``: ``[C, hc, wc]`` bool.
         ccm_downscale: the CCM cell size in pixels.
+        references_only: every view of the batch is a reference (known on the host, where the views were drawn):
+            TCM and CCM, which act on the other views only, skip their feature pass (a VGG forward and backward).
     """
 
     is_reference: Tensor
@@ -55,6 +57,7 @@ class ColorTargets:
     ccm_target: Tensor | None = None
     ccm_valid: Tensor | None = None
     ccm_downscale: int = 16
+    references_only: bool = False
 
 
 @dataclass

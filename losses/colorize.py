@@ -111,7 +111,9 @@ class TCM(Loss):
 
     def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
         t = _targets(batch, self.name, "tcm_guidance", "tcm_space")
-        img = downscale(out["rgb"], int(t.tcm_downscale))  # reference views too: skipping them would need a host read
+        if t.references_only:  # TCM acts on the other views: 0, its graph kept, without the feature pass
+            return out["rgb"].sum() * 0.0
+        img = downscale(out["rgb"], int(t.tcm_downscale))  # mixed batches: reference views masked out below
         return tcm_distance(t.tcm_space(img), t.tcm_guidance, ~t.is_reference, t.tcm_valid)
 
 
@@ -129,5 +131,7 @@ class CCM(Loss):
 
     def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
         t = _targets(batch, self.name, "ccm_target", "ccm_valid")
+        if t.references_only:
+            return out["rgb"].sum() * 0.0
         valid = t.ccm_valid & ~t.is_reference[:, None, None]
         return ccm_distance(patch_means(out["rgb"], int(t.ccm_downscale)), t.ccm_target, valid)

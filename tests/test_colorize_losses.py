@@ -114,3 +114,34 @@ def test_tcm_ccm_act_only_where_the_pseudo_colours_do_not_reach():
     assert on.ccm_valid.tolist() == [[[False, False], [True, True]]] * 2
     off = ColorTargetHook(*args, uncovered_only=False)(_batch([1, 2], h=16, w=16)).color
     assert bool(off.tcm_valid[0].all()) and bool(off.ccm_valid.all())
+
+
+def test_tcm_ccm_skip_their_feature_pass_on_a_batch_of_reference_views():
+    """The hook knows on the host which views it drew: a batch of reference views only (5 of the demo's 32 views)
+    gives TCM and CCM 0 without running the extractor, and they still run on a mixed batch."""
+    calls = []
+
+    def space(x):
+        calls.append(x.shape[0])
+        return [x.permute(0, 3, 1, 2)]
+
+    hook = _targets()
+    hook.space = space
+    for idx, expect in (([0], True), ([0, 2], False), ([2], False)):
+        assert hook(_batch(idx, h=16, w=16)).color.references_only is expect
+    target = torch.rand(1, 16, 16, 3)
+    for refs_only in (True, False):
+        b = _batch([0] if refs_only else [2], h=16, w=16, color=ColorTargets(
+            is_reference=torch.tensor([refs_only]), reference=torch.zeros(1, 16, 16, 3),
+            pseudo=torch.zeros(1, 16, 16, 3), pseudo_valid=torch.zeros(1, 16, 16, dtype=torch.bool), tcm_space=space,
+            tcm_downscale=1, tcm_guidance=[target.permute(0, 3, 1, 2)], ccm_downscale=4,
+            ccm_target=torch.full((1, 4, 4, 3), 0.5), ccm_valid=torch.ones(1, 4, 4, dtype=torch.bool),
+            references_only=refs_only))
+        rgb = (1 - target).requires_grad_(True)
+        tcm, ccm = TCM(TCM.Config())({"rgb": rgb}, b, 0), CCM(CCM.Config())({"rgb": rgb}, b, 0)
+        if refs_only:
+            assert calls == [] and float(tcm.detach()) == 0 and float(ccm.detach()) == 0
+            (tcm + ccm).backward()  # the graph is kept: a loss set of these terms alone still steps
+            assert rgb.grad is not None and float(rgb.grad.abs().sum()) == 0
+        else:
+            assert calls == [1] and float(tcm.detach()) > 0.01 and float(ccm.detach()) > 0

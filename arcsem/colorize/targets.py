@@ -29,6 +29,7 @@ class ColorTargetHook:
         slot = torch.full((n,), len(refs), dtype=torch.long)  # reference position of each view; R: none
         slot[refs.indices] = torch.arange(len(refs))
         self.slot, self.is_ref = slot, slot < len(refs)
+        self.ref_views = set(refs.indices.tolist())  # host-side: which views a batch holds is known there
         self.references = torch.cat([refs.images.float(), torch.zeros_like(refs.images[:1]).float()])  # [R + 1, ...]
         self.pseudo, self.valid, self.guidance, self.space = pseudo, valid, guidance, space
         self.tcm_downscale, self.ccm_downscale = tcm_downscale, ccm_downscale
@@ -59,7 +60,8 @@ class ColorTargetHook:
         idx = batch.indices.to(self.pseudo.device)
         targets = ColorTargets(is_reference=self.is_ref[idx], reference=self.references[self.slot[idx]],
                                pseudo=self.pseudo[idx], pseudo_valid=self.valid[idx], tcm_space=self.space,
-                               tcm_downscale=self.tcm_downscale, ccm_downscale=self.ccm_downscale)
+                               tcm_downscale=self.tcm_downscale, ccm_downscale=self.ccm_downscale,
+                               references_only=all(v in self.ref_views for v in views))
         if self.guidance is not None:
             t = [self.guidance.targets(v) for v in views]
             stack = (lambda xs: xs[0][None]) if len(views) == 1 else torch.stack  # one view: a view, no copy

@@ -28,7 +28,8 @@ def render_part(run: Path, repeats: int, passes: int) -> None:
     from arcsem.runs import load_stage1
     from arcsem.train.stage1 import prepare_scene, train_config
 
-    cfg = OmegaConf.load(run / ".hydra" / "config.yaml")
+    # the resolved config the run wrote (its .hydra copy keeps interpolations such as ${train.steps} unresolved)
+    cfg = OmegaConf.load(run / "config.yaml" if (run / "config.yaml").exists() else run / ".hydra" / "config.yaml")
     scene = load_scene(cfg.dataset)
     bb, _ = load_stage1(run / "checkpoints" / "last.pt", scene, cfg)
     cams = prepare_scene(scene, train_config(cfg)).train.cameras

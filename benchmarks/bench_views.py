@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_views.py RUN [--threads 1]              # RUN: a stage-1 run folder (the demo's)
     .venv/bin/python benchmarks/bench_views.py --part tsdf [--threads 2]      # 5.2 M voxels, one 288x192 view, torch vs cpp
+    .venv/bin/python benchmarks/bench_views.py RUN --part mesh --threads 2   # RUN's whole fusion, torch vs cpp
 
 ``render``: the run's stage-1 model (``RUN/checkpoints/last.pt``, its own config) renders its training views, forward
 only and forward + backward of ``sum(rgb)``; prints ms per view (median over the views of ``--repeats`` passes) and
@@ -91,10 +92,41 @@ def tsdf_part(impls: list[str]) -> None:
         print(f"{impls[0]} / {impls[1]}: {med[impls[0]] / med[impls[1]]:.1f}x")
 
 
+def mesh_part(run: Path, impls: list[str]) -> None:
+    """The run's whole mesh fusion (every training view, the run's mesh settings) with each TSDF path: seconds, and
+    whether the fused volumes and the meshes are the same."""
+    import numpy as np
+    from omegaconf import OmegaConf
+
+    from arcsem.data import load_scene
+    from arcsem.mesh.extract import fuse_views, mesh_config
+    from arcsem.mesh.tsdf import extract_mesh
+    from arcsem.runs import load_stage1
+    from arcsem.train.stage1 import prepare_scene, train_config
+
+    cfg = OmegaConf.load(run / "config.yaml")
+    scene = load_scene(cfg.dataset)
+    bb, _ = load_stage1(run / "checkpoints" / "last.pt", scene, cfg)
+    scene = prepare_scene(scene, train_config(cfg))
+    vols = {}
+    for impl in impls:
+        mc = mesh_config({**OmegaConf.to_container(cfg.get("mesh") or {}), "impl": impl})
+        t0 = time.perf_counter()
+        vols[impl], info = fuse_views(bb, scene, mc)
+        print(f"fuse_views ({impl}): {time.perf_counter() - t0:.2f} s, {info['views']} views, grid {info['grid']}")
+    (a, va), (b, vb) = list(vols.items())[:2] if len(vols) > 1 else (next(iter(vols.items())),) * 2
+    flips = int((va.weight != vb.weight).sum() + (va.color_weight != vb.color_weight).sum())
+    same = (va.weight == vb.weight) & (va.color_weight == vb.color_weight)
+    print(f"{a} vs {b}: {flips} voxel weights differ of {va.weight.numel():,}; largest TSDF difference elsewhere "
+          f"{float((va.tsdf - vb.tsdf)[same].abs().max()):.2e}, colour {float((va.color - vb.color)[same].abs().max()):.2e}")
+    ma, mb = extract_mesh(va), extract_mesh(vb)
+    print(f"meshes: {len(ma[1])} / {len(mb[1])} faces, vertices equal: {ma[0].shape == mb[0].shape and np.array_equal(ma[0], mb[0])}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("run", type=Path, nargs="?", help="a finished stage-1 run folder (--part render)")
-    ap.add_argument("--part", choices=("render", "tsdf"), default="render")
+    ap.add_argument("--part", choices=("render", "tsdf", "mesh"), default="render")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--passes", type=int, default=3, help="profiled passes over the views (kernel times)")
@@ -104,7 +136,9 @@ def main() -> None:
     if a.part == "tsdf":
         tsdf_part(a.impl)
     elif a.run is None:
-        ap.error("--part render needs a run folder")
+        ap.error(f"--part {a.part} needs a run folder")
+    elif a.part == "mesh":
+        mesh_part(a.run, a.impl)
     else:
         render_part(a.run, a.repeats, a.passes)
 

@@ -50,3 +50,28 @@ def test_weights_from_hub_cache_are_loaded(offline, tmp_path):
     v = VGGFeatures("vgg16")
     assert v.features_source == "imagenet"
     torch.testing.assert_close(v.trunk[0].weight, sd["features.0.weight"])
+
+
+@pytest.mark.parametrize("arch", ["vgg16", "vgg19"])
+def test_layers_are_torchvisions_without_importing_it(offline, arch):
+    """Our layer list is torchvision's vgg.features module for module (so its checkpoints load by index) and, built
+    from the same random state, weight for weight (runs with random weights keep their features); building the
+    extractor imports no torchvision (seconds a process; stage 2 needs it for nothing else when LPIPS is off)."""
+    import subprocess
+    import sys
+
+    from arcsem.colorize.vgg import vgg_layers
+    from arcsem.tvfix import import_torchvision
+
+    tv = import_torchvision()
+    torch.manual_seed(3)
+    theirs = tv.models.vgg.make_layers(tv.models.vgg.cfgs[{"vgg16": "D", "vgg19": "E"}[arch]], batch_norm=False)
+    torch.manual_seed(3)
+    ours = vgg_layers(arch)
+    assert [repr(m) for m in ours] == [repr(m) for m in theirs]
+    for (k, a), (k2, b) in zip(ours.state_dict().items(), theirs.state_dict().items(), strict=True):
+        assert k == k2 and torch.equal(a, b), k
+    code = (f"import sys; from arcsem.colorize.vgg import VGGFeatures; VGGFeatures('{arch}'); "
+            "print('torchvision' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "False", out.stdout + out.stderr

@@ -1,4 +1,4 @@
-"""VGG feature extractor for TCM/CCM: torchvision's VGG16 (default, Ref-NPR) or VGG19 (ArCSEM code).
+"""VGG feature extractor for TCM/CCM: VGG16 (default, Ref-NPR) or VGG19 (ArCSEM code), torchvision's layers.
 
 Features are the relu3_x and relu4_x layers, concatenated along channels per block (VGG16: 3 x 256
 channels at 1/4 resolution and 3 x 512 at 1/8; VGG19: 4 x 256 and 4 x 512). Inputs are normalised
@@ -13,14 +13,34 @@ import logging
 import torch
 from torch import Tensor, nn
 
-__all__ = ["IMAGENET_MEAN", "IMAGENET_STD", "WEIGHT_FILES", "VGGFeatures", "block_layers", "get_vgg"]
+__all__ = ["IMAGENET_MEAN", "IMAGENET_STD", "VGG_CFG", "WEIGHT_FILES", "VGGFeatures", "block_layers", "get_vgg",
+           "vgg_layers"]
 
 log = logging.getLogger(__name__)
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 WEIGHT_FILES = {"vgg16": "vgg16-397923af.pth", "vgg19": "vgg19-dcbb9e9d.pth"}
-VGG_CFG = {"vgg16": "D", "vgg19": "E"}  # torchvision.models.vgg.cfgs keys
+# The convolution trunks of Simonyan & Zisserman's configurations D (VGG16) and E (VGG19): output channels of each
+# 3x3 convolution (padding 1, then a ReLU), "M" a 2x2 max pool of stride 2; the layer order of torchvision's
+# ``vgg.features``, so its ImageNet checkpoints load by index (``features.<i>.weight``).
+VGG_CFG = {"vgg16": (64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M", 512, 512, 512, "M"),
+           "vgg19": (64, 64, "M", 128, 128, "M", 256, 256, 256, 256, "M", 512, 512, 512, 512, "M",
+                     512, 512, 512, 512, "M")}
+
+
+def vgg_layers(arch: str) -> nn.Sequential:
+    """``vgg.features`` of ``arch`` (``vgg16``/``vgg19``), built here rather than by torchvision (whose import costs
+    seconds a process): the same modules in the same order, so also the same default-initialised random weights."""
+    layers: list[nn.Module] = []
+    channels = 3
+    for v in VGG_CFG[arch]:
+        if v == "M":
+            layers.append(nn.MaxPool2d(kernel_size=2, stride=2))
+        else:
+            layers += [nn.Conv2d(channels, int(v), kernel_size=3, padding=1), nn.ReLU(inplace=True)]
+            channels = int(v)
+    return nn.Sequential(*layers)
 
 
 def block_layers(features: nn.Sequential, blocks=(3, 4)) -> dict[int, list[int]]:
@@ -46,14 +66,11 @@ class VGGFeatures(nn.Module):
     def __init__(self, arch: str = "vgg16", blocks=(3, 4), load_weights: bool = True):
         super().__init__()
         from ..errors import ConfigError
-        from ..tvfix import import_torchvision
 
         if arch not in WEIGHT_FILES:
             raise ConfigError(f"vgg: unknown architecture '{arch}'; use vgg16 or vgg19")
-        tv = import_torchvision()
-        # torchvision's own layer list (features only: the classifier is never used)
         net = nn.Module()
-        net.features = tv.models.vgg.make_layers(tv.models.vgg.cfgs[VGG_CFG[arch]], batch_norm=False)
+        net.features = vgg_layers(arch)  # features only: the classifier is never used
         self.arch, self.blocks = arch, tuple(blocks)
         self.name, self.strides = arch, tuple(2 ** (b - 1) for b in self.blocks)  # block b: after b-1 pools
         self.features_source, self.weights_detail = "random", "not requested"

@@ -84,6 +84,22 @@ def test_a_registered_stage_check_stops_the_run_before_anything_is_written(tmp_p
     assert toy["run"] == [] and not (tmp_path / "run" / "metrics.json").exists()
 
 
+@pytest.mark.parametrize("stage", ["gray", "color", "all"])
+@pytest.mark.parametrize("key, value, message", [
+    ("impl", "bogus", r"mesh.impl: 'bogus' is not one of auto, torch, cpp"),
+    ("formats", ["ply", "obj2"], r"mesh.formats: unknown format"),
+])
+def test_a_bad_mesh_key_stops_the_run_before_training(stage, key, value, message):
+    """Both stages end with a mesh; its config was read only there, after training (found with mesh.impl=bogus: the
+    error came after stage 1's training and evaluation)."""
+    from arcsem.stages import check_config
+
+    cfg = compose_with(f"stage={stage}")
+    cfg.mesh[key] = value
+    with pytest.raises(ConfigError, match=message):
+        check_config(RunConfig(cfg), stage)
+
+
 def test_a_registered_stage_failure_is_recorded_like_the_others(tmp_path, toy):
     toy["fail_run"] = True
     with pytest.raises(DataError, match="not a toy"):

@@ -90,8 +90,11 @@ def check_run(rc: Any, dataset: bool = True) -> None:
 
 def check_mesh(rc: Any) -> None:
     """The ``mesh`` group against :class:`~arcsem.configs.MeshConfig`: both stages end with a mesh, so a bad key there
-    stops the run before training, not after it."""
-    rc.mesh  # noqa: B018 (reading it validates it)
+    stops the run before training, not after it; so does ``mesh.impl=cpp`` where the fused TSDF kernel cannot load."""
+    if rc.mesh.enabled and rc.mesh.impl == "cpp":
+        from .mesh.fused import usable
+
+        usable("cpp", "cpu")  # ConfigError when it cannot be built here
 
 
 def check_scene_basics(scene: Any) -> list[str]:

@@ -100,6 +100,19 @@ def test_a_bad_mesh_key_stops_the_run_before_training(stage, key, value, message
         check_config(RunConfig(cfg), stage)
 
 
+def test_mesh_impl_cpp_without_the_kernel_stops_the_run_before_training(monkeypatch):
+    from arcsem import cext
+    from arcsem.stages import check_config
+
+    monkeypatch.setattr(cext, "load", lambda ext, verbose=False: None)  # as where no C++ toolchain is found
+    cfg = compose_with("stage=gray")
+    cfg.mesh.impl = "cpp"
+    with pytest.raises(ConfigError, match=r"mesh.impl: 'cpp' \(fused C\+\+ TSDF fusion\) needs a C\+\+ toolchain"):
+        check_config(RunConfig(cfg), "gray")
+    cfg.mesh.impl = "auto"
+    check_config(RunConfig(cfg), "gray")  # auto falls back to the PyTorch path
+
+
 def test_a_registered_stage_failure_is_recorded_like_the_others(tmp_path, toy):
     toy["fail_run"] = True
     with pytest.raises(DataError, match="not a toy"):

@@ -17,7 +17,7 @@ from typing import Any
 
 from .errors import ConfigError, DataError
 
-__all__ = ["MIN_IMAGE_SIZE", "check_backbone", "check_backbone_scene", "check_device", "check_flag_overrides", "check_mesh",
+__all__ = ["MIN_IMAGE_SIZE", "check_backbone", "check_backbone_scene", "check_device", "check_flag_overrides",
            "check_run", "check_scene_basics", "check_threads", "training_size"]
 
 MIN_IMAGE_SIZE = 11
@@ -86,15 +86,6 @@ def check_run(rc: Any, dataset: bool = True) -> None:
     _check_top_level(rc.cfg)
     if dataset:
         rc.dataset  # noqa: B018 - validated (and kept) on first read
-
-
-def check_mesh(rc: Any) -> None:
-    """The ``mesh`` group against :class:`~arcsem.configs.MeshConfig`: both stages end with a mesh, so a bad key there
-    stops the run before training, not after it; so does ``mesh.impl=cpp`` where the fused TSDF kernel cannot load."""
-    if rc.mesh.enabled and rc.mesh.impl == "cpp":
-        from .mesh.fused import usable
-
-        usable("cpp", "cpu")  # ConfigError when it cannot be built here
 
 
 def check_scene_basics(scene: Any) -> list[str]:

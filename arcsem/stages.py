@@ -99,13 +99,13 @@ STAGES = StageRegistry()
 
 STAGES.register(Stage("gray", plan=("gray",), summary=True,
                       check_config=("arcsem.train.gray_stage:check_train_config", "arcsem.preflight:check_backbone",
-                                    "arcsem.train.gray_stage:check_losses", "arcsem.preflight:check_mesh"),
+                                    "arcsem.train.gray_stage:check_losses", "arcsem.mesh.extract:check_mesh_config"),
                       check_scene=("arcsem.train.gray_stage:check_scene", "arcsem.preflight:check_backbone_scene"),
                       run="arcsem.train.gray_stage:run_gray_stage"))
 STAGES.register(Stage("color", plan=("color",), summary=True,
                       check_config=("arcsem.colorize.color_stage:check_colorize_config",
                                     "arcsem.preflight:check_backbone", "arcsem.colorize.color_stage:check_config",
-                                    "arcsem.preflight:check_mesh"),
+                                    "arcsem.mesh.extract:check_mesh_config"),
                       check_scene=("arcsem.preflight:check_backbone_scene", "arcsem.colorize.color_stage:check_scene"),
                       run="arcsem.colorize:run_stage2"))
 STAGES.register(Stage("all", plan=("gray", "color"), summary=True))

@@ -25,7 +25,7 @@ import torch
 from ..configs import MeshConfig
 from .tsdf import TSDFVolume, extract_mesh, keep_components, make_grid
 
-__all__ = ["MeshConfig", "export_mesh", "fuse_views", "mesh_config", "pixel_footprint", "write_mesh"]
+__all__ = ["MeshConfig", "check_mesh_config", "export_mesh", "fuse_views", "mesh_config", "pixel_footprint", "write_mesh"]
 
 
 def mesh_config(raw: Any) -> MeshConfig:
@@ -65,6 +65,17 @@ def _views(scene, cfg: MeshConfig):
                                                                  azimuth=azimuth))
         views += [(orbit[i:i + 1], None) for i in range(len(orbit))]
     return views
+
+
+def check_mesh_config(rc: Any) -> None:
+    """A stage check (:mod:`arcsem.stages`): the ``mesh`` group of the run's config ``rc`` against
+    :class:`~arcsem.configs.MeshConfig`. Both stages end with a mesh, so a bad key stops the run before training, not
+    after it; so does ``mesh.impl=cpp`` where the fused TSDF kernel cannot load."""
+    mc = rc.mesh
+    if mc.enabled and mc.impl == "cpp":
+        from .fused import usable
+
+        usable("cpp", "cpu")  # ConfigError when it cannot be built here
 
 
 def fuse_views(backbone, scene, cfg: MeshConfig, progress: bool = False) -> tuple[TSDFVolume, dict]:

@@ -36,6 +36,7 @@ class Browser:
 
         self._dir = tempfile.TemporaryDirectory(prefix="arcsem-chromium-")
         args = [CHROMIUM, "--headless=new", "--no-sandbox", "--disable-gpu", "--no-first-run",
+                "--enable-unsafe-swiftshader",  # software WebGL asked for, not left to the deprecated automatic fallback
                 "--disable-extensions", "--remote-debugging-port=0", f"--user-data-dir={self._dir.name}",
                 f"--window-size={self.width},{self.height}", "about:blank"]
         # its own process group: the renderer, GPU and crash-handler children end with it, before its profile folder

@@ -1,10 +1,12 @@
-"""The VGG trunk of TCM/CCM, forward and backward (to the image, as stage 2 runs it), with its weights in NCHW
-against channels-last layout, on a render-shaped input (``[1, H, W, 3]`` permuted: channels-last strides).
+"""The VGG trunk of TCM/CCM, forward and backward (to the image, as stage 2 runs it), on the two memory layouts its
+input arrives in: a render ``[1, H, W, 3]`` (channels last in memory: TCM at ``colorize.tcm_downscale=1``, the
+guidance's feature maps) and a downscaled render (NCHW in memory: ``imageops.downscale``'s output, TCM's default).
 
     .venv/bin/python benchmarks/vgg_layout.py [--sizes 48x72 96x144] [--repeats 30] [--threads 2]
 
-Prints per size the median milliseconds of each layout (the two alternated in rounds of ``--repeats``) and the
-largest difference of their features, relative to the features' largest magnitude.
+Prints per size the median milliseconds of each input layout (alternated in ``--rounds`` rounds of ``--repeats``)
+and the largest difference of their features, relative to the features' largest magnitude. Run it with two
+checkouts' Pythons to compare them (the extractor is this checkout's).
 """
 from __future__ import annotations
 
@@ -16,7 +18,7 @@ import torch
 
 
 def _step(vgg, x: torch.Tensor) -> list[torch.Tensor]:
-    xi = x.detach().clone().requires_grad_(True)
+    xi = x.detach().clone(memory_format=torch.preserve_format).requires_grad_(True)
     feats = vgg(xi)
     sum(f.square().mean() for f in feats).backward()
     return [f.detach() for f in feats]
@@ -34,25 +36,25 @@ def main() -> None:
 
     torch.manual_seed(0)
     vgg = VGGFeatures("vgg16", load_weights=False)
-    layouts = {"nchw": torch.contiguous_format, "channels_last": torch.channels_last}
     for size in a.sizes:
         H, W = (int(v) for v in size.split("x"))
-        x = torch.rand(1, H, W, 3)
-        times: dict[str, list[float]] = {k: [] for k in layouts}
+        render = torch.rand(1, H, W, 3)
+        inputs = {"render (NHWC memory)": render,
+                  "downscaled (NCHW memory)": render.permute(0, 3, 1, 2).contiguous().permute(0, 2, 3, 1)}
+        times: dict[str, list[float]] = {k: [] for k in inputs}
         feats = {}
         for _ in range(a.rounds):
-            for name, fmt in layouts.items():
-                vgg.trunk.to(memory_format=fmt)
+            for name, x in inputs.items():
                 feats[name] = _step(vgg, x)  # (a warm-up)
                 for _ in range(a.repeats):
                     t = time.perf_counter()
                     _step(vgg, x)
                     times[name].append(time.perf_counter() - t)
-        scale = max(float(f.abs().max()) for f in feats["nchw"])
-        diff = max(float((f - g).abs().max()) for f, g in zip(feats["nchw"], feats["channels_last"]))
-        med = {k: 1e3 * statistics.median(v) for k, v in times.items()}
-        print(f"{size}: NCHW weights {med['nchw']:.1f} ms, channels-last {med['channels_last']:.1f} ms "
-              f"({med['nchw'] / med['channels_last']:.2f}x); features differ by {diff / scale:.1e} of their largest")
+        f0, f1 = feats.values()
+        scale = max(float(f.abs().max()) for f in f0)
+        diff = max(float((f - g).abs().max()) for f, g in zip(f0, f1))
+        line = ", ".join(f"{k} {1e3 * statistics.median(v):.1f} ms" for k, v in times.items())
+        print(f"{size}: {line}; features differ by {diff / scale:.1e} of their largest")
 
 
 if __name__ == "__main__":

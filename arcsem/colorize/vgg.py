@@ -86,10 +86,6 @@ class VGGFeatures(nn.Module):
             if isinstance(m, nn.ReLU):
                 m.inplace = False
         self.trunk.requires_grad_(False).eval()
-        # channels-last weights: the input (a permuted [C, H, W, 3] render) is channels-last already, and oneDNN's
-        # CPU convolutions run 1.3-1.5x faster forward and backward with both in that layout than with NCHW weights
-        # (benchmarks/vgg_layout.py)
-        self.trunk.to(memory_format=torch.channels_last)
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 
@@ -138,7 +134,9 @@ class VGGFeatures(nn.Module):
         return self
 
     def forward(self, images: Tensor) -> list[Tensor]:
-        x = images.permute(0, 3, 1, 2) if images.shape[-1] == 3 else images
+        # NCHW in memory, as the weights are: a render permuted to [C, 3, H, W] is channels-last in memory, and
+        # oneDNN's convolutions ran 1.6x slower forward and backward on it (a layout mismatch; benchmarks/vgg_layout.py)
+        x = (images.permute(0, 3, 1, 2) if images.shape[-1] == 3 else images).contiguous()
         x = (x - self.mean) / self.std
         keep = {i: b for b, ids in self.layers.items() for i in ids}
         acts: dict[int, list[Tensor]] = {b: [] for b in self.blocks}
@@ -146,7 +144,7 @@ class VGGFeatures(nn.Module):
             x = layer(x)
             if i in keep:
                 acts[keep[i]].append(x)
-        return [torch.cat(acts[b], 1).contiguous() for b in self.blocks]  # (NCHW out, whatever the layout inside)
+        return [torch.cat(acts[b], 1) for b in self.blocks]
 
 
 _CACHE: dict[tuple, VGGFeatures] = {}

@@ -87,9 +87,19 @@ def allowed_roots(run_dir: str | os.PathLike, cache_dir: str | os.PathLike | Non
         roots.append(Path(cache_dir))
     torch_home = os.environ.get("TORCH_HOME") or os.path.join(
         os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "torch")
-    roots += [Path(torch_home), Path(os.environ.get("TORCH_EXTENSIONS_DIR") or torch_home + "_extensions"),
-              Path(tempfile.gettempdir())]
+    roots += [Path(torch_home), _extensions_root(), Path(tempfile.gettempdir())]
     return roots
+
+
+def _extensions_root() -> Path:
+    """Where PyTorch's JIT builds extensions: ``$TORCH_EXTENSIONS_DIR``, else its user cache folder (``torch_extensions``
+    beside ``$XDG_CACHE_HOME``/``~/.cache``: not under ``$TORCH_HOME``; a guard that assumed so refused the kernels' build
+    folder to every run with ``TORCH_HOME`` set, which then trained on the PyTorch path, 3x slower)."""
+    if os.environ.get("TORCH_EXTENSIONS_DIR"):
+        return Path(os.environ["TORCH_EXTENSIONS_DIR"])
+    from torch.utils.cpp_extension import get_default_build_root
+
+    return Path(get_default_build_root())
 
 
 @contextlib.contextmanager

@@ -130,3 +130,22 @@ def test_metrics_are_written_after_each_stage(tmp_path, monkeypatch):
     assert saved["stage1"] == {"psnr": 30.5} and saved["completed_stages"] == ["gray"]
     assert saved["status"] == "failed" and saved["failed_stage"] == "color"
     assert saved["error"] == "something only stage 2 could find out"
+
+
+@pytest.mark.parametrize("env", [{"TORCH_HOME": "hub_elsewhere"}, {"XDG_CACHE_HOME": "xdg"},
+                                 {"TORCH_HOME": "hub_elsewhere", "TORCH_EXTENSIONS_DIR": "ext"}])
+def test_the_kernels_build_folder_is_allowed_wherever_torch_puts_it(tmp_path, monkeypatch, env):
+    """The fused kernels build under PyTorch's extension folder ($TORCH_EXTENSIONS_DIR, else torch_extensions in
+    the user cache, not under $TORCH_HOME): with TORCH_HOME set elsewhere (to keep hub weights there) the guard
+    refused that folder and every run fell back to the PyTorch path."""
+    from arcsem.cext import build_dir
+    from arcsem.guard import allowed_roots, inside
+
+    for k in ("TORCH_HOME", "XDG_CACHE_HOME", "TORCH_EXTENSIONS_DIR"):
+        monkeypatch.delenv(k, raising=False)
+    for k, v in env.items():
+        monkeypatch.setenv(k, str(tmp_path / v))
+    where = build_dir("arcsem_fused_raster_0123456789ab")
+    assert any(inside(where, root) for root in allowed_roots(tmp_path / "run"))
+    if "TORCH_EXTENSIONS_DIR" in env:
+        assert inside(where, tmp_path / "ext")

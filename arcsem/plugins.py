@@ -44,6 +44,8 @@ class ColorTargets:
         ccm_downscale: the CCM cell size in pixels.
         references_only: every view of the batch is a reference (known on the host, where the views were drawn):
             TCM and CCM, which act on the other views only, skip their feature pass (a VGG forward and backward).
+        tcm_idle, ccm_idle: no non-reference view of the batch has a TCM location (CCM cell) whose match passed the
+            guard (``tcm_valid``/``ccm_valid`` all false: the loss is 0), known on the host: the loss skips its pass.
     """
 
     is_reference: Tensor
@@ -58,6 +60,8 @@ class ColorTargets:
     ccm_valid: Tensor | None = None
     ccm_downscale: int = 16
     references_only: bool = False
+    tcm_idle: bool = False
+    ccm_idle: bool = False
 
 
 @dataclass

@@ -111,8 +111,8 @@ class TCM(Loss):
 
     def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
         t = _targets(batch, self.name, "tcm_guidance", "tcm_space")
-        if t.references_only:  # TCM acts on the other views: 0, its graph kept, without the feature pass
-            return out["rgb"].sum() * 0.0
+        if t.references_only or t.tcm_idle:  # nothing to pull (the other views have no guarded match): 0, its
+            return out["rgb"].sum() * 0.0   # graph kept, without the feature pass
         img = downscale(out["rgb"], int(t.tcm_downscale))  # mixed batches: reference views masked out below
         return tcm_distance(t.tcm_space(img), t.tcm_guidance, ~t.is_reference, t.tcm_valid)
 
@@ -131,7 +131,7 @@ class CCM(Loss):
 
     def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
         t = _targets(batch, self.name, "ccm_target", "ccm_valid")
-        if t.references_only:
+        if t.references_only or t.ccm_idle:
             return out["rgb"].sum() * 0.0
         valid = t.ccm_valid & ~t.is_reference[:, None, None]
         return ccm_distance(patch_means(out["rgb"], int(t.ccm_downscale)), t.ccm_target, valid)

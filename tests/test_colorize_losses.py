@@ -145,3 +145,45 @@ def test_tcm_ccm_skip_their_feature_pass_on_a_batch_of_reference_views():
             assert rgb.grad is not None and float(rgb.grad.abs().sum()) == 0
         else:
             assert calls == [1] and float(tcm.detach()) > 0.01 and float(ccm.detach()) > 0
+
+
+class _TopHalfGuidance(_AllValidGuidance):
+    """View 1's matches all lie in the top half (covered by pseudo-colours); view 2's everywhere."""
+
+    def targets(self, v):
+        t = super().targets(v)
+        if v == 1:
+            t["tcm_valid"][0][2:] = False
+            t["ccm_valid"][1:] = False
+        return t
+
+
+def test_tcm_ccm_skip_their_pass_where_no_guarded_match_is_left():
+    """With ``uncovered_only`` a view whose guarded matches all lie under the pseudo-colours has nothing for TCM/CCM
+    to pull (the demo's five references cover every VGG cell: TCM ran VGG each step to add 0): the hook says so on
+    the host, TCM skips its feature pass, and the loss and its gradient are what the full pass gives (0)."""
+    calls = []
+
+    def space(x):
+        calls.append(x.shape[0])
+        return [x.permute(0, 3, 1, 2)[:, :2, ::4, ::4]]
+
+    refs = References(names=["a"], indices=torch.tensor([0]), images=torch.full((1, 16, 16, 3), 0.25))
+    valid = torch.zeros(3, 16, 16, dtype=torch.bool)
+    valid[:, :8] = True
+    hook = ColorTargetHook(refs, torch.full((3, 16, 16, 3), 0.75), valid, _TopHalfGuidance(), space, 1, 8,
+                           uncovered_only=True)
+    assert hook.active == {1: (False, False), 2: (True, True)}
+    for idx, idle in (([1], True), ([0, 1], True), ([1, 2], False), ([2], False)):
+        c = hook(_batch(idx, h=16, w=16)).color
+        assert (c.tcm_idle, c.ccm_idle) == (idle, idle)
+    b = hook(_batch([1], h=16, w=16))
+    rgb = torch.rand(1, 16, 16, 3, requires_grad=True)
+    tcm = TCM(TCM.Config())({"rgb": rgb}, b, 0)
+    assert calls == []
+    full = tcm_distance(space(rgb), b.color.tcm_guidance, ~b.color.is_reference, b.color.tcm_valid)
+    assert float(tcm.detach()) == float(full.detach()) == 0
+    tcm.backward()
+    assert float(rgb.grad.abs().sum()) == 0
+    TCM(TCM.Config())({"rgb": rgb}, hook(_batch([2], h=16, w=16)), 0)
+    assert calls == [1, 1]

@@ -34,6 +34,25 @@ class ColorTargetHook:
         self.pseudo, self.valid, self.guidance, self.space = pseudo, valid, guidance, space
         self.tcm_downscale, self.ccm_downscale = tcm_downscale, ccm_downscale
         self.uncovered_only, self._uncovered = uncovered_only, {}
+        self.active = self._active_views() if guidance is not None else {}
+
+    def _active_views(self) -> dict[int, tuple[bool, bool]]:
+        """``{view: (tcm, ccm)}`` for every non-reference view: whether any TCM location (CCM cell) of it has a target
+        that passed the guard (and, with ``uncovered_only``, lies outside the pseudo-colours). Decided once, on the
+        host, from the fixed guidance: a batch whose views have none skips that loss's pass (with five references
+        the demo's uncovered cells are none, and TCM ran VGG every step to add 0)."""
+        out = {}
+        for v in range(self.pseudo.shape[0]):
+            if v in self.ref_views:
+                continue
+            t, at = self.guidance.targets(v), torch.tensor([v])
+            tcm = t.get("tcm_valid") or [torch.ones(g.shape[1:], dtype=torch.bool) for g in t["tcm_guidance"]]
+            ccm = t["ccm_valid"]
+            if self.uncovered_only:
+                tcm = [ok & self.uncovered(at, tuple(ok.shape[-2:]))[0] for ok in tcm]
+                ccm = ccm & self.uncovered(at, tuple(ccm.shape[-2:]))[0]
+            out[v] = (any(bool(ok.any()) for ok in tcm), bool(ccm.any()))
+        return out
 
     def uncovered(self, idx: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
         """``[B, h, w]`` bool: the cells of a ``shape`` grid over views ``idx`` where under half the pixels have a
@@ -62,6 +81,9 @@ class ColorTargetHook:
                                pseudo=self.pseudo[idx], pseudo_valid=self.valid[idx], tcm_space=self.space,
                                tcm_downscale=self.tcm_downscale, ccm_downscale=self.ccm_downscale,
                                references_only=all(v in self.ref_views for v in views))
+        others = [v for v in views if v not in self.ref_views]
+        targets.tcm_idle = not any(self.active.get(v, (True, True))[0] for v in others)
+        targets.ccm_idle = not any(self.active.get(v, (True, True))[1] for v in others)
         if self.guidance is not None:
             t = [self.guidance.targets(v) for v in views]
             stack = (lambda xs: xs[0][None]) if len(views) == 1 else torch.stack  # one view: a view, no copy

@@ -46,11 +46,12 @@ class ColorTargetHook:
             if v in self.ref_views:
                 continue
             t, at = self.guidance.targets(v), torch.tensor([v])
-            tcm = t.get("tcm_valid") or [torch.ones(g.shape[1:], dtype=torch.bool) for g in t["tcm_guidance"]]
-            ccm = t["ccm_valid"]
+            tcm = [ok.cpu() for ok in t.get("tcm_valid") or [torch.ones(g.shape[1:], dtype=torch.bool)
+                                                             for g in t["tcm_guidance"]]]
+            ccm = t["ccm_valid"].cpu()  # (the guidance and the pseudo-colours may sit on different devices here)
             if self.uncovered_only:
-                tcm = [ok & self.uncovered(at, tuple(ok.shape[-2:]))[0] for ok in tcm]
-                ccm = ccm & self.uncovered(at, tuple(ccm.shape[-2:]))[0]
+                tcm = [ok & self.uncovered(at, tuple(ok.shape[-2:]))[0].cpu() for ok in tcm]
+                ccm = ccm & self.uncovered(at, tuple(ccm.shape[-2:]))[0].cpu()
             out[v] = (any(bool(ok.any()) for ok in tcm), bool(ccm.any()))
         return out
 

@@ -37,22 +37,33 @@ class ColorTargetHook:
         self.active = self._active_views() if guidance is not None else {}
 
     def _active_views(self) -> dict[int, tuple[bool, bool]]:
-        """``{view: (tcm, ccm)}`` for every non-reference view: whether any TCM location (CCM cell) of it has a target
-        that passed the guard (and, with ``uncovered_only``, lies outside the pseudo-colours). Decided once, on the
-        host, from the fixed guidance: a batch whose views have none skips that loss's pass (with five references
-        the demo's uncovered cells are none, and TCM ran VGG every step to add 0)."""
+        """``{view: (tcm, ccm)}`` for every non-reference view: whether any TCM location (CCM cell) of it keeps a
+        target (:meth:`_guided`). Decided once, on the host, from the fixed guidance: a batch whose views have none
+        skips that loss's pass (with five references the demo's uncovered cells are none, and TCM ran VGG every step
+        to add 0)."""
         out = {}
         for v in range(self.pseudo.shape[0]):
-            if v in self.ref_views:
-                continue
-            t, at = self.guidance.targets(v), torch.tensor([v])
-            tcm = [ok.cpu() for ok in t.get("tcm_valid") or [torch.ones(g.shape[1:], dtype=torch.bool)
-                                                             for g in t["tcm_guidance"]]]
-            ccm = t["ccm_valid"].cpu()  # (the guidance and the pseudo-colours may sit on different devices here)
-            if self.uncovered_only:
-                tcm = [ok & self.uncovered(at, tuple(ok.shape[-2:]))[0].cpu() for ok in tcm]
-                ccm = ccm & self.uncovered(at, tuple(ccm.shape[-2:]))[0].cpu()
-            out[v] = (any(bool(ok.any()) for ok in tcm), bool(ccm.any()))
+            if v not in self.ref_views:
+                g = self._guided([v], torch.tensor([v], device=self.pseudo.device))
+                tcm = g["tcm_valid"] is None or any(bool(ok.any()) for ok in g["tcm_valid"])
+                out[v] = (tcm, bool(g["ccm_valid"].any()))
+        return out
+
+    def _guided(self, views: list[int], idx: torch.Tensor) -> dict:
+        """The guidance's targets of ``views`` stacked (``idx``: the same views, a tensor on the targets' device):
+        ``tcm_guidance`` and ``tcm_valid`` (None: all) per block, ``ccm_target``, ``ccm_valid``; with
+        ``uncovered_only`` the valid locations are only those the pseudo-colours leave uncovered."""
+        t = [self.guidance.targets(v) for v in views]
+        stack = (lambda xs: xs[0][None]) if len(views) == 1 else torch.stack  # one view: a view, no copy
+        out = {"tcm_guidance": [stack([x["tcm_guidance"][b] for x in t]) for b in range(len(t[0]["tcm_guidance"]))],
+               "tcm_valid": ([stack([x["tcm_valid"][b] for x in t]) for b in range(len(t[0]["tcm_valid"]))]
+                             if "tcm_valid" in t[0] else None),
+               "ccm_target": stack([x["ccm_target"] for x in t]), "ccm_valid": stack([x["ccm_valid"] for x in t])}
+        if self.uncovered_only:
+            blocks = out["tcm_valid"] or [torch.ones(g.shape[:1] + g.shape[2:], dtype=torch.bool, device=g.device)
+                                          for g in out["tcm_guidance"]]
+            out["tcm_valid"] = [ok & self.uncovered(idx, tuple(ok.shape[-2:])) for ok in blocks]
+            out["ccm_valid"] = out["ccm_valid"] & self.uncovered(idx, tuple(out["ccm_valid"].shape[-2:]))
         return out
 
     def uncovered(self, idx: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
@@ -86,16 +97,7 @@ class ColorTargetHook:
         targets.tcm_idle = not any(self.active.get(v, (True, True))[0] for v in others)
         targets.ccm_idle = not any(self.active.get(v, (True, True))[1] for v in others)
         if self.guidance is not None:
-            t = [self.guidance.targets(v) for v in views]
-            stack = (lambda xs: xs[0][None]) if len(views) == 1 else torch.stack  # one view: a view, no copy
-            targets.tcm_guidance = [stack([x["tcm_guidance"][b] for x in t]) for b in range(len(t[0]["tcm_guidance"]))]
-            if "tcm_valid" in t[0]:
-                targets.tcm_valid = [stack([x["tcm_valid"][b] for x in t]) for b in range(len(t[0]["tcm_valid"]))]
-            targets.ccm_target = stack([x["ccm_target"] for x in t])
-            targets.ccm_valid = stack([x["ccm_valid"] for x in t])
-            if self.uncovered_only:
-                blocks = targets.tcm_valid or [torch.ones(g.shape[:1] + g.shape[2:], dtype=torch.bool, device=g.device)
-                                               for g in targets.tcm_guidance]
-                targets.tcm_valid = [ok & self.uncovered(idx, tuple(ok.shape[-2:])) for ok in blocks]
-                targets.ccm_valid = targets.ccm_valid & self.uncovered(idx, tuple(targets.ccm_valid.shape[-2:]))
+            g = self._guided(views, idx)
+            targets.tcm_guidance, targets.tcm_valid = g["tcm_guidance"], g["tcm_valid"]
+            targets.ccm_target, targets.ccm_valid = g["ccm_target"], g["ccm_valid"]
         return dataclasses.replace(batch, color=targets)

@@ -183,6 +183,9 @@ class ColorizeConfig:
     downscale: float = checked(1.0, ge=1.0)  # training resolution; 1.0 and width None: stage 1's resolution
     width: int | None = checked(None, ge=1)
     batch_views: int = checked(1, ge=1)
+    # memory (MiB) for the frozen geometry's recorded renders (Backbone.colour_operator): a view recorded once is
+    # rendered as a sparse product of its colours from then on; views past the budget render as usual; 0: never
+    frozen_mb: int = checked(2048, ge=0)
     log_every: int = checked(100, ge=1)
     checkpoint_every: int = checked(5000, ge=0)
     resume: str = checked("auto", choices=("auto", "never", "must"))

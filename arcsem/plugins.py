@@ -103,8 +103,8 @@ class Backbone(nn.Module):
     Adam for the groups it leaves out), :meth:`render` / :meth:`render_rays`, the losses, :meth:`pre_backward`,
     ``backward``, :meth:`post_backward`, the optimiser steps; :meth:`state_dict` / ``load_state_dict`` for
     checkpoints; :meth:`num_primitives` for the record; :meth:`export` at the end. Stage 2 calls
-    :meth:`set_act` (None: no ACT when colouring), :meth:`param_groups` ``("color")`` and :meth:`render`
-    (its ``depth`` / ``median_depth`` for pseudo-colours).
+    :meth:`set_act` (None: no ACT when colouring), :meth:`param_groups` ``("color")``, :meth:`render`
+    (its ``depth`` / ``median_depth`` for pseudo-colours) and :meth:`colour_operator` (per training view).
     """
 
     name: ClassVar[str]
@@ -137,6 +137,13 @@ class Backbone(nn.Module):
     def render(self, cams: Cameras, **kw: Any) -> RenderOutput:
         """Render ``C`` cameras; returns at least the keys in ``provides`` (``[C, H, W, k]`` each)."""
         raise NotImplementedError
+
+    def colour_operator(self, cams: Cameras) -> Callable[[], RenderOutput] | None:
+        """Stage 2, geometry frozen: a function rendering ``cams`` (one view) as :meth:`render` does for as long as
+        the geometry stays as it is, cheaper (e.g. recorded compositing weights) and differentiable in the colour
+        parameters, with an ``nbytes`` attribute (the memory it holds; ``colorize.frozen_mb`` budgets them).
+        Default None: stage 2 calls :meth:`render`."""
+        return None
 
     def render_rays(self, rays_o: Tensor, rays_d: Tensor, image_ids: Tensor, **kw: Any) -> RenderOutput:
         """Ray backbones: render ``[R, 3]`` rays (directions with unit camera z); ``image_ids [R]`` select ACT."""

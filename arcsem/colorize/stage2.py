@@ -329,8 +329,9 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     hook = ColorTargetHook(refs, pseudo, valid, guidance, space, cc.tcm_downscale, cc.ccm_downscale,
                            uncovered_only=cc.guard.enabled and cc.guard.uncovered_only)
     hook.to(run_device(cfg))  # the targets, the guidance and the loss space's extractor follow the model
-    loop = LoopConfig(steps=cc.steps, stage="color", batch_views=cc.batch_views, log_every=cc.log_every,
-                      checkpoint_every=cc.checkpoint_every, resume=cc.resume, seed=int(cfg.get("seed", 0)),
+    loop = LoopConfig(steps=cc.steps, stage="color", batch_views=cc.batch_views, frozen_mb=cc.frozen_mb,
+                      log_every=cc.log_every, checkpoint_every=cc.checkpoint_every, resume=cc.resume,
+                      seed=int(cfg.get("seed", 0)),
                       progress=cc.progress, desc=f"stage 2 ({backbone.name})")
     res = train(backbone, split, losses, loop, optim=cc.optim, ckpt_dir=run_dir / "colorize" / "checkpoints",
                 config={"colorize": plain(cfg.get("colorize")), "stage1": str(ckpt), "pseudo": pinfo["key"]},

@@ -35,6 +35,7 @@ from ..plugins import Batch, RenderOutput
 from ..registry import checked, validate_config
 from ..scene import Split
 from . import checkpoint as ckpt
+from .frozen import FrozenViews
 from .interrupt import StopRequest
 from .losses import LossSet
 from .optim import OptimConfig, apply_schedules, group_schedules, make_optimizers
@@ -58,6 +59,8 @@ class LoopConfig:
     checkpoint_every: int = checked(1000, ge=0)  # checkpoint interval (0: only at the end)
     # finiteness read back every this many steps (0: every step on the CPU, log_every on a GPU; see _Health)
     check_every: int = checked(0, ge=0)
+    # stage "color": memory (MiB) for the views' frozen-geometry renders (Backbone.colour_operator; 0: never)
+    frozen_mb: int = checked(0, ge=0)
     resume: str = checked("auto", choices=("auto", "never", "must"))
     seed: int = 0
     progress: bool = True  # show a tqdm bar
@@ -165,6 +168,7 @@ class _Run:
         self.saved_step: int | None = None  # step of the checkpoint on disk (None: none written or loaded)
         self.act_separate = act is not None and not any(m is act for m in backbone.modules())
         self.health = _Health(loop.check_every or (1 if _device(backbone).type == "cpu" else loop.log_every))
+        self.frozen = FrozenViews(loop.frozen_mb) if loop.stage == "color" and loop.frozen_mb else None
 
     def build_optimizers(self, act_lr: float | None) -> None:
         groups = _groups(self.backbone, self.act, self.loop.stage)
@@ -246,7 +250,9 @@ def _step(run: _Run, losses: LossSet, batch_hook, step: int, record: bool) -> di
         if batch_hook is not None:
             batch = batch_hook(batch)
     with region("arcsem::render"):
-        out = render_batch(bb, batch)
+        out = run.frozen.render(bb, batch) if run.frozen is not None else None
+        if out is None:
+            out = render_batch(bb, batch)
     total, terms = losses(out, batch, step)
     bb.pre_backward(step, out)
     with region("arcsem::backward"):

@@ -107,6 +107,26 @@ class GaussianBackbone(Backbone):
             self._last_cams = cams  # the cameras whose gradient post_backward reads
         return out
 
+    def colour_operator(self, cams: Cameras):
+        """A render of ``cams`` for as long as the geometry stays as it is now (stage 2): the compositing weights
+        recorded once, then each call a sparse product of the SH colours (:mod:`.frozen`); None where the fused
+        kernels do not run (``rasterizer`` torch or gsplat) or an ACT is set."""
+        m = self.model
+        cams = cams.to(device=m.means.device, dtype=m.means.dtype)
+        impl = self._impl(m.means.device)
+        if impl != "cpp" or self.act is not None:
+            return None
+        from .frozen import FrozenColours, FrozenRender
+
+        bg = self._default_background(m.means)
+        with torch.no_grad():
+            means, quats, scales, opacities = self.splat_params()
+            out = self._rasterize(means, quats, scales, opacities, m.colors(cams, impl=impl), cams, background=bg,
+                                  tile=self.cfg.tile, chunk_tiles=self.cfg.chunk_tiles, impl=impl, colour_weights=True)
+        weights = out.pop("colour_weights")
+        colours = FrozenColours(weights, weights.ids, tuple(out["rgb"].shape[:3]), bg)
+        return FrozenRender(out, colours, lambda: m.colors(cams, impl=impl))
+
     def _default_background(self, like: Tensor) -> Tensor:
         """``cfg.background`` ``[3]`` on ``like``'s device and dtype, made on the first render there (not each step:
         a tensor from Python values is a transfer to the device)."""

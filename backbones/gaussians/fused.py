@@ -28,6 +28,7 @@ __all__ = [
     "EXTENSION",
     "composite2d",
     "composite3d",
+    "composite_weights",
     "footprint_bin_2dgs",
     "footprint_bin_3dgs",
     "load_extension",
@@ -182,6 +183,33 @@ def composite2d(Hm: Tensor, Dz: Tensor, centers: Tensor, opacities: Tensor, colo
     return _Composite2D.apply(c(Hm), c(Dz), c(centers), c(opacities), c(colors), c(normals), c(mcoef),
                               _background(background, colors), float(near), 1.0 / float(lowpass_sigma) ** 2, lists,
                               _raster(C, H, W, tile))
+
+
+def composite_weights(kind: str, *inputs: Tensor, lists, C: int, H: int, W: int, tile: int, near: float = 0.0,
+                      lowpass_sigma: float = LOWPASS_SIGMA):
+    """The weights ``w = alpha T`` with which the forward pass of :func:`composite2d` (``kind="2d"``: ``inputs`` its
+    ``Hm, Dz, centers, opacities, colors, normals, mcoef``) or :func:`composite3d` (``"3d"``: ``means2d, conics,
+    opacities, colors, depth``) composites each (pixel, pair): a frozen geometry's render is ``W colors[lists.ids]
+    + T_final bg`` (cpp/weights.h). No gradient. Returns a namespace: CSR over the ``C*H*W`` pixels (``pix_ptr``,
+    ``pix_pair``, ``pix_w``), CSR over the ``P`` pairs (``pair_ptr``, ``pair_pix``, ``pair_w``), ``t_final [C*H*W]``
+    and ``ids [P]``, the entry of each pair."""
+    from types import SimpleNamespace
+
+    c = [t.detach().contiguous() for t in inputs]
+    bg = c[0].new_empty(0)
+    with torch.no_grad():
+        if kind == "2d":
+            surfels = _args("Surfels2D", **dict(zip(_SURFEL_FIELDS, (*c, bg))), near=float(near),
+                            lowpass=1.0 / float(lowpass_sigma) ** 2)
+            r = load_extension().composite2d_weights(surfels, lists, _raster(C, H, W, tile))
+        elif kind == "3d":
+            splats = _args("Splats3D", **dict(zip(("means2d", "conics", "opacities", "colors", "depth", "background"),
+                                                  (*c, bg))))
+            r = load_extension().composite3d_weights(splats, lists, _raster(C, H, W, tile))
+        else:
+            raise ValueError(f"composite_weights: kind must be 2d or 3d, got {kind!r}")
+    fields = ("pix_ptr", "pix_pair", "pix_w", "pair_ptr", "pair_pix", "pair_w", "t_final")
+    return SimpleNamespace(**{f: getattr(r, f) for f in fields}, ids=lists.ids)
 
 
 def _projection(means, quats, scales, P, view=None, ortho=False, near=0.01):

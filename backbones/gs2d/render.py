@@ -178,7 +178,7 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
                 cams: Cameras, *, background: Tensor | None = None, tile: int = 16,
                 chunk_tiles: int | None = None, near: float = 0.01, impl: str = "torch",
                 dist_depth: tuple[float, float, float] | None = None,
-                lowpass_sigma: float = LOWPASS_SIGMA) -> dict[str, Tensor]:
+                lowpass_sigma: float = LOWPASS_SIGMA, colour_weights: bool = False) -> dict[str, Tensor]:
     """Render 2-D Gaussian splats.
 
     Args:
@@ -192,6 +192,8 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
         lowpass_sigma: sigma (pixels) of the screen-space low-pass filter (official ``1/sqrt(2)``). It
         widens every silhouette by about one sigma, which a fit to sharp silhouettes pays for by
         shrinking the surface (see the gs2d backbone's ``lowpass_sigma``).
+        colour_weights: also return ``colour_weights``, the compositing weights of this geometry
+        (:func:`arcsem.backbones.gaussians.fused.composite_weights`; ``impl="cpp"`` only).
     Returns:
         rgb ``[C, H, W, 3]``, alpha, depth (``sum w z / alpha``), median_depth, distortion ``[C, H, W, 1]``,
         normal ``[C, H, W, 3]`` (world, ``sum w n``), radii ``[C, N]`` long, visible ``[C, N]`` bool,
@@ -204,7 +206,9 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     mcoef = tuple(float(c) for c in (dist_depth or distortion_depth("ndc")))
     if impl == "cpp":
         return _render_2dgs_fused(means, quats, scales, opacities, colors, cams, background, tile, near, mcoef,
-                                  lowpass_sigma)
+                                  lowpass_sigma, colour_weights)
+    if colour_weights:
+        raise ValueError("render_2dgs: colour_weights needs impl='cpp' (the fused kernels)")
     Hm, R = splat_homographies(means, quats, scales, cams)
     radius, rects, eff, depth = footprint_2dgs(Hm, opacities, cams, tile, near, lowpass_sigma)
     b = bin_tiles(rects, depth, W, Hh, tile)
@@ -223,7 +227,8 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
 
 def _render_2dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
                        cams: Cameras, background: Tensor | None, tile: int, near: float,
-                       mcoef: tuple[float, float, float], lowpass_sigma: float) -> dict[str, Tensor]:
+                       mcoef: tuple[float, float, float], lowpass_sigma: float,
+                       colour_weights: bool = False) -> dict[str, Tensor]:
     """:func:`render_2dgs` on the fused C++ kernels: projection, footprint + binning and compositing are one
     call each (few PyTorch ops: on a shared machine every multi-threaded op can cost a scheduler slice)."""
     from arcsem.backbones.gaussians import fused
@@ -241,16 +246,21 @@ def _render_2dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
     bg = None if background is not None and background.requires_grad else background  # else composited here
     with region("arcsem::render/bin"):
         lists = fused.footprint_bin_2dgs(H9, Dz, opacities, C, near, W, Hh, tile, lowpass_sigma)
+    surfels = (H9, Dz, centre2d, opac, colors.expand(C, N, 3).reshape(C * N, 3), normals,
+               means.new_tensor(mcoef).expand(C, 3))
     with region("arcsem::render/composite"):
-        rgb, normal, alpha, depth, med, dist = fused.composite2d(
-            H9, Dz, centre2d, opac, colors.expand(C, N, 3).reshape(C * N, 3), normals,
-            means.new_tensor(mcoef).expand(C, 3), lists, float("-inf"), C, Hh, W, tile, bg, lowpass_sigma)
+        rgb, normal, alpha, depth, med, dist = fused.composite2d(*surfels, lists, float("-inf"), C, Hh, W, tile, bg,
+                                                                 lowpass_sigma)
     if background is not None and bg is None:
         rgb = rgb + (1 - alpha) * background.to(rgb)
-    return {
+    out = {
         "rgb": rgb, "alpha": alpha, "depth": depth, "median_depth": med, "normal": normal, "distortion": dist,
         "radii": lists.radii.view(C, N), "visible": lists.visible.view(C, N), "means2d": leaf,
     }
+    if colour_weights:
+        out["colour_weights"] = fused.composite_weights("2d", *surfels, lists=lists, C=C, H=Hh, W=W, tile=tile,
+                                                        near=float("-inf"), lowpass_sigma=lowpass_sigma)
+    return out
 
 
 def _outputs(out: Tensor, background: Tensor | None, radius: Tensor, rects: Tensor) -> dict[str, Tensor]:

@@ -95,13 +95,15 @@ def _shade_3dgs(table: Tensor):
 
 def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
                 cams: Cameras, *, background: Tensor | None = None, tile: int = 16,
-                chunk_tiles: int | None = None, near: float = 0.01, impl: str = "torch") -> dict[str, Tensor]:
+                chunk_tiles: int | None = None, near: float = 0.01, impl: str = "torch",
+                colour_weights: bool = False) -> dict[str, Tensor]:
     """Render 3-D Gaussians.
 
     Args:
         means ``[N, 3]``, quats ``[N, 4]`` (w, x, y, z; unnormalised), scales ``[N, 3]``, opacities ``[N]``,
         colors ``[C, N, 3]`` or ``[N, 3]``, cams: ``C`` cameras; background ``[3]``; centres with depth
-        ``<= near`` are culled.
+        ``<= near`` are culled. colour_weights: also return ``colour_weights``, the compositing weights of this
+        geometry (:func:`arcsem.backbones.gaussians.fused.composite_weights`; ``impl="cpp"`` only).
     Returns:
         rgb ``[C, H, W, 3]``, alpha ``[C, H, W, 1]``, depth ``[C, H, W, 1]`` (``sum w z / alpha``),
         radii ``[C, N]`` long, visible ``[C, N]`` bool, means2d ``[C, N, 2]`` (a leaf whose ``.grad`` after
@@ -111,7 +113,9 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     C, N, H, W = len(cams), means.shape[0], cams.height, cams.width
     cams = cams.to(dtype=means.dtype)
     if impl == "cpp":
-        return _render_3dgs_fused(means, quats, scales, opacities, colors, cams, background, tile, near)
+        return _render_3dgs_fused(means, quats, scales, opacities, colors, cams, background, tile, near, colour_weights)
+    if colour_weights:
+        raise ValueError("render_3dgs: colour_weights needs impl='cpp' (the fused kernels)")
     means2d, depth, cov2d = project_gaussians(means, quats, scales, cams)
     radius, rects, eff, ok = footprint_3dgs(means2d, depth, cov2d, opacities, cams, tile, near)
     b = bin_tiles(rects, depth, W, H, tile)
@@ -137,7 +141,8 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
 
 
 def _render_3dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
-                       cams: Cameras, background: Tensor | None, tile: int, near: float) -> dict[str, Tensor]:
+                       cams: Cameras, background: Tensor | None, tile: int, near: float,
+                       colour_weights: bool = False) -> dict[str, Tensor]:
     """:func:`render_3dgs` on the fused C++ kernels (projection, footprint + binning, compositing)."""
     from arcsem.backbones.gaussians import fused
 
@@ -152,12 +157,15 @@ def _render_3dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
     bg = None if background is not None and background.requires_grad else background  # else composited here
     with region("arcsem::render/bin"):
         lists = fused.footprint_bin_3dgs(m2, depth, cov, opacities, C, near, W, H, tile)
+    splats = (m2, conics, opac, colors.expand(C, N, 3).reshape(C * N, 3), depth)
     with region("arcsem::render/composite"):
-        rgb, alpha, dmap = fused.composite3d(m2, conics, opac, colors.expand(C, N, 3).reshape(C * N, 3), depth, lists,
-                                             C, H, W, tile, bg)
+        rgb, alpha, dmap = fused.composite3d(*splats, lists, C, H, W, tile, bg)
     if background is not None and bg is None:
         rgb = rgb + (1 - alpha) * background.to(rgb)
-    return {
+    out = {
         "rgb": rgb, "alpha": alpha, "depth": dmap,
         "radii": lists.radii.view(C, N), "visible": lists.visible.view(C, N), "means2d": leaf,
     }
+    if colour_weights:
+        out["colour_weights"] = fused.composite_weights("3d", *splats, lists=lists, C=C, H=H, W=W, tile=tile)
+    return out

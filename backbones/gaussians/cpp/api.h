@@ -110,6 +110,13 @@ struct Splats3D {
   at::Tensor background;  // [3], or empty: none
 };
 
+// The weights w = alpha T a forward pass composited, of a frozen geometry: rgb = W colours[ids] + T_final bg.
+struct ColourWeights {
+  at::Tensor pix_ptr, pix_pair, pix_w;   // CSR over the C*H*W pixels (each row in depth order; int32 indices)
+  at::Tensor pair_ptr, pair_pix, pair_w; // CSR over the pairs of the tile lists (int32 indices)
+  at::Tensor t_final;                    // [C*H*W] final transmittance (the background's weight)
+};
+
 struct Composite3D {
   at::Tensor rgb, alpha, depth;  // [C, H, W, 3], [C, H, W, 1], [C, H, W, 1] (sum w z / alpha)
   // kept for the backward pass: the per-pair work list of the forward pass (bytes), final transmittance and
@@ -122,6 +129,9 @@ struct Grads3D {  // gradients of Splats3D's fields (means2d, conics, opacities,
 };
 
 Composite3D composite3d_forward(const Splats3D& s, const TileLists& lists, const Raster& raster);
+// the compositing weights of the forward pass (weights.h): pixel-major CSR pix_ptr [C*H*W + 1], pix_pair (pair
+// positions in lists.ids), pix_w; pair-major CSR pair_ptr [P + 1], pair_pix, pair_w (the same weights)
+ColourWeights composite3d_weights(const Splats3D& s, const TileLists& lists, const Raster& raster);
 // g_rgb, g_alpha, g_depth: gradients of the outputs; undefined or empty ones are zero
 Grads3D composite3d_backward(const Splats3D& s, const TileLists& lists, const Raster& raster, const Composite3D& fwd,
                              const at::Tensor& g_rgb, const at::Tensor& g_alpha, const at::Tensor& g_depth);
@@ -152,6 +162,7 @@ struct Grads2D {  // gradients of Surfels2D's tensors (H, Dz, centres, opacities
 };
 
 Composite2D composite2d_forward(const Surfels2D& s, const TileLists& lists, const Raster& raster);
+ColourWeights composite2d_weights(const Surfels2D& s, const TileLists& lists, const Raster& raster);
 // geometry = false: only the colour gradient (the others undefined), for frozen geometry (stage 2)
 Grads2D composite2d_backward(const Surfels2D& s, const TileLists& lists, const Raster& raster, const Composite2D& fwd,
                              const at::Tensor& g_rgb, const at::Tensor& g_normal, const at::Tensor& g_alpha,

@@ -1,14 +1,16 @@
 // Fused CPU compositing of 2-D Gaussian surfels (2DGS): the forward pass (conventions: composite2d.h).
 #include "composite2d.h"
+#include "weights.h"
 
 namespace arcsem {
 namespace c2d {
 
 // front to back over the n pairs of tile ct, gathered into pr in batches as far as the compositing goes (the
 // pairs after every pixel stopped are not needed, not even by the backward pass); leaves the pixels' state in st
-template <typename T>
+// and hands each lane block's weights to emit (weights.h; NoEmit: nothing)
+template <typename T, class Emit>
 void forward_tile(const In2<T>& in, const Entry2<T>* ent, const Grid& gr, int64_t ct, Pair2<T>* pr, int64_t n,
-                  const T* mc, Tile2<T>& st) {
+                  const T* mc, Tile2<T>& st, const Emit& emit) {
   const int S = st.stride;
   const T near = in.near, lp = in.lp;
   int live_total = start_tile(st, int(gr.nx(ct)), int(gr.ny(ct)));
@@ -33,6 +35,7 @@ void forward_tile(const In2<T>& in, const Entry2<T>* ent, const Grid& gr, int64_
         if (!eval_lanes<NL>(q, c, py, near, lp, [&](int i) { return lv[i] > T(0); }, L)) return;
         if (y < 32) rows |= 1u << y;  // (a lane that stops here is not composited: the backward finds none)
         int stops = 0;
+        alignas(64) T wl[NL];  // (read by an emitter only)
 #pragma omp simd reduction(+ : stops)
         for (int i = 0; i < NL; ++i) {
           const Hit2<T> h = L[i];
@@ -45,6 +48,7 @@ void forward_tile(const In2<T>& in, const Entry2<T>* ent, const Grid& gr, int64_
           const T next = T0 * (T(1) - h.alpha);
           const bool stop = ok & (next < T(kMinT)), use = ok & !stop;
           const T w = use ? h.alpha * T0 : T(0);
+          if constexpr (Emit::kOn) wl[i] = w;
           const T z = use ? h.z : T(1);  // finite where unused (the sums below add 0 there, never 0 * inf)
           const T m_abs = mc[0] + mc[1] * z + mc[2] / z;
           const T mr = (use & (ls0 < 0)) ? m_abs : mr0;
@@ -65,6 +69,7 @@ void forward_tile(const In2<T>& in, const Entry2<T>* ent, const Grid& gr, int64_
           lv[i] = stop ? T(0) : lv0;
           stops += stop ? 1 : 0;
         }
+        if constexpr (Emit::kOn) emit(y, c, NL, j, wl);
         st.row_live[y] -= stops;
         live_total -= stops;
       });
@@ -129,10 +134,31 @@ Composite2D forward_impl(const Surfels2D& s, const TileLists& l, const Grid& gr)
     Tile2<T>& st = states[w];
     st.reset(gr.tile);
     const int64_t start = in.off[ct], c = ct / gr.tiles();
-    forward_tile(in, ent.data(), gr, ct, pairs + start, in.off[ct + 1] - start, in.mc + 3 * c, st);
+    forward_tile(in, ent.data(), gr, ct, pairs + start, in.off[ct + 1] - start, in.mc + 3 * c, st, NoEmit{});
     write_tile(gr, ct, start, st, in.bg, out);
   });
   return r;
+}
+
+template <typename T>
+ColourWeights weights_impl(const Surfels2D& s, const TileLists& l, const Grid& gr) {
+  const In2<T> in = inputs<T>(s, l);
+  const int64_t P = l.ids.numel();
+  at::Tensor pairs = pair_storage<Pair2<T>>(P, s.colors);
+  const std::vector<Entry2<T>> ent = pack_entries(in, s.colors.size(0));
+  std::vector<Tile2<T>> states(num_workers());
+  std::vector<std::vector<WeightRecord<T>>> recs(size_t(gr.C * gr.tiles()));
+  at::Tensor tf = at::empty({gr.C * gr.H * gr.W}, s.colors.options());
+  T* tfp = tf.data_ptr<T>();
+  parallel_chunks(gr.C * gr.tiles(), [&](int64_t ct, int w) {
+    Tile2<T>& st = states[w];
+    st.reset(gr.tile);
+    const int64_t start = in.off[ct], c = ct / gr.tiles();
+    forward_tile(in, ent.data(), gr, ct, pair_records<Pair2<T>>(pairs) + start, in.off[ct + 1] - start,
+                 in.mc + 3 * c, st, tile_emitter(&recs[size_t(ct)], gr, ct, start));
+    write_transmittance(gr, ct, st, tfp);
+  });
+  return assemble_weights(recs, gr.C * gr.H * gr.W, P, s.colors.options(), tf);
 }
 
 }  // namespace c2d
@@ -142,6 +168,14 @@ Composite2D composite2d_forward(const Surfels2D& s, const TileLists& lists, cons
   TORCH_CHECK(lists.offsets.numel() == gr.C * gr.tiles() + 1, "composite2d: tile offsets must have C*tiles+1 entries");
   Composite2D r;
   AT_DISPATCH_FLOATING_TYPES(s.colors.scalar_type(), "composite2d_forward", [&] { r = c2d::forward_impl<scalar_t>(s, lists, gr); });
+  return r;
+}
+
+ColourWeights composite2d_weights(const Surfels2D& s, const TileLists& lists, const Raster& raster) {
+  const Grid gr = make_grid(raster.C, raster.H, raster.W, raster.tile);
+  TORCH_CHECK(lists.offsets.numel() == gr.C * gr.tiles() + 1, "composite2d: tile offsets must have C*tiles+1 entries");
+  ColourWeights r;
+  AT_DISPATCH_FLOATING_TYPES(s.colors.scalar_type(), "composite2d_weights", [&] { r = c2d::weights_impl<scalar_t>(s, lists, gr); });
   return r;
 }
 

@@ -14,6 +14,7 @@
 
 #include "api.h"
 #include "common.h"
+#include "weights.h"
 
 namespace arcsem {
 namespace {
@@ -95,8 +96,10 @@ inline void eval3(const Pair3<T>& q, int lx, T dy, T& dx, T& g, T& alpha, bool& 
 
 // front to back over the n pairs of tile ct, gathered into pr in batches as far as the compositing goes (the
 // pairs after every pixel stopped are not needed, not even by the backward pass); leaves the pixels' state in st
-template <typename T>
-void forward_tile(const In3<T>& in, const Grid& gr, int64_t ct, Pair3<T>* pr, int64_t n, Tile3<T>& st) {
+// and hands each lane block's weights to emit (weights.h; NoEmit: nothing)
+template <typename T, class Emit>
+void forward_tile(const In3<T>& in, const Grid& gr, int64_t ct, Pair3<T>* pr, int64_t n, Tile3<T>& st,
+                  const Emit& emit) {
   const int S = st.stride;
   int live_total = start_tile(st, int(gr.nx(ct)), int(gr.ny(ct)));
   for (int64_t j = 0, have = 0; j < n && live_total > 0; ++j) {
@@ -113,6 +116,7 @@ void forward_tile(const In3<T>& in, const Grid& gr, int64_t ct, Pair3<T>* pr, in
           *ws = st.wsum.data() + base;
         int32_t* ls = st.last.data() + base;
         int stops = 0;
+        alignas(64) T wl[NL];  // (read by an emitter only)
 #pragma omp simd reduction(+ : stops)
         for (int i = 0; i < NL; ++i) {
           T dx, g, alpha;
@@ -127,6 +131,7 @@ void forward_tile(const In3<T>& in, const Grid& gr, int64_t ct, Pair3<T>* pr, in
           const bool stop = ok & (next < T(kMinT));
           const bool use = ok & !stop;
           const T w = use ? alpha * T0 : T(0);
+          if constexpr (Emit::kOn) wl[i] = w;
 #pragma GCC unroll 8
           for (int k = 0; k < K3; ++k) acc[k * kLanes + i] += w * q.f[k];
           ws[i] += w;
@@ -135,6 +140,7 @@ void forward_tile(const In3<T>& in, const Grid& gr, int64_t ct, Pair3<T>* pr, in
           lv[i] = stop ? T(0) : lv0;
           stops += stop ? 1 : 0;
         }
+        if constexpr (Emit::kOn) emit(y, c, NL, j, wl);
         st.row_live[y] -= stops;
         live_total -= stops;
       });
@@ -164,7 +170,7 @@ Composite3D forward_impl(const Splats3D& s, const TileLists& l, const Grid& gr) 
     Tile3<T>& st = states[w];
     st.reset(gr.tile);
     const int64_t start = in.off[ct], n = in.off[ct + 1] - start, c = ct / gr.tiles();
-    forward_tile(in, gr, ct, pairs + start, n, st);
+    forward_tile(in, gr, ct, pairs + start, n, st, NoEmit{});
     for (int ly = 0; ly < int(gr.ny(ct)); ++ly)
       for (int lx = 0; lx < int(gr.nx(ct)); ++lx) {
         const int64_t i = ly * st.stride + lx, pix = (c * gr.H + gr.y0(ct) + ly) * gr.W + gr.x0(ct) + lx;
@@ -303,7 +309,34 @@ Grads3D backward_impl(const Splats3D& s, const TileLists& l, const Grid& gr, con
   return g;
 }
 
+template <typename T>
+ColourWeights weights_impl(const Splats3D& s, const TileLists& l, const Grid& gr) {
+  const In3<T> in = inputs<T>(s, l);
+  const int64_t P = l.ids.numel();
+  at::Tensor pairs = pair_storage<Pair3<T>>(P, s.colors);
+  std::vector<Tile3<T>> states(num_workers());
+  std::vector<std::vector<WeightRecord<T>>> recs(size_t(gr.C * gr.tiles()));
+  at::Tensor tf = at::empty({gr.C * gr.H * gr.W}, s.colors.options());
+  T* tfp = tf.data_ptr<T>();
+  parallel_chunks(gr.C * gr.tiles(), [&](int64_t ct, int w) {
+    Tile3<T>& st = states[w];
+    st.reset(gr.tile);
+    const int64_t start = in.off[ct], n = in.off[ct + 1] - start;
+    forward_tile(in, gr, ct, pair_records<Pair3<T>>(pairs) + start, n, st, tile_emitter(&recs[size_t(ct)], gr, ct, start));
+    write_transmittance(gr, ct, st, tfp);
+  });
+  return assemble_weights(recs, gr.C * gr.H * gr.W, P, s.colors.options(), tf);
+}
+
 }  // namespace
+
+ColourWeights composite3d_weights(const Splats3D& s, const TileLists& lists, const Raster& raster) {
+  const Grid gr = make_grid(raster.C, raster.H, raster.W, raster.tile);
+  TORCH_CHECK(lists.offsets.numel() == gr.C * gr.tiles() + 1, "composite3d: tile offsets must have C*tiles+1 entries");
+  ColourWeights r;
+  AT_DISPATCH_FLOATING_TYPES(s.colors.scalar_type(), "composite3d_weights", [&] { r = weights_impl<scalar_t>(s, lists, gr); });
+  return r;
+}
 
 Composite3D composite3d_forward(const Splats3D& s, const TileLists& lists, const Raster& raster) {
   const Grid gr = make_grid(raster.C, raster.H, raster.W, raster.tile);

@@ -33,6 +33,9 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   py::class_<Composite3D>(m, "Composite3D", py::module_local())
       .def(py::init<>()) FIELD(Composite3D, rgb) FIELD(Composite3D, alpha) FIELD(Composite3D, depth)
           FIELD(Composite3D, pairs) FIELD(Composite3D, t_final) FIELD(Composite3D, wz) FIELD(Composite3D, last);
+  py::class_<ColourWeights>(m, "ColourWeights", py::module_local())
+      .def(py::init<>()) FIELD(ColourWeights, pix_ptr) FIELD(ColourWeights, pix_pair) FIELD(ColourWeights, pix_w)
+          FIELD(ColourWeights, pair_ptr) FIELD(ColourWeights, pair_pix) FIELD(ColourWeights, pair_w) FIELD(ColourWeights, t_final);
   py::class_<Grads3D>(m, "Grads3D", py::module_local())
       .def(py::init<>()) FIELD(Grads3D, means2d) FIELD(Grads3D, conics) FIELD(Grads3D, opacities) FIELD(Grads3D, colors)
           FIELD(Grads3D, depth);
@@ -68,6 +71,10 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
         py::arg("lists"), py::arg("raster"), py::arg("fwd"), py::arg("g_rgb"), py::arg("g_alpha"), py::arg("g_depth"));
   m.def("composite2d_forward", &composite2d_forward, "2DGS tile compositing", py::arg("surfels"), py::arg("lists"),
         py::arg("raster"));
+  m.def("composite2d_weights", &composite2d_weights, "2DGS compositing weights of a frozen geometry",
+        py::arg("surfels"), py::arg("lists"), py::arg("raster"));
+  m.def("composite3d_weights", &composite3d_weights, "3DGS compositing weights of a frozen geometry",
+        py::arg("splats"), py::arg("lists"), py::arg("raster"));
   m.def("composite2d_backward", &composite2d_backward, "2DGS tile compositing, backward", py::arg("surfels"),
         py::arg("lists"), py::arg("raster"), py::arg("fwd"), py::arg("g_rgb"), py::arg("g_normal"), py::arg("g_alpha"),
         py::arg("g_depth"), py::arg("g_median"), py::arg("g_distortion"), py::arg("geometry") = true);

@@ -25,11 +25,12 @@ TOL = {torch.float64: 1e-11, torch.float32: 2e-6}
 @pytest.mark.parametrize("kind", ["gs2d", "gs3d"])
 @pytest.mark.parametrize("model", ["pinhole", "orthographic"])
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
-def test_recorded_weights_render_and_differentiate_as_the_compositing_does(kind, model, dtype):
+@pytest.mark.parametrize("impl", ["cpp", "torch"])
+def test_recorded_weights_render_and_differentiate_as_the_compositing_does(kind, model, dtype, impl):
     (means, quats, scales, opac, colors), cams = scene(kind, dtype, model)
     colors = colors.clone().requires_grad_(True)
     bg = torch.tensor([0.2, 0.5, 0.9], dtype=dtype)
-    out = RENDER[kind](means, quats, scales, opac, colors, cams, background=bg, impl="cpp", colour_weights=True)
+    out = RENDER[kind](means, quats, scales, opac, colors, cams, background=bg, impl=impl, colour_weights=True)
     C, H, W = len(cams), cams.height, cams.width
     w = out["colour_weights"]
     assert w.pix_w.numel() > 100 and bool((w.pix_w > 0).all())  # (the opaque stack stops pixels early: some rows short)
@@ -45,17 +46,29 @@ def test_recorded_weights_render_and_differentiate_as_the_compositing_does(kind,
     torch.testing.assert_close(w.t_final.view(C, H, W, 1), 1 - out["alpha"], atol=10 * TOL[dtype], rtol=0)
 
 
-def test_colour_weights_need_the_fused_kernels():
+def test_the_two_paths_record_the_same_weights():
+    """The fused record and the PyTorch path's hold the same (pixel, splat, w) in float64."""
     (means, quats, scales, opac, colors), cams = scene("gs2d", torch.float64, "pinhole")
-    with pytest.raises(ValueError, match="colour_weights needs impl='cpp'"):
-        render_2dgs(means, quats, scales, opac, colors, cams, impl="torch", colour_weights=True)
+    rec = {impl: render_2dgs(means, quats, scales, opac, colors, cams, impl=impl, colour_weights=True)["colour_weights"]
+           for impl in ("cpp", "torch")}
+
+    def dense(r):
+        P = r.pix_ptr.numel() - 1
+        rows = torch.repeat_interleave(torch.arange(P), torch.diff(r.pix_ptr.long()))
+        out = torch.zeros(P, int(r.ids.max()) + 1, dtype=r.pix_w.dtype)
+        return out.index_put_((rows, r.ids[r.pix_pair.long()]), r.pix_w, accumulate=True)
+
+    a, b = dense(rec["cpp"]), dense(rec["torch"])
+    n = min(a.shape[1], b.shape[1])
+    assert (a[:, n:].abs().sum() + b[:, n:].abs().sum()) == 0
+    assert (a[:, :n] - b[:, :n]).abs().max() < 1e-10 and a.sum() > 10
 
 
-def _stage2(frozen_mb: int, name: str = "gs2d", steps: int = 30):
+def _stage2(frozen_mb: int, name: str = "gs2d", steps: int = 30, rasterizer: str = "cpp"):
     """A stage-2 training of a random Gaussian model on the tiny scene (its geometry frozen), and its FrozenViews."""
     scene = tiny_scene(n=4)
     torch.manual_seed(0)
-    bb = BACKBONES.build({"name": name, "random_init_points": 300, "rasterizer": "cpp"}, scene=scene)
+    bb = BACKBONES.build({"name": name, "random_init_points": 300, "rasterizer": rasterizer}, scene=scene)
     bb.stage = "color"
     target = torch.rand(len(scene.train), 16, 24, 3, generator=torch.Generator().manual_seed(1))
 
@@ -82,13 +95,13 @@ def _stage2(frozen_mb: int, name: str = "gs2d", steps: int = 30):
     return bb, seen.get("views")
 
 
-@pytest.mark.parametrize("name", ["gs2d", "gs3d"])
-def test_stage2_through_the_recorded_renders_ends_where_compositing_does(name):
-    plain, none = _stage2(0, name)
-    frozen, views = _stage2(64, name)
+@pytest.mark.parametrize("name,rasterizer", [("gs2d", "cpp"), ("gs3d", "cpp"), ("gs2d", "torch")])
+def test_stage2_through_the_recorded_renders_ends_where_compositing_does(name, rasterizer):
+    plain, none = _stage2(0, name, rasterizer=rasterizer)
+    frozen, views = _stage2(64, name, rasterizer=rasterizer)
     assert none is None  # frozen_mb 0: the trainer never records
     assert sorted(views.ops) == [0, 1, 2, 3] and not views.refused  # every view recorded, used on its later draws
-    start, _ = _stage2(0, name, steps=0)
+    start, _ = _stage2(0, name, steps=0, rasterizer=rasterizer)
     assert (plain.model.sh_dc - start.model.sh_dc).abs().max() > 1e-2  # the colours did train
     for a, b in ((plain.model.sh_dc, frozen.model.sh_dc), (plain.model.sh_rest, frozen.model.sh_rest)):
         assert (a - b).abs().max() < 1e-5

@@ -109,12 +109,12 @@ class GaussianBackbone(Backbone):
 
     def colour_operator(self, cams: Cameras):
         """A render of ``cams`` for as long as the geometry stays as it is now (stage 2): the compositing weights
-        recorded once, then each call a sparse product of the SH colours (:mod:`.frozen`); None where the fused
-        kernels do not run (``rasterizer`` torch or gsplat) or an ACT is set."""
+        recorded once (the fused kernels, or the PyTorch path on any device), then each call a sparse product of the
+        SH colours (:mod:`.frozen`); None where the rasteriser is gsplat's or an ACT is set."""
         m = self.model
         cams = cams.to(device=m.means.device, dtype=m.means.dtype)
         impl = self._impl(m.means.device)
-        if impl != "cpp" or self.act is not None:
+        if impl not in ("cpp", "torch") or self.act is not None:
             return None
         from .frozen import FrozenColours, FrozenRender
 

@@ -305,22 +305,66 @@ def rasterize(b: Binning, eff: Tensor, alpha_fn: AlphaFn, shade: Shade, K: int, 
     Returns:
         ``[C*H*W, K]`` per-pixel values (0 where no splat reaches).
     """
+    pixels, values = [], []
+    for splat, xy, _, segs in _composited(b, eff, alpha_fn, dtype, chunk_tiles):
+        values.append(shade(splat, xy, segs))
+        pixels.append(segs.pixel)
+    out = torch.zeros(b.C * b.H * b.W, K, dtype=dtype, device=eff.device)
+    if not pixels:
+        return out
+    return out.index_put((torch.cat(pixels),), torch.cat(values))
+
+
+def _composited(b: Binning, eff: Tensor, alpha_fn: AlphaFn, dtype: torch.dtype, chunk_tiles: int | None):
+    """Each chunk's composited entries: ``(splat [Q], xy [Q, 2], alpha [Q] (no gradient), segs)``."""
     xy0, nx, ny = _pair_boxes(b, eff)
     q_tile = torch.zeros(b.offsets.numel() - 1, dtype=torch.long, device=xy0.device)
     q_tile.index_add_(0, b.ctile, nx * ny)
-    pixels, values = [], []
     for p0, p1 in _chunks(b, q_tile, chunk_tiles):
         splat, xy, alpha, segs = _expand(b, p0, p1, xy0, nx, ny, alpha_fn, dtype)
         keep = composited_mask(alpha, segs)
         if not bool(keep.any()):
             continue
         idx = torch.nonzero(keep).flatten()
-        values.append(shade(_take(splat, idx), _take(xy, idx), segs.select(keep, idx)))
-        pixels.append(segs.pixel)
-    out = torch.zeros(b.C * b.H * b.W, K, dtype=dtype, device=xy0.device)
-    if not pixels:
-        return out
-    return out.index_put((torch.cat(pixels),), torch.cat(values))
+        yield _take(splat, idx), _take(xy, idx), _take(alpha, idx), segs.select(keep, idx)
+
+
+@torch.no_grad()
+def composite_weights(b: Binning, eff: Tensor, alpha_fn: AlphaFn, dtype: torch.dtype,
+                      chunk_tiles: int | None = None) -> tuple[Tensor, Tensor, Tensor]:
+    """The weights ``w = alpha T`` with which :func:`rasterize` composites: ``pixel [Q]`` (flat ``c*H*W + y*W + x``),
+    ``entry [Q]`` (long) and ``w [Q]`` of every composited (pixel, entry), the pixels' entries in depth order."""
+    pix, ent, ws = [], [], []
+    for splat, _, alpha, segs in _composited(b, eff, alpha_fn, dtype, chunk_tiles):
+        w, _ = composite_kept(alpha, segs)
+        pix.append(torch.index_select(segs.pixel, 0, segs.seg))
+        ent.append(splat)
+        ws.append(w)
+    if not pix:
+        empty = eff.new_zeros(0, dtype=torch.long)
+        return empty, empty, torch.zeros(0, dtype=dtype, device=eff.device)
+    return torch.cat(pix), torch.cat(ent), torch.cat(ws)
+
+
+def weights_record(b: Binning, eff: Tensor, alpha_fn: AlphaFn, dtype: torch.dtype, alpha: Tensor,
+                   chunk_tiles: int | None = None):
+    """:func:`composite_weights` in the layout of the fused kernels' record
+    (:func:`arcsem.backbones.gaussians.fused.composite_weights`): CSR over the pixels and over the entries (here the
+    columns are the ``M = C*N`` entries themselves: ``ids = arange(M)``), ``t_final = 1 - alpha`` (``alpha
+    [C, H, W, 1]``, the render's)."""
+    import warnings
+    from types import SimpleNamespace
+
+    pix, ent, w = composite_weights(b, eff, alpha_fn, dtype, chunk_tiles)
+    P, M = b.C * b.H * b.W, eff.shape[0]
+    with warnings.catch_warnings():  # PyTorch's notice that sparse CSR support is in beta
+        warnings.simplefilter("ignore", UserWarning)
+        W = torch.sparse_coo_tensor(torch.stack([pix, ent]), w, (P, M)).coalesce().to_sparse_csr()
+        Wt = torch.sparse_coo_tensor(torch.stack([ent, pix]), w, (M, P)).coalesce().to_sparse_csr()
+    i32 = lambda t: t.to(torch.int32)
+    return SimpleNamespace(pix_ptr=i32(W.crow_indices()), pix_pair=i32(W.col_indices()), pix_w=W.values(),
+                           pair_ptr=i32(Wt.crow_indices()), pair_pix=i32(Wt.col_indices()), pair_w=Wt.values(),
+                           t_final=(1 - alpha.detach()).reshape(-1), ids=torch.arange(M, device=eff.device))
 
 
 def screen_position_leaf(centre2d: Tensor) -> tuple[Tensor, Tensor]:

@@ -19,6 +19,7 @@ from arcsem.backbones.gaussians.raster import (
     rasterize,
     screen_position_leaf,
     tile_rects,
+    weights_record,
 )
 from arcsem.backbones.gaussians.raster_camera import camera_facing_normals, pixel_projection
 from torch import Tensor
@@ -193,7 +194,8 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
         widens every silhouette by about one sigma, which a fit to sharp silhouettes pays for by
         shrinking the surface (see the gs2d backbone's ``lowpass_sigma``).
         colour_weights: also return ``colour_weights``, the compositing weights of this geometry
-        (:func:`arcsem.backbones.gaussians.fused.composite_weights`; ``impl="cpp"`` only).
+        (:func:`arcsem.backbones.gaussians.fused.composite_weights`; the PyTorch path:
+        :func:`arcsem.backbones.gaussians.raster.weights_record`).
     Returns:
         rgb ``[C, H, W, 3]``, alpha, depth (``sum w z / alpha``), median_depth, distortion ``[C, H, W, 1]``,
         normal ``[C, H, W, 3]`` (world, ``sum w n``), radii ``[C, N]`` long, visible ``[C, N]`` bool,
@@ -207,8 +209,6 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     if impl == "cpp":
         return _render_2dgs_fused(means, quats, scales, opacities, colors, cams, background, tile, near, mcoef,
                                   lowpass_sigma, colour_weights)
-    if colour_weights:
-        raise ValueError("render_2dgs: colour_weights needs impl='cpp' (the fused kernels)")
     Hm, R = splat_homographies(means, quats, scales, cams)
     radius, rects, eff, depth = footprint_2dgs(Hm, opacities, cams, tile, near, lowpass_sigma)
     b = bin_tiles(rects, depth, W, Hh, tile)
@@ -222,7 +222,11 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     alpha_fn, shade = _shade_2dgs(_splat_table(Hm.reshape(C * N, 4, 3), centre2d, opacities.repeat(C), feats), mcoef,
                                   lowpass_sigma)
     out = rasterize(b, eff.reshape(C * N, 4), alpha_fn, shade, 10, means.dtype, chunk_tiles).reshape(C, Hh, W, 10)
-    return {**_outputs(out, background, radius, rects), "means2d": means2d}
+    result = {**_outputs(out, background, radius, rects), "means2d": means2d}
+    if colour_weights:
+        result["colour_weights"] = weights_record(b, eff.reshape(C * N, 4), alpha_fn, means.dtype, result["alpha"],
+                                                  chunk_tiles)
+    return result
 
 
 def _render_2dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,

@@ -17,6 +17,7 @@ from arcsem.backbones.gaussians.raster import (
     rasterize,
     screen_position_leaf,
     tile_rects,
+    weights_record,
 )
 from arcsem.backbones.gaussians.raster_camera import pixel_projection
 from torch import Tensor
@@ -103,7 +104,8 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
         means ``[N, 3]``, quats ``[N, 4]`` (w, x, y, z; unnormalised), scales ``[N, 3]``, opacities ``[N]``,
         colors ``[C, N, 3]`` or ``[N, 3]``, cams: ``C`` cameras; background ``[3]``; centres with depth
         ``<= near`` are culled. colour_weights: also return ``colour_weights``, the compositing weights of this
-        geometry (:func:`arcsem.backbones.gaussians.fused.composite_weights`; ``impl="cpp"`` only).
+        geometry (:func:`arcsem.backbones.gaussians.fused.composite_weights`; the PyTorch path:
+        :func:`arcsem.backbones.gaussians.raster.weights_record`).
     Returns:
         rgb ``[C, H, W, 3]``, alpha ``[C, H, W, 1]``, depth ``[C, H, W, 1]`` (``sum w z / alpha``),
         radii ``[C, N]`` long, visible ``[C, N]`` bool, means2d ``[C, N, 2]`` (a leaf whose ``.grad`` after
@@ -114,8 +116,6 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     cams = cams.to(dtype=means.dtype)
     if impl == "cpp":
         return _render_3dgs_fused(means, quats, scales, opacities, colors, cams, background, tile, near, colour_weights)
-    if colour_weights:
-        raise ValueError("render_3dgs: colour_weights needs impl='cpp' (the fused kernels)")
     means2d, depth, cov2d = project_gaussians(means, quats, scales, cams)
     radius, rects, eff, ok = footprint_3dgs(means2d, depth, cov2d, opacities, cams, tile, near)
     b = bin_tiles(rects, depth, W, H, tile)
@@ -133,11 +133,14 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     if background is not None:
         rgb = rgb + (1 - alpha) * background.to(rgb)
     visible = (radius > 0) & (rects[..., 1] > rects[..., 0]) & (rects[..., 3] > rects[..., 2])
-    return {
+    result = {
         "rgb": rgb, "alpha": alpha,
         "depth": torch.where(alpha > 0, wz / alpha.clamp_min(1e-30), torch.zeros_like(wz)),
         "radii": torch.where(visible, radius, torch.zeros_like(radius)), "visible": visible, "means2d": leaf2d,
     }
+    if colour_weights:
+        result["colour_weights"] = weights_record(b, eff.reshape(C * N, 4), alpha_fn, means.dtype, alpha, chunk_tiles)
+    return result
 
 
 def _render_3dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,

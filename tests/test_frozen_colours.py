@@ -64,7 +64,7 @@ def test_the_two_paths_record_the_same_weights():
     assert (a[:, :n] - b[:, :n]).abs().max() < 1e-10 and a.sum() > 10
 
 
-def _stage2(frozen_mb: int, name: str = "gs2d", steps: int = 30, rasterizer: str = "cpp"):
+def _stage2(frozen_mb: int, name: str = "gs2d", steps: int = 30, rasterizer: str = "cpp", batch_views: int = 1):
     """A stage-2 training of a random Gaussian model on the tiny scene (its geometry frozen), and its FrozenViews."""
     scene = tiny_scene(n=4)
     torch.manual_seed(0)
@@ -89,7 +89,8 @@ def _stage2(frozen_mb: int, name: str = "gs2d", steps: int = 30, rasterizer: str
     FrozenViews.render = spy
     try:
         if steps:
-            train(bb, scene.train, losses, loop(steps, stage="color", frozen_mb=frozen_mb), batch_hook=hook)
+            train(bb, scene.train, losses, loop(steps, stage="color", frozen_mb=frozen_mb, batch_views=batch_views),
+                  batch_hook=hook)
     finally:
         FrozenViews.render = original
     return bb, seen.get("views")
@@ -101,6 +102,7 @@ def test_stage2_through_the_recorded_renders_ends_where_compositing_does(name, r
     frozen, views = _stage2(64, name, rasterizer=rasterizer)
     assert none is None  # frozen_mb 0: the trainer never records
     assert sorted(views.ops) == [0, 1, 2, 3] and not views.refused  # every view recorded, used on its later draws
+    assert views.summary()["views"] == 4 and views.summary()["over_budget"] == 0
     start, _ = _stage2(0, name, steps=0, rasterizer=rasterizer)
     assert (plain.model.sh_dc - start.model.sh_dc).abs().max() > 1e-2  # the colours did train
     for a, b in ((plain.model.sh_dc, frozen.model.sh_dc), (plain.model.sh_rest, frozen.model.sh_rest)):
@@ -121,4 +123,11 @@ def test_views_past_the_budget_render_as_usual(monkeypatch):
     monkeypatch.setattr(FrozenViews, "__init__", small)
     frozen, views = _stage2(64)
     assert len(views.ops) == 2 and len(views.refused) == 2 and views.used <= views.budget
+    assert (plain.model.sh_dc - frozen.model.sh_dc).abs().max() < 1e-5
+
+
+def test_a_batch_of_several_views_is_their_recorded_renders_stacked():
+    plain, _ = _stage2(0, batch_views=2)
+    frozen, views = _stage2(64, batch_views=2)
+    assert len(views.ops) == 4
     assert (plain.model.sh_dc - frozen.model.sh_dc).abs().max() < 1e-5

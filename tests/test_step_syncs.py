@@ -55,7 +55,7 @@ def _site() -> str:
     return "outside the project"
 
 
-def _run(kind: str, stage: str):
+def _run(kind: str, stage: str, frozen_mb: int = 0):
     scene = tiny_scene(n=4, w=48, h=32)
     cls = BACKBONES.get(kind)
     act = ACT(len(scene.train)) if stage == "geometry" else None
@@ -72,7 +72,7 @@ def _run(kind: str, stage: str):
         terms = {"reference_l1": {"weight": 20}, "pseudo_color": {}, "tcm": {}, "ccm": {}}
     losses = build_losses(terms, bb.provides, backbone=kind, batch_parts=frozenset({"color"}) if hook else frozenset())
     lc = loop_module.LoopConfig(steps=20, stage=stage, check_every=1000, log_every=1000, progress=False,
-                                checkpoint_every=0)
+                                checkpoint_every=0, frozen_mb=frozen_mb)
     run = loop_module._Run(bb, act, scene.train, lc, OptimConfig(), None, None)
     run.restore(1e-3)
     return run, losses, hook
@@ -90,3 +90,17 @@ def test_steady_state_step_reads_nothing_back(kind, stage):
     stray = {k: n for k, n in mode.sites.items() if not k[1].startswith(ALLOWED)}
     assert not stray, f"host reads in a training step (op, source line: count over 3 steps): {stray}"
     assert any(k[1].startswith(ALLOWED[0]) for k in mode.sites), "the detector saw not even the binning's reads"
+
+
+def test_stage2_through_recorded_renders_reads_nothing_back():
+    """Once every view is recorded (the first epoch), a stage-2 step renders without the rasteriser: not even the
+    binning's reads are left (the PyTorch path's record, the one a GPU uses)."""
+    run, losses, hook = _run("gs2d", "color", frozen_mb=64)
+    for s in range(4):  # the first epoch: each of the 4 views drawn and recorded once
+        loop_module._step(run, losses, hook, s, record=False)
+    assert len(run.frozen.ops) == 4
+    mode = HostReads()
+    with mode:
+        for s in range(4, 8):
+            loop_module._step(run, losses, hook, s, record=False)
+    assert not mode.sites, f"host reads in a stage-2 step through recorded renders: {dict(mode.sites)}"

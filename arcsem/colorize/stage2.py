@@ -345,7 +345,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     result.update(write_colored_products(rc, backbone, scene, run_dir, res.steps, cc.progress))
     result.update(
         features=features, references=refs.names, losses=sorted(losses.terms), steps=res.steps, time_s=res.time_s,
-        steps_per_s=res.steps_per_s, stage1_checkpoint=str(ckpt), image_size=[split.cameras.width, split.cameras.height],
+        steps_per_s=res.steps_per_s, frozen_renders=res.frozen, stage1_checkpoint=str(ckpt), image_size=[split.cameras.width, split.cameras.height],
         pseudo={**_pseudo_quality(split, masks, refs, pseudo, pinfo["valid2d"]), "cache_hit": pinfo["cache_hit"],
                 "time_s": pinfo["time_s"], "shading": pinfo["shading"], **({"surface": {**pinfo["surface"], **_pseudo_quality(
                     split, masks, refs, pseudo, valid & ~pinfo["valid2d"] & masks, "filled")}} if "surface" in pinfo else {}),

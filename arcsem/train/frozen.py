@@ -41,6 +41,12 @@ class FrozenViews:
             return outs[0]
         return {k: torch.cat([o[k] for o in outs]) if torch.is_tensor(outs[0][k]) else outs[0][k] for k in outs[0]}
 
+    def summary(self) -> dict:
+        """What ``metrics.json`` records: views recorded, views over the budget, MiB held, whether the backbone has
+        a colour operator at all."""
+        return {"supported": self.supported, "views": len(self.ops), "over_budget": len(self.refused),
+                "mib": round(self.used / 2**20, 1), "budget_mib": self.budget // 2**20}
+
     def _op(self, backbone: nn.Module, view: int, cams):
         op = self.ops.get(view)
         if op is not None or view in self.refused or not self.supported:

@@ -75,6 +75,7 @@ class TrainResult:
     checkpoint: Path | None
     history: list[dict] = field(default_factory=list)  # every log_every steps: step, loss, psnr, terms
     evals: list[dict] = field(default_factory=list)  # results of the periodic evaluation callback
+    frozen: dict | None = None  # stage 2's recorded renders (FrozenViews.summary), None where not used
 
     @property
     def steps_per_s(self) -> float:
@@ -314,7 +315,8 @@ def train(backbone: nn.Module, split: Split, losses: LossSet, loop: LoopConfig |
     if run.resumed_from != loop.steps:  # nothing to add when resuming a finished run
         with torch.random.fork_rng(devices=[]):
             run.save()
-    return TrainResult(run.step, run.time_s, run.resumed_from, run.path, run.history, run.evals)
+    return TrainResult(run.step, run.time_s, run.resumed_from, run.path, run.history, run.evals,
+                       run.frozen.summary() if run.frozen is not None else None)
 
 
 def _loop(run: _Run, losses: LossSet, batch_hook, evaluate, on_step, bar, stop: StopRequest) -> None:

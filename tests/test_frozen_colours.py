@@ -34,7 +34,7 @@ def test_recorded_weights_render_and_differentiate_as_the_compositing_does(kind,
     C, H, W = len(cams), cams.height, cams.width
     w = out["colour_weights"]
     assert w.pix_w.numel() > 100 and bool((w.pix_w > 0).all())  # (the opaque stack stops pixels early: some rows short)
-    frozen = FrozenColours(w, w.ids, (C, H, W), bg)
+    frozen = FrozenColours(w, (C, H, W), bg)
     rgb = frozen(colors.reshape(-1, 3))
     scale = out["rgb"].abs().max()
     assert (rgb - out["rgb"]).abs().max() <= TOL[dtype] * scale

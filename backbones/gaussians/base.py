@@ -124,7 +124,7 @@ class GaussianBackbone(Backbone):
             out = self._rasterize(means, quats, scales, opacities, m.colors(cams, impl=impl), cams, background=bg,
                                   tile=self.cfg.tile, chunk_tiles=self.cfg.chunk_tiles, impl=impl, colour_weights=True)
         weights = out.pop("colour_weights")
-        colours = FrozenColours(weights, weights.ids, tuple(out["rgb"].shape[:3]), bg)
+        colours = FrozenColours(weights, tuple(out["rgb"].shape[:3]), bg)
         return FrozenRender(out, colours, lambda: m.colors(cams, impl=impl))
 
     def _default_background(self, like: Tensor) -> Tensor:

@@ -18,18 +18,18 @@ __all__ = ["FrozenColours", "FrozenRender"]
 
 
 class _Product(torch.autograd.Function):
-    """``W colors[ids]`` ``[P, 3]`` of ``colors [M, 3]``; backward ``index_add(ids, W^T g)``."""
+    """``W colors[ids]`` ``[P, 3]`` of ``colors [M, 3]``; backward ``index_add(ids, W^T g)`` (``transpose``)."""
 
     @staticmethod
-    def forward(ctx, colors: Tensor, W: Tensor, Wt: Tensor, ids: Tensor) -> Tensor:
-        ctx.save_for_backward(Wt, ids)
-        ctx.rows = colors.shape[0]
+    def forward(ctx, colors: Tensor, W: Tensor, transpose, ids: Tensor) -> Tensor:
+        ctx.save_for_backward(ids)
+        ctx.rows, ctx.transpose = colors.shape[0], transpose
         return W @ colors.index_select(0, ids)
 
     @staticmethod
     def backward(ctx, g: Tensor):
-        Wt, ids = ctx.saved_tensors
-        gc = g.new_zeros(ctx.rows, g.shape[1]).index_add_(0, ids, Wt @ g.contiguous())
+        (ids,) = ctx.saved_tensors
+        gc = g.new_zeros(ctx.rows, g.shape[1]).index_add_(0, ids, ctx.transpose(g.contiguous()))
         return gc, None, None, None
 
 
@@ -37,24 +37,22 @@ class FrozenColours:
     """``rgb [C, H, W, 3]`` of one recorded geometry as a function of the entries' colours ``[C*N, 3]``.
 
     Args:
-        weights: the kernel's record (:func:`arcsem.backbones.gaussians.fused.composite_weights`).
-        ids: ``[P]`` entry (``c*N + n``) of each pair of the tile lists the record indexes.
+        weights: a record (:func:`arcsem.backbones.gaussians.fused.composite_weights`, or the PyTorch path's
+            :func:`arcsem.backbones.gaussians.raster.weights_record`): pixel-major CSR, ``t_final``, ``ids [P]`` (the
+            entry ``c*N + n`` of each column), ``transpose`` (``W^T g``), ``nbytes``.
         shape: ``(C, H, W)``; background: ``[3]`` or None.
     """
 
-    def __init__(self, weights, ids: Tensor, shape: tuple[int, int, int], background: Tensor | None):
-        npix, npairs = shape[0] * shape[1] * shape[2], ids.numel()
+    def __init__(self, weights, shape: tuple[int, int, int], background: Tensor | None):
+        npix, npairs = shape[0] * shape[1] * shape[2], weights.ids.numel()
         with warnings.catch_warnings():  # PyTorch's notice that sparse CSR support is in beta
             warnings.simplefilter("ignore", UserWarning)
             self.W = torch.sparse_csr_tensor(weights.pix_ptr, weights.pix_pair, weights.pix_w, (npix, npairs))
-            self.Wt = torch.sparse_csr_tensor(weights.pair_ptr, weights.pair_pix, weights.pair_w, (npairs, npix))
-        self.ids, self.shape = ids, shape
+        self.ids, self.transpose, self.shape, self.nbytes = weights.ids, weights.transpose, shape, weights.nbytes
         self.rest = None if background is None else weights.t_final[:, None] * background.to(weights.t_final)
-        self.nbytes = sum(t.numel() * t.element_size() for t in (
-            weights.pix_ptr, weights.pix_pair, weights.pix_w, weights.pair_ptr, weights.pair_pix, weights.pair_w, ids))
 
     def __call__(self, colors: Tensor) -> Tensor:
-        rgb = _Product.apply(colors, self.W, self.Wt, self.ids)
+        rgb = _Product.apply(colors, self.W, self.transpose, self.ids)
         if self.rest is not None:
             rgb = rgb + self.rest
         return rgb.view(*self.shape, 3)

@@ -42,7 +42,8 @@ CPP_DIR = Path(__file__).parent / "cpp"
 EXTENSION = cext.Extension(
     prefix="arcsem_fused_raster",
     sources=tuple(CPP_DIR / n for n in ("composite3d.cpp", "composite2d.cpp", "composite2d_backward.cpp", "binning.cpp",
-                                        "project.cpp", "project3d.cpp", "sh.cpp", "stats.cpp", "pool.cpp", "module.cpp")),
+                                        "project.cpp", "project3d.cpp", "sh.cpp", "stats.cpp", "weights.cpp", "pool.cpp",
+                                        "module.cpp")),
     what="fused C++ Gaussian rasteriser",
     # the lane loops of the compositing kernels (`omp simd`) vectorise only when GCC may if-convert freely: no FP traps
     # (the kernels do not use them), no errno from std::sqrt (the SH kernel's lanes), and no partial-redundancy
@@ -191,25 +192,28 @@ def composite_weights(kind: str, *inputs: Tensor, lists, C: int, H: int, W: int,
     ``Hm, Dz, centers, opacities, colors, normals, mcoef``) or :func:`composite3d` (``"3d"``: ``means2d, conics,
     opacities, colors, depth``) composites each (pixel, pair): a frozen geometry's render is ``W colors[lists.ids]
     + T_final bg`` (cpp/weights.h). No gradient. Returns a namespace: CSR over the ``C*H*W`` pixels (``pix_ptr``,
-    ``pix_pair``, ``pix_w``), CSR over the ``P`` pairs (``pair_ptr``, ``pair_pix``, ``pair_w``), ``t_final [C*H*W]``
-    and ``ids [P]``, the entry of each pair."""
+    ``pix_pair``, ``pix_w``), ``t_final [C*H*W]``, ``ids [P]`` (the entry of each of the ``P`` pairs), ``transpose``
+    (``g [C*H*W, 3] -> W^T g [P, 3]``, a kernel of its own: no transposed copy is kept) and ``nbytes``."""
     from types import SimpleNamespace
 
     c = [t.detach().contiguous() for t in inputs]
     bg = c[0].new_empty(0)
+    raster, ext = _raster(C, H, W, tile), load_extension()
     with torch.no_grad():
         if kind == "2d":
             surfels = _args("Surfels2D", **dict(zip(_SURFEL_FIELDS, (*c, bg))), near=float(near),
                             lowpass=1.0 / float(lowpass_sigma) ** 2)
-            r = load_extension().composite2d_weights(surfels, lists, _raster(C, H, W, tile))
+            r = ext.composite2d_weights(surfels, lists, raster)
         elif kind == "3d":
             splats = _args("Splats3D", **dict(zip(("means2d", "conics", "opacities", "colors", "depth", "background"),
                                                   (*c, bg))))
-            r = load_extension().composite3d_weights(splats, lists, _raster(C, H, W, tile))
+            r = ext.composite3d_weights(splats, lists, raster)
         else:
             raise ValueError(f"composite_weights: kind must be 2d or 3d, got {kind!r}")
-    fields = ("pix_ptr", "pix_pair", "pix_w", "pair_ptr", "pair_pix", "pair_w", "t_final")
-    return SimpleNamespace(**{f: getattr(r, f) for f in fields}, ids=lists.ids)
+    held = (r.pix_ptr, r.pix_pair, r.pix_w, lists.ids)
+    return SimpleNamespace(pix_ptr=r.pix_ptr, pix_pair=r.pix_pair, pix_w=r.pix_w, t_final=r.t_final, ids=lists.ids,
+                           transpose=lambda g: ext.weights_backward(r, raster, g.contiguous()),
+                           nbytes=sum(t.numel() * t.element_size() for t in held))
 
 
 def _projection(means, quats, scales, P, view=None, ortho=False, near=0.01):

@@ -349,9 +349,9 @@ def composite_weights(b: Binning, eff: Tensor, alpha_fn: AlphaFn, dtype: torch.d
 def weights_record(b: Binning, eff: Tensor, alpha_fn: AlphaFn, dtype: torch.dtype, alpha: Tensor,
                    chunk_tiles: int | None = None):
     """:func:`composite_weights` in the layout of the fused kernels' record
-    (:func:`arcsem.backbones.gaussians.fused.composite_weights`): CSR over the pixels and over the entries (here the
-    columns are the ``M = C*N`` entries themselves: ``ids = arange(M)``), ``t_final = 1 - alpha`` (``alpha
-    [C, H, W, 1]``, the render's)."""
+    (:func:`arcsem.backbones.gaussians.fused.composite_weights`): CSR over the pixels (here the columns are the
+    ``M = C*N`` entries themselves: ``ids = arange(M)``), ``t_final = 1 - alpha`` (``alpha [C, H, W, 1]``, the
+    render's), ``transpose`` (a transposed CSR copy: sparse products on any device) and ``nbytes``."""
     import warnings
     from types import SimpleNamespace
 
@@ -361,10 +361,13 @@ def weights_record(b: Binning, eff: Tensor, alpha_fn: AlphaFn, dtype: torch.dtyp
         warnings.simplefilter("ignore", UserWarning)
         W = torch.sparse_coo_tensor(torch.stack([pix, ent]), w, (P, M)).coalesce().to_sparse_csr()
         Wt = torch.sparse_coo_tensor(torch.stack([ent, pix]), w, (M, P)).coalesce().to_sparse_csr()
-    i32 = lambda t: t.to(torch.int32)
-    return SimpleNamespace(pix_ptr=i32(W.crow_indices()), pix_pair=i32(W.col_indices()), pix_w=W.values(),
-                           pair_ptr=i32(Wt.crow_indices()), pair_pix=i32(Wt.col_indices()), pair_w=Wt.values(),
-                           t_final=(1 - alpha.detach()).reshape(-1), ids=torch.arange(M, device=eff.device))
+        i32 = lambda t: t.to(torch.int32)
+        Wt = torch.sparse_csr_tensor(i32(Wt.crow_indices()), i32(Wt.col_indices()), Wt.values(), Wt.shape)
+    pix_ptr, pix_pair = i32(W.crow_indices()), i32(W.col_indices())
+    held = (pix_ptr, pix_pair, W.values(), Wt.crow_indices(), Wt.col_indices(), Wt.values())
+    return SimpleNamespace(pix_ptr=pix_ptr, pix_pair=pix_pair, pix_w=W.values(), t_final=(1 - alpha.detach()).reshape(-1),
+                           ids=torch.arange(M, device=eff.device), transpose=lambda g: Wt @ g,
+                           nbytes=sum(t.numel() * t.element_size() for t in held))
 
 
 def screen_position_leaf(centre2d: Tensor) -> tuple[Tensor, Tensor]:

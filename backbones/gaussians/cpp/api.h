@@ -112,10 +112,14 @@ struct Splats3D {
 
 // The weights w = alpha T a forward pass composited, of a frozen geometry: rgb = W colours[ids] + T_final bg.
 struct ColourWeights {
-  at::Tensor pix_ptr, pix_pair, pix_w;   // CSR over the C*H*W pixels (each row in depth order; int32 indices)
-  at::Tensor pair_ptr, pair_pix, pair_w; // CSR over the pairs of the tile lists (int32 indices)
-  at::Tensor t_final;                    // [C*H*W] final transmittance (the background's weight)
+  at::Tensor pix_ptr, pix_pair, pix_w;  // CSR over the C*H*W pixels (each row in depth order; int32 indices)
+  at::Tensor t_final;                   // [C*H*W] final transmittance (the background's weight)
+  int64_t npairs = 0;                   // pairs of the tile lists (the columns)
 };
+
+// W^T g: g [C*H*W, 3] per-pixel colour gradients -> [npairs, 3], the sum over each pair's pixels (every pair's
+// pixels lie in its tile, so tiles add in parallel without races)
+at::Tensor weights_backward(const ColourWeights& w, const Raster& raster, const at::Tensor& g);
 
 struct Composite3D {
   at::Tensor rgb, alpha, depth;  // [C, H, W, 3], [C, H, W, 1], [C, H, W, 1] (sum w z / alpha)
@@ -130,7 +134,7 @@ struct Grads3D {  // gradients of Splats3D's fields (means2d, conics, opacities,
 
 Composite3D composite3d_forward(const Splats3D& s, const TileLists& lists, const Raster& raster);
 // the compositing weights of the forward pass (weights.h): pixel-major CSR pix_ptr [C*H*W + 1], pix_pair (pair
-// positions in lists.ids), pix_w; pair-major CSR pair_ptr [P + 1], pair_pix, pair_w (the same weights)
+// positions in lists.ids), pix_w
 ColourWeights composite3d_weights(const Splats3D& s, const TileLists& lists, const Raster& raster);
 // g_rgb, g_alpha, g_depth: gradients of the outputs; undefined or empty ones are zero
 Grads3D composite3d_backward(const Splats3D& s, const TileLists& lists, const Raster& raster, const Composite3D& fwd,

@@ -35,7 +35,7 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
           FIELD(Composite3D, pairs) FIELD(Composite3D, t_final) FIELD(Composite3D, wz) FIELD(Composite3D, last);
   py::class_<ColourWeights>(m, "ColourWeights", py::module_local())
       .def(py::init<>()) FIELD(ColourWeights, pix_ptr) FIELD(ColourWeights, pix_pair) FIELD(ColourWeights, pix_w)
-          FIELD(ColourWeights, pair_ptr) FIELD(ColourWeights, pair_pix) FIELD(ColourWeights, pair_w) FIELD(ColourWeights, t_final);
+          FIELD(ColourWeights, t_final) FIELD(ColourWeights, npairs);
   py::class_<Grads3D>(m, "Grads3D", py::module_local())
       .def(py::init<>()) FIELD(Grads3D, means2d) FIELD(Grads3D, conics) FIELD(Grads3D, opacities) FIELD(Grads3D, colors)
           FIELD(Grads3D, depth);
@@ -75,6 +75,8 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
         py::arg("surfels"), py::arg("lists"), py::arg("raster"));
   m.def("composite3d_weights", &composite3d_weights, "3DGS compositing weights of a frozen geometry",
         py::arg("splats"), py::arg("lists"), py::arg("raster"));
+  m.def("weights_backward", &weights_backward, "W^T g of a frozen geometry's compositing weights", py::arg("weights"),
+        py::arg("raster"), py::arg("g"));
   m.def("composite2d_backward", &composite2d_backward, "2DGS tile compositing, backward", py::arg("surfels"),
         py::arg("lists"), py::arg("raster"), py::arg("fwd"), py::arg("g_rgb"), py::arg("g_normal"), py::arg("g_alpha"),
         py::arg("g_depth"), py::arg("g_median"), py::arg("g_distortion"), py::arg("geometry") = true);

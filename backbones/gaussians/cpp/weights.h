@@ -51,8 +51,8 @@ void write_transmittance(const Grid& gr, int64_t ct, const St& st, T* t) {
       t[(c * gr.H + gr.y0(ct) + ly) * gr.W + gr.x0(ct) + lx] = st.tr[size_t(ly * st.stride + lx)];
 }
 
-// the per-tile records (tiles[ct], ct in order) as CSR over pixels (rows in depth order) and over pairs; t_final is
-// the forward pass's, passed through
+// the per-tile records (tiles[ct]) as CSR over the pixels, each row in depth order; t_final is the forward pass's,
+// passed through. A tile's records are its own pixels' (and its own pairs'), so tiles fill their rows in parallel.
 template <typename T>
 ColourWeights assemble_weights(const std::vector<std::vector<WeightRecord<T>>>& tiles, int64_t npix, int64_t npairs,
                                const at::TensorOptions& o, const at::Tensor& t_final) {
@@ -60,35 +60,26 @@ ColourWeights assemble_weights(const std::vector<std::vector<WeightRecord<T>>>& 
   for (const auto& t : tiles) nnz += int64_t(t.size());
   TORCH_CHECK(nnz < (int64_t(1) << 31) && npix < (int64_t(1) << 31) && npairs < (int64_t(1) << 31),
               "compositing weights: more than 2^31 records, pixels or pairs");
-  const auto li = o.dtype(at::kInt);
   ColourWeights r;
   r.t_final = t_final;
-  r.pix_ptr = at::zeros({npix + 1}, li);
-  r.pair_ptr = at::zeros({npairs + 1}, li);
-  r.pix_pair = at::empty({nnz}, li);
+  r.npairs = npairs;
+  r.pix_ptr = at::zeros({npix + 1}, o.dtype(at::kInt));
+  r.pix_pair = at::empty({nnz}, o.dtype(at::kInt));
   r.pix_w = at::empty({nnz}, o);
-  r.pair_pix = at::empty({nnz}, li);
-  r.pair_w = at::empty({nnz}, o);
-  int32_t *pp = r.pix_ptr.data_ptr<int32_t>(), *qp = r.pair_ptr.data_ptr<int32_t>();
-  for (const auto& t : tiles)
-    for (const auto& e : t) {
-      ++pp[e.pix + 1];
-      ++qp[e.pair + 1];
-    }
+  int32_t *pp = r.pix_ptr.data_ptr<int32_t>(), *pc = r.pix_pair.data_ptr<int32_t>();
+  T* pw = r.pix_w.data_ptr<T>();
+  parallel_chunks(int64_t(tiles.size()), [&](int64_t ct, int) {
+    for (const auto& e : tiles[size_t(ct)]) ++pp[e.pix + 1];
+  });
   for (int64_t i = 0; i < npix; ++i) pp[i + 1] += pp[i];
-  for (int64_t i = 0; i < npairs; ++i) qp[i + 1] += qp[i];
   std::vector<int32_t> cursor(pp, pp + npix);
-  int32_t *pc = r.pix_pair.data_ptr<int32_t>(), *qc = r.pair_pix.data_ptr<int32_t>();
-  T *pw = r.pix_w.data_ptr<T>(), *qw = r.pair_w.data_ptr<T>();
-  int32_t q = 0;  // tiles in order, each pair by pair: the records are already in pair order
-  for (const auto& t : tiles)
-    for (const auto& e : t) {
+  parallel_chunks(int64_t(tiles.size()), [&](int64_t ct, int) {
+    for (const auto& e : tiles[size_t(ct)]) {  // pair by pair: each pixel's row fills in depth order
       const int32_t p = cursor[size_t(e.pix)]++;
       pc[p] = e.pair;
       pw[p] = e.w;
-      qc[q] = e.pix;
-      qw[q++] = e.w;
     }
+  });
   return r;
 }
 

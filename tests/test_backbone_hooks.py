@@ -68,5 +68,5 @@ def test_a_whole_run_uses_only_declared_hooks(tmp_path):
     metrics = app.run(cfg, run_dir=tmp_path / "run")
     assert metrics["status"] == "complete" and metrics["completed_stages"] == ["gray", "color"]
     declared = set(dir(Backbone)) | set(Backbone.__annotations__)  # name: ClassVar[str] is declared too
-    assert {"render", "param_groups", "learning_rates", "set_act", "export_suffix"} <= SEEN  # it did look
+    assert {"render", "param_groups", "learning_rates", "set_act", "export_suffix", "colour_operator"} <= SEEN  # it did look
     assert SEEN <= declared, f"called but not declared on Backbone: {sorted(SEEN - declared)}"

@@ -12,6 +12,9 @@
 #   launch   gsplat's 2DGS backward at 8/16/32-px tiles and its kernels' register counts
 #   profile  stage 1 of the demo: steps/s, SM utilisation, host syncs, kernels (benchmarks/gpu/stage1_profile.py)
 #   demo     the whole `make demo` job with device=cuda, both rasterisers, nvidia-smi dmon sampling
+#   stage2ab (only when named) stage 2 of the demo twice on the auto demo's stage 1 (S2AB_STAGE1, default
+#            /tmp/demo_auto): through recorded renders (colorize.frozen_mb default) and compositing every step
+#            (frozen_mb=0); their times and held-out colour into $OUT/stage2ab.txt (S2AB_DEVICE, default cuda)
 # then writes $OUT/gpu_check.json (device, cuda_tests_failed, stage1_steps_per_s, sm_util_pct, stage2_complete,
 # demo_wall_s, quality, ...) and $OUT/runs.tar.gz (every demo job's time-stamped log and metrics.json).
 # Parts: GPU_CHECK_PARTS (default all).
@@ -22,7 +25,7 @@
 #   benchmarks/gpu_check.sh            # results in ${OUT:-/tmp/gpu_check}
 set -uo pipefail
 OUT=${OUT:-/tmp/gpu_check}
-PARTS=${GPU_CHECK_PARTS:-setup,quality,tests,probe,profile,demo,launch}  # demoprobe: only when named
+PARTS=${GPU_CHECK_PARTS:-setup,quality,tests,probe,profile,demo,launch}  # demoprobe, stage2ab: only when named
 mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1 TQDM_DISABLE=1 ARCSEM_CACHE=/tmp/arcsem_cache PYTHONWARNINGS=ignore::DeprecationWarning
 has() { [[ ",$PARTS," == *",$1,"* ]]; }
@@ -128,6 +131,18 @@ if has demo; then
     python3 benchmarks/gpu/summary.py --demo "/tmp/demo_$r" "$r" 0 "$(cat /tmp/demo_$r.rc)" "$(cat /tmp/demo_$r.wall)" \
       "/tmp/dmon_$r.txt" "$OUT/demo_metrics.json"
     python3 benchmarks/gpu/summary.py --check "$OUT" > /dev/null
+  done
+fi
+
+if has stage2ab; then
+  stamp "stage 2: recorded renders against compositing"
+  for mb in 2048 0; do
+    timeout 300 arcsem experiment=demo device="${S2AB_DEVICE:-cuda}" stage=color colorize.stage1="${S2AB_STAGE1:-/tmp/demo_auto}" \
+      colorize.frozen_mb=$mb colorize.progress=false colorize.eval.video=false mesh.enabled=false report=false \
+      colorize.cache_dir="/tmp/s2ab_$mb.cc" hydra.run.dir="/tmp/s2ab_$mb" > "/tmp/s2ab_$mb.log" 2>&1
+    python3 -c "import json; s = json.load(open('/tmp/s2ab_$mb/metrics.json'))['stage2']
+print('frozen_mb=$mb: training', round(s['time_s'], 1), 's,', round(s['steps_per_s'], 1), 'steps/s, held-out colour',
+      round(s['test']['psnr'], 4), 'dB, records', s.get('frozen_renders'))" 2>&1 | tee -a "$OUT/stage2ab.txt"
   done
 fi
 

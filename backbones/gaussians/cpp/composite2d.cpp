@@ -143,22 +143,14 @@ Composite2D forward_impl(const Surfels2D& s, const TileLists& l, const Grid& gr)
 template <typename T>
 ColourWeights weights_impl(const Surfels2D& s, const TileLists& l, const Grid& gr) {
   const In2<T> in = inputs<T>(s, l);
-  const int64_t P = l.ids.numel();
-  at::Tensor pairs = pair_storage<Pair2<T>>(P, s.colors);
+  at::Tensor pairs = pair_storage<Pair2<T>>(l.ids.numel(), s.colors);
   const std::vector<Entry2<T>> ent = pack_entries(in, s.colors.size(0));
-  std::vector<Tile2<T>> states(num_workers());
-  std::vector<std::vector<WeightRecord<T>>> recs(size_t(gr.C * gr.tiles()));
-  at::Tensor tf = at::empty({gr.C * gr.H * gr.W}, s.colors.options());
-  T* tfp = tf.data_ptr<T>();
-  parallel_chunks(gr.C * gr.tiles(), [&](int64_t ct, int w) {
-    Tile2<T>& st = states[w];
-    st.reset(gr.tile);
-    const int64_t start = in.off[ct], c = ct / gr.tiles();
+  return record_weights<T, Tile2<T>>(gr, in.off, l.ids.numel(), s.colors.options(),
+                                     [&](int64_t ct, Tile2<T>& st, const WeightEmitter<T>& emit) {
+    const int64_t start = in.off[ct];
     forward_tile(in, ent.data(), gr, ct, pair_records<Pair2<T>>(pairs) + start, in.off[ct + 1] - start,
-                 in.mc + 3 * c, st, tile_emitter(&recs[size_t(ct)], gr, ct, start));
-    write_transmittance(gr, ct, st, tfp);
+                 in.mc + 3 * (ct / gr.tiles()), st, emit);
   });
-  return assemble_weights(recs, gr.C * gr.H * gr.W, P, s.colors.options(), tf);
 }
 
 }  // namespace c2d

@@ -312,20 +312,12 @@ Grads3D backward_impl(const Splats3D& s, const TileLists& l, const Grid& gr, con
 template <typename T>
 ColourWeights weights_impl(const Splats3D& s, const TileLists& l, const Grid& gr) {
   const In3<T> in = inputs<T>(s, l);
-  const int64_t P = l.ids.numel();
-  at::Tensor pairs = pair_storage<Pair3<T>>(P, s.colors);
-  std::vector<Tile3<T>> states(num_workers());
-  std::vector<std::vector<WeightRecord<T>>> recs(size_t(gr.C * gr.tiles()));
-  at::Tensor tf = at::empty({gr.C * gr.H * gr.W}, s.colors.options());
-  T* tfp = tf.data_ptr<T>();
-  parallel_chunks(gr.C * gr.tiles(), [&](int64_t ct, int w) {
-    Tile3<T>& st = states[w];
-    st.reset(gr.tile);
-    const int64_t start = in.off[ct], n = in.off[ct + 1] - start;
-    forward_tile(in, gr, ct, pair_records<Pair3<T>>(pairs) + start, n, st, tile_emitter(&recs[size_t(ct)], gr, ct, start));
-    write_transmittance(gr, ct, st, tfp);
+  at::Tensor pairs = pair_storage<Pair3<T>>(l.ids.numel(), s.colors);
+  return record_weights<T, Tile3<T>>(gr, in.off, l.ids.numel(), s.colors.options(),
+                                     [&](int64_t ct, Tile3<T>& st, const WeightEmitter<T>& emit) {
+    const int64_t start = in.off[ct];
+    forward_tile(in, gr, ct, pair_records<Pair3<T>>(pairs) + start, in.off[ct + 1] - start, st, emit);
   });
-  return assemble_weights(recs, gr.C * gr.H * gr.W, P, s.colors.options(), tf);
 }
 
 }  // namespace

@@ -83,4 +83,22 @@ ColourWeights assemble_weights(const std::vector<std::vector<WeightRecord<T>>>& 
   return r;
 }
 
+// A forward pass's record: run(ct, state, emitter) composites tile ct (its pairs from off[ct]) with the emitter,
+// leaving its pixels' state; the tiles run in parallel, each worker with a Tile state of its own.
+template <typename T, class Tile, class Run>
+ColourWeights record_weights(const Grid& gr, const int64_t* off, int64_t npairs, const at::TensorOptions& o,
+                             const Run& run) {
+  std::vector<Tile> states(num_workers());
+  std::vector<std::vector<WeightRecord<T>>> recs(size_t(gr.C * gr.tiles()));
+  at::Tensor tf = at::empty({gr.C * gr.H * gr.W}, o);
+  T* tfp = tf.data_ptr<T>();
+  parallel_chunks(gr.C * gr.tiles(), [&](int64_t ct, int w) {
+    Tile& st = states[w];
+    st.reset(gr.tile);
+    run(ct, st, tile_emitter(&recs[size_t(ct)], gr, ct, off[ct]));
+    write_transmittance(gr, ct, st, tfp);
+  });
+  return assemble_weights(recs, gr.C * gr.H * gr.W, npairs, o, tf);
+}
+
 }  // namespace arcsem

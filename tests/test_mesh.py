@@ -198,3 +198,27 @@ def test_sample_mesh_is_uniform_by_area():
     top = np.isclose(pts[:, 2], 5)
     assert top.mean() == pytest.approx(0.9, abs=0.01)
     assert (pts[~top][:, :2].sum(1) <= 1 + 1e-9).all() and (pts[top][:, :2].sum(1) <= 3 + 1e-9).all()
+
+
+def test_ground_truth_samples_are_kept_per_grain_and_settings(tmp_path, monkeypatch):
+    """The built-in grain's surface samples (the same every run) are computed once per grain and settings, then read
+    back equal; a damaged file is recomputed."""
+    import numpy as np
+
+    from arcsem.mesh import groundtruth
+    from arcsem.synthetic.sdf import make_grain
+
+    calls = []
+    real = groundtruth.surface_samples
+    monkeypatch.setattr(groundtruth, "surface_samples", lambda g, **kw: calls.append(kw) or real(g, **kw))
+    kw = {"n": 500, "spacing": 0.08}
+    a = groundtruth.cached_surface_samples(make_grain(0, 8), tmp_path, **kw)
+    b = groundtruth.cached_surface_samples(make_grain(0, 8), tmp_path, **kw)
+    assert len(calls) == 1 and np.array_equal(a, b) and a.shape == (500, 3)
+    groundtruth.cached_surface_samples(make_grain(1, 8), tmp_path, **kw)  # another grain: its own file
+    groundtruth.cached_surface_samples(make_grain(0, 8), tmp_path, n=400, spacing=0.08)  # other settings: too
+    assert len(calls) == 3 and len(list(tmp_path.glob("surface_*.npy"))) == 3
+    for path in tmp_path.glob("surface_*.npy"):
+        path.write_bytes(b"damaged")
+    c = groundtruth.cached_surface_samples(make_grain(0, 8), tmp_path, **kw)
+    assert len(calls) == 4 and np.array_equal(a, c)

@@ -34,7 +34,8 @@ def test_only_stage_1_scores_its_mesh_against_the_true_surface(tmp_path, monkeyp
     from arcsem.train.products import write_products
 
     scored = []
-    monkeypatch.setattr(extract, "ground_truth_chamfer", lambda scene, v, f, n: scored.append(len(f)) or {"chamfer": 0})
+    monkeypatch.setattr(extract, "ground_truth_chamfer",
+                        lambda scene, v, f, n, cache_dir=None: scored.append(len(f)) or {"chamfer": 0})
     scene = tiny_scene()
     bb = _backbone(scene)
     cfg = {"mesh": {"formats": ["ply"], "carve": False, "alpha_min": 0.5, "use_masks": False}}

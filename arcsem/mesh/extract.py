@@ -117,9 +117,10 @@ def write_mesh(stem: Path, verts: np.ndarray, faces: np.ndarray, colors: np.ndar
 
 
 def export_mesh(backbone, scene, out_stem: str | Path, cfg: MeshConfig | None = None, *,
-                progress: bool = False, evaluate: bool = True) -> dict:
+                progress: bool = False, evaluate: bool = True, cache_dir: str | Path | None = None) -> dict:
     """Fuse, extract, clean and write the mesh of ``backbone``; with ``evaluate`` and the built-in
-    scene, add its Chamfer distance to the ground truth (:mod:`.groundtruth`). Returns the metrics."""
+    scene, add its Chamfer distance to the ground truth (:mod:`.groundtruth`; its surface samples kept in
+    ``cache_dir/groundtruth`` when given). Returns the metrics."""
     cfg = cfg or MeshConfig()
     t0 = time.perf_counter()
     vol, info = fuse_views(backbone, scene, cfg, progress)
@@ -132,22 +133,24 @@ def export_mesh(backbone, scene, out_stem: str | Path, cfg: MeshConfig | None = 
     info["files"] = write_mesh(Path(out_stem), verts, faces, colors, cfg.formats)
     info["fuse_time_s"] = time.perf_counter() - t0
     if evaluate:
-        gt = ground_truth_chamfer(scene, verts, faces, cfg.chamfer_points)
+        gt = ground_truth_chamfer(scene, verts, faces, cfg.chamfer_points, cache_dir)
         if gt is not None:
             info["gt"] = gt
     info["time_s"] = time.perf_counter() - t0
     return info
 
 
-def ground_truth_chamfer(scene, verts: np.ndarray, faces: np.ndarray, n: int) -> dict | None:
-    """Chamfer distance of the mesh to the built-in grain (None for other datasets)."""
-    from .groundtruth import chamfer, scene_grain, surface_samples, visible_samples
+def ground_truth_chamfer(scene, verts: np.ndarray, faces: np.ndarray, n: int,
+                         cache_dir: str | Path | None = None) -> dict | None:
+    """Chamfer distance of the mesh to the built-in grain (None for other datasets); the grain's surface samples
+    are read from (or kept in) ``cache_dir/groundtruth`` when given."""
+    from .groundtruth import cached_surface_samples, chamfer, scene_grain, visible_samples
 
     grain = scene_grain(scene)
     split = scene.train
     if grain is None or split.depths is None:
         return None
-    gt = surface_samples(grain)
+    gt = cached_surface_samples(grain, None if cache_dir is None else Path(cache_dir) / "groundtruth")
     tol = 2.0 * pixel_footprint(split.cameras, scene.bounds.double().mean(0))
     out = chamfer(grain, verts, faces, gt[visible_samples(gt, split, tol)], n_mesh=n)
     out["visible_tol"] = tol

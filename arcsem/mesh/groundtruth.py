@@ -18,14 +18,16 @@ Chamfer protocol (as the DTU evaluation, with the SDF's surface as the scan):
 """
 from __future__ import annotations
 
+import dataclasses
 import json
+import os
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["chamfer", "sample_mesh", "scene_grain", "surface_samples", "visible_samples"]
+__all__ = ["cached_surface_samples", "chamfer", "sample_mesh", "scene_grain", "surface_samples", "visible_samples"]
 
 
 def scene_grain(scene):
@@ -78,6 +80,35 @@ def surface_samples(grain, n: int = 200_000, spacing: float = 0.025, newton: int
             normal, _ = sdf_gradient(grain.sdf, q)
             p[i:i + (1 << 18)] = q - grain.sdf(q)[:, None] * normal
     return p.numpy()
+
+
+def cached_surface_samples(grain, cache_dir: str | Path | None, **kw) -> np.ndarray:
+    """:func:`surface_samples` of ``grain`` (``kw`` its settings), read from ``cache_dir`` when it holds them (keyed
+    by the grain, the settings and the scene generator's version), else computed and kept there (None: no cache).
+    The samples are the same every run on the built-in scene, and most of the Chamfer score's time."""
+    import hashlib
+    import logging
+
+    from ..synthetic.write import GENERATOR_VERSION
+
+    if cache_dir is None:
+        return surface_samples(grain, **kw)
+    h = hashlib.sha1(json.dumps({"settings": kw, "generator": GENERATOR_VERSION}, sort_keys=True).encode())
+    for f in dataclasses.fields(grain):  # the grain itself, by content
+        h.update(f.name.encode())
+        h.update(torch.as_tensor(getattr(grain, f.name)).double().contiguous().numpy().tobytes())
+    path = Path(cache_dir) / f"surface_{h.hexdigest()[:16]}.npy"
+    if path.is_file():
+        try:
+            return np.load(path)
+        except (OSError, ValueError) as exc:  # a damaged cache file is recomputed, not fatal
+            logging.getLogger(__name__).warning("ground-truth cache %s unreadable (%s); recomputing", path, exc)
+    points = surface_samples(grain, **kw)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}.npy")
+    np.save(tmp, points)
+    os.replace(tmp, path)
+    return points
 
 
 def visible_samples(points: np.ndarray, split, tol: float) -> np.ndarray:

@@ -24,7 +24,10 @@ def write_products(cfg: Any, backbone, scene, run_dir: str | Path, prefix: str =
     mc = run_config(cfg).mesh  # a run's: validated once, however many products it writes
     out: dict[str, Any] = {}
     if mc.enabled and "depth" in backbone.provides:
-        out["mesh"] = export_mesh(backbone, scene, run_dir / f"{prefix}mesh", mc, progress=progress, evaluate=evaluate)
+        from ..share import cache_root
+
+        out["mesh"] = export_mesh(backbone, scene, run_dir / f"{prefix}mesh", mc, progress=progress, evaluate=evaluate,
+                                  cache_dir=cache_root(cfg))
     split = scene.train
     try:
         out["viewer"] = backbone.export_viewer(str(run_dir / f"{prefix}viewer"), split.cameras, split.names,

@@ -9,13 +9,24 @@ run's stored config) wraps it with :func:`run_config`; handed a :class:`RunConfi
 """
 from __future__ import annotations
 
+import os
 from functools import cached_property
+from pathlib import Path
 from typing import Any
 
 from .configs import ActConfig, ColorizeConfig, MeshConfig, RenderConfig, TrainConfig
 from .registry import plain, validate_config
 
-__all__ = ["RunConfig", "run_config", "validated"]
+__all__ = ["RunConfig", "cache_root", "run_config", "validated"]
+
+
+def cache_root(cfg: Any = None) -> Path:
+    """The cache root: ``cfg.cache_dir``, ``$ARCSEM_CACHE`` or ``~/.cache/arcsem`` (first set)."""
+    root = None
+    if cfg is not None:
+        root = plain(cfg).get("cache_dir") if hasattr(cfg, "get") else None
+    root = root or os.environ.get("ARCSEM_CACHE") or "~/.cache/arcsem"
+    return Path(str(root)).expanduser()
 
 
 def validated(schema: type, raw: Any, where: str) -> Any:

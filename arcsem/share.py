@@ -32,6 +32,7 @@ from typing import Any
 
 from .files import write_json_atomic
 from .registry import plain
+from .runconfig import cache_root  # (re-exported: its callers above the checks layer import it from here)
 
 __all__ = [
     "STAGE1_KEYS",
@@ -53,15 +54,6 @@ TRAIN_IGNORED = ("resume", "eval_every", "log_every", "checkpoint_every", "progr
 RESULT_FILE = "result.json"
 
 DONE_FILE = "DONE"
-
-
-def cache_root(cfg: Mapping | None = None) -> Path:
-    """The cache root: ``cfg.cache_dir``, ``$ARCSEM_CACHE`` or ``~/.cache/arcsem`` (first set)."""
-    root = None
-    if cfg is not None:
-        root = plain(cfg).get("cache_dir") if hasattr(cfg, "get") else None
-    root = root or os.environ.get("ARCSEM_CACHE") or "~/.cache/arcsem"
-    return Path(str(root)).expanduser()
 
 
 def stage1_key(cfg: Mapping) -> str:

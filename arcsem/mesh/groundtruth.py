@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -89,6 +88,7 @@ def cached_surface_samples(grain, cache_dir: str | Path | None, **kw) -> np.ndar
     import hashlib
     import logging
 
+    from ..files import atomic_open
     from ..synthetic.write import GENERATOR_VERSION
 
     if cache_dir is None:
@@ -104,10 +104,8 @@ def cached_surface_samples(grain, cache_dir: str | Path | None, **kw) -> np.ndar
         except (OSError, ValueError) as exc:  # a damaged cache file is recomputed, not fatal
             logging.getLogger(__name__).warning("ground-truth cache %s unreadable (%s); recomputing", path, exc)
     points = surface_samples(grain, **kw)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}.npy")
-    np.save(tmp, points)
-    os.replace(tmp, path)
+    with atomic_open(path, "wb") as f:
+        np.save(f, points)
     return points
 
 

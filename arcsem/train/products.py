@@ -18,16 +18,14 @@ def write_products(cfg: Any, backbone, scene, run_dir: str | Path, prefix: str =
     """Write ``<prefix>mesh.*`` and ``<prefix>viewer/`` into ``run_dir``; returns their metrics and paths.
     ``evaluate``: score the mesh against the built-in scene's true surface (:func:`arcsem.mesh.export_mesh`)."""
     from ..mesh import export_mesh
-    from ..runconfig import run_config
+    from ..runconfig import cache_root, run_config
 
     run_dir = Path(run_dir)
     mc = run_config(cfg).mesh  # a run's: validated once, however many products it writes
     out: dict[str, Any] = {}
     if mc.enabled and "depth" in backbone.provides:
-        from ..share import cache_root
-
         out["mesh"] = export_mesh(backbone, scene, run_dir / f"{prefix}mesh", mc, progress=progress, evaluate=evaluate,
-                                  cache_dir=cache_root(cfg))
+                                  cache_dir=cache_root(run_config(cfg).cfg))
     split = scene.train
     try:
         out["viewer"] = backbone.export_viewer(str(run_dir / f"{prefix}viewer"), split.cameras, split.names,

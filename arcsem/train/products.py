@@ -21,11 +21,12 @@ def write_products(cfg: Any, backbone, scene, run_dir: str | Path, prefix: str =
     from ..runconfig import cache_root, run_config
 
     run_dir = Path(run_dir)
-    mc = run_config(cfg).mesh  # a run's: validated once, however many products it writes
+    rc = run_config(cfg)
+    mc = rc.mesh  # a run's: validated once, however many products it writes
     out: dict[str, Any] = {}
     if mc.enabled and "depth" in backbone.provides:
         out["mesh"] = export_mesh(backbone, scene, run_dir / f"{prefix}mesh", mc, progress=progress, evaluate=evaluate,
-                                  cache_dir=cache_root(run_config(cfg).cfg))
+                                  cache_dir=cache_root(rc.cfg))
     split = scene.train
     try:
         out["viewer"] = backbone.export_viewer(str(run_dir / f"{prefix}viewer"), split.cameras, split.names,

@@ -201,8 +201,11 @@ class ColorizeConfig:
     # the background outside the specimen masks: auto (the references' background colour as a line of the grey,
     # the pseudo-colour target of every other view's background, arcsem.colorize.background) | off (no target there)
     background: str = checked("auto", choices=("auto", "off"))
-    # with two or more references: auto (each reference held out in turn chooses the surface spread, the shading and
-    # whether TCM/CCM act, arcsem.colorize.validate; recorded in metrics.json) | off (the settings as written)
+    # specimen pixels no pseudo-colour or surface spread reaches: grey (the references' expected colour at the
+    # pixel's grey level, arcsem.colorize.prior) | off (no target there: they keep the stage-1 grey)
+    prior: str = checked("grey", choices=("grey", "off"))
+    # with two or more references: auto (each reference held out in turn chooses the surface spread, the shading, the
+    # prior and whether TCM/CCM act, arcsem.colorize.validate; recorded in metrics.json) | off (the settings as written)
     validate: str = checked("auto", choices=("auto", "off"))
     guard: GuardConfig = field(default_factory=GuardConfig)
 

@@ -8,7 +8,7 @@
 # Variants (stage-2 overrides on top of the default):
 #   default      this commit's stage 2            pseudo_only  +ablation=pseudo_only (the paper's pseudo-colours)
 #   no_tcm / no_ccm                               TCM / CCM weight 0 (validation still chooses the rest)
-#   no_shading / no_surface / no_validate / no_guard   one addition off
+#   no_shading / no_surface / no_validate / no_guard / no_prior   one addition off
 #   everywhere   TCM/CCM also inside the pseudo-colour coverage (colorize.guard.uncovered_only=false)
 #   no_check     TCM/CCM kept at one reference whatever the match check says (colorize.guard.check=false)
 # Run folders: OUT_DIR/s2/<scene>_<refs>_<variant>[_s<seed>] (seed 0 has no suffix, as in earlier tables).
@@ -28,6 +28,7 @@ overrides() {
     no_surface) echo "colorize.surface.mode=off" ;;
     no_validate) echo "colorize.validate=off" ;;
     no_guard) echo "colorize.guard.enabled=false" ;;
+    no_prior) echo "colorize.prior=off" ;;
     everywhere) echo "colorize.guard.uncovered_only=false" ;;
     no_check) echo "colorize.guard.check=false" ;;
     *) echo "error: unknown variant $1" >&2; exit 2 ;;

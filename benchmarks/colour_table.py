@@ -24,7 +24,7 @@ def row(run: Path) -> str | None:
         return f"| {run.name} | failed: {m.get('error')} |"
     t, v = s2["test"], s2.get("validation") or {}
     trained = s2.get("losses") or []  # the guided losses that trained: kept by the validation and the match check
-    chose = (f"{v['surface']}/{v['shading']}, " if v else "") + \
+    chose = (f"{v['surface']}/{v['shading']}" + (f"/{v['prior']}" if "prior" in v else "") + ", " if v else "") + \
         f"TCM {'on' if 'tcm' in trained else 'off'}, CCM {'on' if 'ccm' in trained else 'off'}"
     f = lambda d, k: f"{d[k]:.2f}" if d.get(k) is not None else "-"  # no masks: no masked PSNR
     return (f"| {run.name} | {f(t, 'psnr')} | {f(t, 'psnr_masked')} | {f(t, 'psnr_covered')} | "

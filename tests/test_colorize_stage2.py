@@ -58,8 +58,10 @@ def test_stage2_end_to_end(tmp_path, monkeypatch):
     assert s2["pseudo"]["shading"]["mode"] == v["shading"]
     assert ({"nodes", "confident", "filled"} <= set(s2["pseudo"]["surface"])) if v["surface"] == "fill" else (
         "surface" not in s2["pseudo"])
-    assert v["references"] >= 2 and set(v["target_mse"]) == {"fill/auto", "fill/off", "off/auto", "off/off"}
-    assert v["target_mse"][f"{v['surface']}/{v['shading']}"] == min(v["target_mse"].values())
+    assert v["references"] >= 2 and set(v["target_mse"]) == {
+        f"{a}/{b}/{c}" for a in ("fill", "off") for b in ("auto", "off") for c in ("grey", "off")}
+    assert v["target_mse"][f"{v['surface']}/{v['shading']}/{v['prior']}"] == min(v["target_mse"].values())
+    assert ("prior" in s2["pseudo"]) == (v["prior"] == "grey")  # the specimen pixels nothing else reaches
     assert {"guidance", "target", "keep"} <= set(v["tcm"]) and sorted(s2["losses"]) == sorted(
         ["pseudo_color", "reference_l1"] + [k for k in ("ccm", "tcm") if v[k]["keep"]])
     if v["tcm"]["keep"] or v["ccm"]["keep"]:  # guarded matches also tested for agreement across the views
@@ -80,13 +82,18 @@ def test_stage2_end_to_end(tmp_path, monkeypatch):
     # a rerun reuses the pseudo-colours and guidance from the cache and the finished checkpoint
     r2 = run_stage2(cfg, scene, run)
     assert r2["stage2"]["pseudo"]["cache_hit"] is True
-    # one reference: no validation; the match check against the pseudo-colours decides TCM and CCM
+    # one reference: its halves choose the surface spread and the prior; the match check against the
+    # pseudo-colours decides TCM and CCM
     cfg.colorize.references, cfg.colorize.stage1 = "one", str(run)
     one = run_stage2(cfg, scene, tmp_path / "one")["stage2"]
-    check = one["feature_extractor"]["match_check"]
-    assert one["validation"] is None and set(check) == {"tcm", "ccm"}
+    check, v1 = one["feature_extractor"]["match_check"], one["validation"]
+    assert v1["references"] == 1 and v1["split"] == "halves" and set(check) == {"tcm", "ccm"}
+    assert v1["target_mse"][f"{v1['surface']}/{v1['prior']}"] == min(v1["target_mse"].values()) and len(
+        v1["target_mse"]) == 4
+    assert ("prior" in one["pseudo"]) == (v1["prior"] == "grey") and ("surface" in one["pseudo"]) == (
+        v1["surface"] == "fill")
     assert sorted(one["losses"]) == sorted(["pseudo_color", "reference_l1"] + [k for k in check if check[k]["keep"]])
-    assert all(c["keep"] == (c["cells"] > 0 and c["match"] < c["flat"]) for c in check.values())
+    assert all(c["keep"] == (c["cells"] > 0 and c["match"] < c["guess"]) for c in check.values())
 
 
 @pytest.mark.slow

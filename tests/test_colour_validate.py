@@ -18,19 +18,21 @@ def _targets():
     ok_s = torch.zeros(H, W, dtype=torch.bool)
     ok_s[1, :2] = True
     return {"pseudo": pseudo, "pseudo_valid": ok_p, "surface": surface, "surface_valid": ok_s,
-            "shading": (0.0, 1.0), "flat": torch.tensor([0.5, 0.5, 0.5])}
+            "shading": (0.0, 1.0), "prior": torch.full((H, W, 3), 0.7), "plain": torch.full((H, W, 3), 0.25)}
 
 
 def test_target_image_of_each_grid_setting():
     t, grey = _targets(), torch.full((2, 3), 0.25)
-    rgb, ok = target_image(t, grey, "off", "off")
+    rgb, ok = target_image(t, grey, "off", "off")  # where no target reaches: the grey (stage 1's)
     assert ok.tolist() == [[True] * 3, [False] * 3]
-    assert torch.equal(rgb[0, 0], torch.tensor([0.2, 0.4, 0.6])) and torch.equal(rgb[1, 2], torch.tensor([0.5] * 3))
+    assert torch.equal(rgb[0, 0], torch.tensor([0.2, 0.4, 0.6])) and torch.equal(rgb[1, 2], torch.tensor([0.25] * 3))
+    rgb, ok = target_image(t, grey, "off", "off", "grey")  # ... or the prior, which does not count as covered
+    assert ok.tolist() == [[True] * 3, [False] * 3] and torch.equal(rgb[1, 2], torch.tensor([0.7] * 3))
     rgb, ok = target_image(t, grey, "fill", "auto")  # shading L = g: grey 0.5 -> 0.25 halves row 0
     assert ok.tolist() == [[True] * 3, [True, True, False]]
     torch.testing.assert_close(rgb[0, 0], torch.tensor([0.1, 0.2, 0.3]))
     torch.testing.assert_close(rgb[1, 0], torch.tensor([0.8, 0.2, 0.2]))  # painted on grey 0.25: unchanged
-    assert len(GRID) == 4 and {"surface": "off", "shading": "off"} in GRID  # pseudo-colours alone is a setting
+    assert len(GRID) == 8 and {"surface": "off", "shading": "off", "prior": "off"} in GRID  # pseudo-colours alone
 
 
 def test_target_error_is_the_mean_squared_error_over_the_mask():
@@ -44,9 +46,9 @@ def test_target_error_is_the_mean_squared_error_over_the_mask():
 
 def test_apply_choice_sets_the_target_and_drops_losses_that_lose():
     cc = ColorizeConfig(losses={"tcm": {"weight": 1.0}, "ccm": {"weight": 5.0}, "pseudo_color": {"weight": 1.0}})
-    choice = {"surface": "off", "shading": "auto", "tcm": {"keep": False}, "ccm": {"keep": True}}
+    choice = {"surface": "off", "shading": "auto", "prior": "off", "tcm": {"keep": False}, "ccm": {"keep": True}}
     out = apply_choice(cc, choice)
-    assert out.surface.mode == "off" and out.shading == "auto"
+    assert out.surface.mode == "off" and out.shading == "auto" and out.prior == "off" and cc.prior == "grey"
     assert out.losses["tcm"]["weight"] == 0.0 and out.losses["ccm"]["weight"] == 5.0
     assert cc.losses["tcm"]["weight"] == 1.0  # the input config is left as it was
 
@@ -116,3 +118,40 @@ def test_the_background_counts_as_covered_when_it_has_its_own_target():
     assert scores == {"auto": (True, True), "off": (False, False)}
     # no background in the other references: no line, so the background is not covered
     assert acting_cover(ok, mask, cc, refs, ref_grey, torch.ones(1, 16, 16, dtype=torch.bool)).sum() == 0
+
+
+def _plate(columns):
+    """One orthographic view of a flat plate, 16 x 40 px; ``columns``: (first column, grey, colour) of each part."""
+    from arcsem.cameras import Cameras, look_at
+
+    H, W = 16, 40
+    eye = torch.tensor([[0.0, 0.0, 5.0]], dtype=torch.float64)
+    w2c = look_at(eye, torch.zeros_like(eye), torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64))
+    K = torch.tensor([[[10.0, 0, W / 2], [0, 10.0, H / 2], [0, 0, 1]]], dtype=torch.float64)
+    grey, image = torch.zeros(1, H, W), torch.zeros(H, W, 3)
+    for start, g, c in columns:
+        grey[:, :, start:], image[:, start:] = g, torch.tensor(c)
+    normals = torch.zeros(1, H, W, 3, dtype=torch.float64)
+    normals[..., 2] = 1.0
+    return (Cameras(w2c, K, W, H, "orthographic"), torch.full((1, H, W), 5.0, dtype=torch.float64), normals,
+            torch.ones(1, H, W, dtype=torch.bool), grey, image)
+
+
+def test_one_reference_chooses_between_the_surface_spread_and_the_prior_on_its_halves():
+    """Each half of the one reference scribbles, the other half scores. Colour by position (red on the left, blue
+    elsewhere, one grey): the spread carries it, the prior (one grey: the mean) cannot. Colour by grey (red parts
+    of grey 0.3, blue of 0.7, alternating): across a part border the spread brings the neighbour's colour with full
+    confidence (the only way out of the part), the prior the right one."""
+    from arcsem.colorize.validate import validate_single
+
+    red, blue = [0.9, 0.1, 0.1], [0.1, 0.2, 0.9]
+    cc = ColorizeConfig()
+    cams, depth, normal, masks, grey, image = _plate([(0, 0.5, red), (10, 0.5, blue)])
+    by_position = validate_single(cams, depth, normal, masks, grey, 0, image, cc)
+    assert by_position["surface"] == "fill" and by_position["references"] == 1
+    assert by_position["target_mse"]["fill/grey"] < 0.75 * by_position["target_mse"]["off/grey"]
+    cams, depth, normal, masks, grey, image = _plate([(0, 0.3, red), (10, 0.7, blue), (20, 0.3, red),
+                                                      (30, 0.7, blue)])
+    by_grey = validate_single(cams, depth, normal, masks, grey, 0, image, cc)
+    assert (by_grey["surface"], by_grey["prior"]) == ("off", "grey")
+    assert by_grey["target_mse"]["off/grey"] < 0.1 * by_grey["target_mse"]["fill/grey"]

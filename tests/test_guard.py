@@ -127,8 +127,12 @@ def test_match_check_keeps_matches_that_bring_the_pseudo_colours_and_drops_those
     valid[:, :4] = True
     flat = torch.tensor([0.5, 0.5, 0.5])
     right = match_check(_Carried([1.0, 0.0, 0.0]), [1, 2], pseudo, valid, flat)["ccm"]
-    assert right["cells"] == 4 and right["match"] == 0.0 and abs(right["flat"] - 0.25) < 1e-6 and right["keep"]
+    assert right["cells"] == 4 and right["match"] == 0.0 and abs(right["guess"] - 0.25) < 1e-6 and right["keep"]
     wrong = match_check(_Carried([0.0, 0.0, 1.0]), [1, 2], pseudo, valid, flat)["ccm"]
     assert abs(wrong["match"] - 2 / 3) < 1e-6 and not wrong["keep"]
     nowhere = match_check(_Carried([1.0, 0.0, 0.0]), [1, 2], pseudo, torch.zeros_like(valid), flat)["ccm"]
     assert nowhere["cells"] == 0 and not nowhere["keep"]  # no evidence: the loss is dropped
+    prior = torch.zeros(3, 8, 8, 3)  # a guess per pixel (the grey prior): red on the top half, where it is right
+    prior[:, :4, :, 0] = 1.0
+    beaten = match_check(_Carried([1.0, 0.0, 0.0]), [1, 2], pseudo, valid, prior)["ccm"]
+    assert beaten["guess"] == 0.0 and not beaten["keep"]  # matches no better than the prior: dropped

@@ -38,3 +38,6 @@ def test_the_validated_stage2_target_is_a_column_of_the_colour_tables(tmp_path):
     assert stage2_choice(off) == "pseudo-colours (+0.0 dB)"
     # a run from before stage2.losses was read: the validation's keep
     assert stage2_choice({**off, "stage2.validation.tcm.keep": True}) == "pseudo-colours (+0.0 dB) +TCM"
+    prior = {"stage2.validation.surface": "off", "stage2.validation.shading": "auto", "stage2.validation.prior": "grey",
+             "stage2.validation.target_mse.off/auto/grey": 0.01, "stage2.validation.target_mse.off/off/off": 0.1}
+    assert stage2_choice(prior) == "shading+prior (+10.0 dB)"  # the grid with the grey prior (issue 38)

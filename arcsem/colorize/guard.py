@@ -18,8 +18,8 @@ Where no location passes, the view location gets no target and the losses pull n
 ``uncovered_only`` (the default) the matches act only on the cells the pseudo-colour target leaves
 (:func:`uncovered_cells`): where the stage-1 geometry already says which reference pixel a point shows, an
 appearance match is the weaker evidence. Last, :func:`match_check` asks whether the kept matches carry colour at
-all, where the geometry can tell (the covered cells): a loss whose matches do no better than a flat guess there is
-dropped.
+all, where the geometry can tell (the covered cells): a loss whose matches do no better than the guess made without
+them there (the grey prior, or the references' mean colour) is dropped.
 """
 from __future__ import annotations
 
@@ -134,26 +134,33 @@ def cross_view_agreement(points: list[Tensor], colours: list[Tensor], keep: list
     return out
 
 
-def match_check(guidance, views: list[int], pseudo: Tensor, valid: Tensor, flat: Tensor) -> dict[str, dict]:
+def _cell_means(x: Tensor, valid: Tensor, grid: tuple[int, int]) -> Tensor:
+    """``[N, h*w, 3]``: the mean of ``x [N, H, W, 3]`` over the ``valid [N, H, W]`` pixels of each cell of ``grid``."""
+    area = F.interpolate(valid[:, None].float(), size=grid, mode="area")[:, 0].clamp_min(1e-6)[..., None]
+    sums = F.interpolate((x * valid[..., None]).permute(0, 3, 1, 2).float(), size=grid, mode="area")
+    return (sums.permute(0, 2, 3, 1) / area).reshape(len(valid), -1, 3)
+
+
+def match_check(guidance, views: list[int], pseudo: Tensor, valid: Tensor, guess: Tensor) -> dict[str, dict]:
     """Do the kept matches carry colour? Checked where the geometry answers: on the cells of the non-reference
     ``views`` that the 2-D pseudo-colours cover (``valid [N, H, W]``, at least half the cell), the colour each kept
     match brings (:meth:`~arcsem.colorize.guidance.Guidance.carried`) against the cell's mean pseudo-colour
-    (``pseudo [N, H, W, 3]``), and the same for a flat guess (``flat [3]``: the references' mean colour). A loss whose
-    matches are no closer than the flat guess is dropped (``keep`` false); with one reference this is the only
-    evidence for TCM and CCM there is. Returns ``{"tcm": {...}, "ccm": {...}}``: mean squared errors ``match``,
-    ``flat``, the ``cells`` compared and ``keep``; the TCM blocks are pooled."""
+    (``pseudo [N, H, W, 3]``), and the same for the guess made without matches (``guess``: ``[3]``, the references'
+    mean colour, or ``[N, H, W, 3]``, a colour per pixel: the grey prior, :mod:`arcsem.colorize.prior`; its cell
+    mean over the same pixels). A loss whose matches are no closer than the guess is dropped (``keep`` false); with
+    one reference this is the only evidence for TCM and CCM there is. Returns ``{"tcm": {...}, "ccm": {...}}``: mean
+    squared errors ``match``, ``guess``, the ``cells`` compared and ``keep``; the TCM blocks are pooled."""
     sums = {"tcm": [0.0, 0.0, 0], "ccm": [0.0, 0.0, 0]}
+    guess = guess.float().expand_as(pseudo) if guess.dim() == 1 else guess.float()
     for name, grid in guidance.kinds():
         cover = ~uncovered_cells(valid, grid)
-        area = F.interpolate(valid[:, None].float(), size=grid, mode="area")[:, 0]
-        mean = F.interpolate((pseudo * valid[..., None]).permute(0, 3, 1, 2).float(), size=grid, mode="area")
-        mean = (mean.permute(0, 2, 3, 1) / area[..., None].clamp_min(1e-6)).reshape(len(valid), -1, 3)
+        mean, base = _cell_means(pseudo, valid, grid), _cell_means(guess, valid, grid)
         acc = sums["ccm" if name == "ccm" else "tcm"]
         for v in views:
             cols, keep = guidance.carried(v, name)
             sel = keep & cover[v].reshape(-1)
             acc[0] += float(((cols[sel].float() - mean[v][sel]) ** 2).sum())
-            acc[1] += float(((flat.float() - mean[v][sel]) ** 2).sum())
+            acc[1] += float(((base[v][sel] - mean[v][sel]) ** 2).sum())
             acc[2] += int(sel.sum())
-    return {k: {"match": m / max(3 * n, 1), "flat": f / max(3 * n, 1), "cells": n, "keep": n > 0 and m < f}
+    return {k: {"match": m / max(3 * n, 1), "guess": f / max(3 * n, 1), "cells": n, "keep": n > 0 and m < f}
             for k, (m, f, n) in sums.items()}

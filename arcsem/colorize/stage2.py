@@ -29,6 +29,7 @@ from .background import background_target, fit_background
 from .config import ColorizeConfig
 from .guidance import Guidance
 from .masks import specimen_masks
+from .prior import fit_grey_prior, grey_prior
 from .pseudocolor import cached_pseudo_colors, pseudo_colors, pseudo_key, render_depths
 from .references import load_references
 from .shading import fit_shading, shade
@@ -116,7 +117,9 @@ def _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo: Surface
     """The pseudo-colour target ``[N, H, W, 3]`` and its pixels ``[N, H, W]`` of every training view: the 2-D
     pseudo-colours (:mod:`.pseudocolor`), completed by the surface spread (:mod:`.surface`, ``colorize.surface``)
     and shaded for each view (:mod:`.shading`, ``colorize.shading``), the background's line of the grey outside the
-    specimen masks (:mod:`.background`, ``colorize.background``); returns them and what to record."""
+    specimen masks (:mod:`.background`, ``colorize.background``) and, on the specimen pixels none of these reach,
+    the references' colour at the pixel's grey (:mod:`.prior`, ``colorize.prior``); returns them and what to
+    record (``covered``: the pixels before the prior)."""
     t0 = time.perf_counter()
     depth_src = ckpt if cc.depth == "model" else split.depths
     if cc.depth == "dataset" and split.depths is None:
@@ -147,6 +150,13 @@ def _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo: Surface
             rgb, where = background_target(grey, masks, line)
             where = where & ~valid
             colors, valid = torch.where(where[..., None], rgb, colors), valid | where
+    info["covered"] = valid  # what the evidence reaches: TCM/CCM act on the cells it leaves
+    if cc.prior == "grey":  # the specimen pixels still without a target: the references' colour at their grey
+        lut = fit_grey_prior(refs.images, grey[ridx], masks[ridx])
+        where = masks.bool() & ~valid
+        if lut is not None:
+            colors, valid = torch.where(where[..., None], grey_prior(lut, grey), colors), valid | where
+        info["prior"] = {"filled_px": int(where.sum()) if lut is not None else 0}
     return colors, valid, info
 
 
@@ -252,22 +262,27 @@ def _match_check(cc, guidance: Guidance, split, refs, masks, pseudo, valid2d):
 
     others = [i for i in range(len(split)) if i not in set(refs.indices.tolist())]
     ref_masks = masks[refs.indices]
-    flat = refs.images.float()[ref_masks].mean(0) if bool(ref_masks.any()) else refs.images.float().mean((0, 1, 2))
-    check = match_check(guidance, others, pseudo.cpu(), valid2d.cpu(), flat)
+    guess = refs.images.float()[ref_masks].mean(0) if bool(ref_masks.any()) else refs.images.float().mean((0, 1, 2))
+    lut = fit_grey_prior(refs.images, split.images.float().mean(-1)[refs.indices].cpu(), ref_masks) \
+        if cc.prior == "grey" else None
+    if lut is not None:  # what the uncovered cells hold without matches: the prior
+        guess = grey_prior(lut, split.images.float().mean(-1).cpu())
+    check = match_check(guidance, others, pseudo.cpu(), valid2d.cpu(), guess)
     return without_losses(cc, [k for k, c in check.items() if not c["keep"]]), check
 
 
 def _validate(cc, split, masks, refs, geo: SurfaceGeometry, guidance):
-    """``colorize.validate=auto`` with two or more references (:mod:`arcsem.colorize.validate`): the config with
+    """``colorize.validate=auto`` (:mod:`arcsem.colorize.validate`; one reference: its halves): the config with
     the scene's own choice and the scores (None: not validated)."""
-    from .validate import apply_choice, validate
+    from .validate import apply_choice, validate, validate_single
 
-    if cc.validate != "auto" or len(refs) < 2:
+    if cc.validate != "auto":
         return cc, None
     t0 = time.perf_counter()
     depth, normal = geo.value
-    choice = validate(split.cameras.to(device="cpu"), depth, normal, masks, split.images.float().mean(-1).cpu(),
-                      refs.indices.tolist(), refs.images, cc, guidance)
+    args = (split.cameras.to(device="cpu"), depth, normal, masks, split.images.float().mean(-1).cpu())
+    choice = validate(*args, refs.indices.tolist(), refs.images, cc, guidance) if len(refs) >= 2 else \
+        validate_single(*args, int(refs.indices[0]), refs.images[0], cc)
     choice["time_s"] = time.perf_counter() - t0
     return apply_choice(cc, choice), choice
 
@@ -320,14 +335,14 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
             guidance.matches(i)
         if cc.guard.enabled:
             finfo["agreement_dropped"] = _agree(guidance, split, geo, cc.guard.views_tol)
-            if cc.guard.check and validation is None:  # with two or more references the validation decides
+            if cc.guard.check and (validation is None or validation["references"] < 2):  # else the validation
                 cc, finfo["match_check"] = _match_check(cc, guidance, split, refs, masks, pseudo, pinfo["valid2d"])
                 losses = colorize_losses(cc, backbone, validated)
         finfo["time_s"] += time.perf_counter() - t0
     if not any(n in losses.terms for n in ("tcm", "ccm")):
         guidance, space = None, None
     hook = ColorTargetHook(refs, pseudo, valid, guidance, space, cc.tcm_downscale, cc.ccm_downscale,
-                           uncovered_only=cc.guard.enabled and cc.guard.uncovered_only)
+                           uncovered_only=cc.guard.enabled and cc.guard.uncovered_only, covered=pinfo.pop("covered"))
     hook.to(run_device(cfg))  # the targets, the guidance and the loss space's extractor follow the model
     loop = LoopConfig(steps=cc.steps, stage="color", batch_views=cc.batch_views, frozen_mb=cc.frozen_mb,
                       log_every=cc.log_every, checkpoint_every=cc.checkpoint_every, resume=cc.resume,
@@ -349,7 +364,8 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
         pseudo={**_pseudo_quality(split, masks, refs, pseudo, pinfo["valid2d"]), "cache_hit": pinfo["cache_hit"],
                 "time_s": pinfo["time_s"], "shading": pinfo["shading"], **({"surface": {**pinfo["surface"], **_pseudo_quality(
                     split, masks, refs, pseudo, valid & ~pinfo["valid2d"] & masks, "filled")}} if "surface" in pinfo else {}),
-                **({"background": pinfo["background"]} if "background" in pinfo else {})}, guidance_time_s=finfo["time_s"] if guidance is not None else 0.0,
+                **({"background": pinfo["background"]} if "background" in pinfo else {}),
+                **({"prior": pinfo["prior"]} if "prior" in pinfo else {})}, guidance_time_s=finfo["time_s"] if guidance is not None else 0.0,
         feature_extractor=finfo, final_loss=res.history[-1]["loss"] if res.history else None,
         validation=validation)
     warning = loss_trend_warning(res.history, loop.desc)

@@ -141,11 +141,12 @@ def colour_clusters(colours: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
 
 def surface_colors(cams: Cameras, depths: Tensor, masks: Tensor, grey: Tensor, normals: Tensor,
                    ref_indices: list[int], ref_images: Tensor, p: SurfaceConfig | None = None,
-                   graph: SurfaceGraph | None = None) -> tuple[Tensor, Tensor, dict]:
+                   graph: SurfaceGraph | None = None, ref_keep: Tensor | None = None) -> tuple[Tensor, Tensor, dict]:
     """Colour of every masked pixel of every view from the references' colours, spread over the surface.
 
     Args: as :func:`build_graph` (``graph``: built by it already, for these views); ref_indices: ``R`` view indices of the references; ref_images ``[R, H, W, C]``:
-        colours, and any further channels to carry alike (e.g. the reference's grey); clustered on the first 3.
+        colours, and any further channels to carry alike (e.g. the reference's grey); clustered on the first 3;
+        ref_keep ``[R, H, W]`` bool: the reference pixels that scribble (default: all).
     Returns: colours ``[N, H, W, C]`` float32 (0 where invalid), valid ``[N, H, W]`` bool (a confident node) and
     figures (nodes, scribbled nodes, confident share).
     """
@@ -157,7 +158,7 @@ def surface_colors(cams: Cameras, depths: Tensor, masks: Tensor, grey: Tensor, n
     colours, valid = torch.zeros(N, H, W, C), torch.zeros(N, H, W, dtype=torch.bool)
     ref_nodes = graph.node_of[ref_indices].reshape(-1)
     ref_cols = ref_images.float().reshape(-1, C).numpy().astype(np.float64)
-    keep = ref_nodes >= 0
+    keep = (ref_nodes >= 0) & (True if ref_keep is None else ref_keep.reshape(-1).numpy())
     if M == 0 or not keep.any():
         return colours, valid, {"nodes": M, "scribbled": 0, "confident": 0.0}
     known, inv = np.unique(ref_nodes[keep], return_inverse=True)

@@ -20,11 +20,14 @@ class ColorTargetHook:
 
     Args: refs (``R`` references); pseudo ``[N, H, W, 3]`` and valid ``[N, H, W]`` of every training view; guidance
     (None without TCM/CCM); space: the TCM loss space (the extractor, or a colour space); uncovered_only: TCM/CCM
-    targets only on the cells where under half the pixels have a pseudo-colour (``colorize.guard.uncovered_only``).
+    targets only on the cells where under half the pixels are ``covered [N, H, W]`` (default ``valid``: have a
+    pseudo-colour; the run passes the pixels before the grey prior, :mod:`arcsem.colorize.prior`)
+    (``colorize.guard.uncovered_only``).
     """
 
     def __init__(self, refs: References, pseudo: torch.Tensor, valid: torch.Tensor, guidance: Guidance | None,
-                 space=None, tcm_downscale: int = 4, ccm_downscale: int = 16, uncovered_only: bool = False):
+                 space=None, tcm_downscale: int = 4, ccm_downscale: int = 16, uncovered_only: bool = False,
+                 covered: torch.Tensor | None = None):
         n = pseudo.shape[0]
         slot = torch.full((n,), len(refs), dtype=torch.long)  # reference position of each view; R: none
         slot[refs.indices] = torch.arange(len(refs))
@@ -32,6 +35,7 @@ class ColorTargetHook:
         self.ref_views = set(refs.indices.tolist())  # host-side: which views a batch holds is known there
         self.references = torch.cat([refs.images.float(), torch.zeros_like(refs.images[:1]).float()])  # [R + 1, ...]
         self.pseudo, self.valid, self.guidance, self.space = pseudo, valid, guidance, space
+        self.covered = valid if covered is None else covered
         self.tcm_downscale, self.ccm_downscale = tcm_downscale, ccm_downscale
         self.uncovered_only, self._uncovered = uncovered_only, {}
         self.active = self._active_views() if guidance is not None else {}
@@ -52,7 +56,7 @@ class ColorTargetHook:
     def _guided(self, views: list[int], idx: torch.Tensor) -> dict:
         """The guidance's targets of ``views`` stacked (``idx``: the same views, a tensor on the targets' device):
         ``tcm_guidance`` and ``tcm_valid`` (None: all) per block, ``ccm_target``, ``ccm_valid``; with
-        ``uncovered_only`` the valid locations are only those the pseudo-colours leave uncovered."""
+        ``uncovered_only`` the valid locations are only those ``covered`` leaves."""
         t = [self.guidance.targets(v) for v in views]
         stack = (lambda xs: xs[0][None]) if len(views) == 1 else torch.stack  # one view: a view, no copy
         out = {"tcm_guidance": [stack([x["tcm_guidance"][b] for x in t]) for b in range(len(t[0]["tcm_guidance"]))],
@@ -67,17 +71,17 @@ class ColorTargetHook:
         return out
 
     def uncovered(self, idx: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
-        """``[B, h, w]`` bool: the cells of a ``shape`` grid over views ``idx`` where under half the pixels have a
-        pseudo-colour (computed once per grid for all views, on the targets' device)."""
+        """``[B, h, w]`` bool: the cells of a ``shape`` grid over views ``idx`` where under half the pixels are
+        covered (computed once per grid for all views, on the targets' device)."""
         if shape not in self._uncovered:
             from .guard import uncovered_cells
 
-            self._uncovered[shape] = uncovered_cells(self.valid, shape)
+            self._uncovered[shape] = uncovered_cells(self.covered, shape)
         return self._uncovered[shape][idx]
 
     def to(self, device) -> ColorTargetHook:
         """Move every tensor, the guidance and the loss space (a module: the VGG) to ``device``; returns self."""
-        for name in ("slot", "is_ref", "references", "pseudo", "valid"):
+        for name in ("slot", "is_ref", "references", "pseudo", "valid", "covered"):
             setattr(self, name, getattr(self, name).to(device))
         self._uncovered = {k: v.to(device) for k, v in self._uncovered.items()}
         if self.guidance is not None:

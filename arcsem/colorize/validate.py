@@ -5,15 +5,22 @@ train towards on it is built from the other references and scored against ``r``'
 specimen pixels. Closed form, no training: a few seconds per reference. The declared grid (:data:`GRID`):
 
 * **the pseudo-colour target**: the surface spread on or off (``colorize.surface.mode``) x the shading transfer on
-  or off (``colorize.shading``). Scored by its mean squared error over every specimen pixel of ``r``; a pixel the
-  target does not reach is scored as the other references' mean colour (a flat guess, what stage 2 has there
-  without a target). The setting with the least error is chosen; pseudo-colours alone (both off) is one of the four;
+  or off (``colorize.shading``) x the grey prior on or off (``colorize.prior``). Scored by its mean squared error
+  over every specimen pixel of ``r``; a pixel the target does not reach is scored as what stage 2 leaves there:
+  the other references' colour at its grey with the prior, its grey without (the stage-1 model's). The setting
+  with the least error is chosen; pseudo-colours alone (all off) is one of the eight;
 * **TCM** is kept where its guarded guidance lies closer to the truth in the TCM loss space than the chosen
   target image (the same locations, mean cosine distance); **CCM** where its targets lie closer (squared error) to
   the truth's cell colours than the target's cell means on the cells it acts on. Both are scored where they act in
-  training: with ``colorize.guard.uncovered_only`` on the cells the target leaves (there the target image holds the
-  flat guess), less the background when ``colorize.background=auto`` gives it a target (:func:`acting_cover`).
+  training: with ``colorize.guard.uncovered_only`` on the cells the target leaves before the prior (there the
+  target image holds the prior, or the grey), less the background when ``colorize.background=auto`` gives it a target (:func:`acting_cover`).
   Where they act nowhere, or lose, their weight becomes 0.
+
+With **one reference** nothing can be held out whole, so its specimen pixels are: split into a left and a right
+half (at the median column), each half in turn scribbles the surface spread and fits the prior, and the other half
+scores what they give it (:func:`validate_single`: the surface spread x the prior, the shading as configured; the
+half's pixels are what no scribble shows, the case of the spread and the prior). TCM and CCM are left to the
+guard's match check (``colorize.guard.check``).
 
 So the chosen setting is never worse than pseudo-colours alone on the validation. The scores and the choice are
 recorded in ``metrics.json`` (``stage2.validation``).
@@ -28,19 +35,23 @@ from torch import Tensor
 
 from ..imageops import downscale, patch_means
 from .background import fit_background
+from .prior import fit_grey_prior, grey_prior
 from .pseudocolor import pseudo_colors
 from .shading import fit_shading, shade
 from .surface import surface_colors
 
-__all__ = ["GRID", "acting_cover", "apply_choice", "held_out_targets", "target_error", "validate", "without_losses"]
+__all__ = ["GRID", "acting_cover", "apply_choice", "held_out_targets", "target_error", "validate", "validate_single",
+           "without_losses"]
 
-GRID = [{"surface": s, "shading": h} for s in ("fill", "off") for h in ("auto", "off")]
+GRID = [{"surface": s, "shading": h, "prior": p} for s in ("fill", "off") for h in ("auto", "off")
+        for p in ("grey", "off")]
 
 
 def held_out_targets(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Tensor, ridx: list[int],
                      images: Tensor, r: int, cc, graph=None) -> dict[str, Tensor]:
     """What the other references give view ``ridx[r]``: 2-D pseudo-colours and surface colours, each with the grey
-    they were painted on (``[H, W, 4]``) and their pixels (``[H, W]``), and the shading line of the others
+    they were painted on (``[H, W, 4]``) and their pixels (``[H, W]``), the shading line of the others and their
+    grey prior on the view (``[H, W, 3]``, :mod:`arcsem.colorize.prior`; the grey where they have no specimen pixel)
     (``graph``: the views' surface graph, :func:`arcsem.colorize.surface.build_graph`, built once for all)."""
     v, others = ridx[r], [i for i in range(len(ridx)) if i != r]
     carried = torch.cat([images[others].float(), grey[[ridx[i] for i in others]][..., None]], -1)
@@ -49,20 +60,23 @@ def held_out_targets(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: T
                           cc.radius, cc.radius_factor, progress=False)
     s, sv, _ = surface_colors(cams, depth, masks, grey, normal, [ridx[i] for i in others], carried, cc.surface, graph)
     a, b = fit_shading(images[others], grey[[ridx[i] for i in others]], masks[[ridx[i] for i in others]])
-    flat = (images[others].float()[masks[[ridx[i] for i in others]]]).mean(0)
+    lut = fit_grey_prior(images[others], grey[[ridx[i] for i in others]], masks[[ridx[i] for i in others]])
+    plain = grey[v].float()[..., None].expand(*grey[v].shape, 3)
     return {"pseudo": p[-1], "pseudo_valid": pv[-1], "surface": s[v], "surface_valid": sv[v], "shading": (a, b),
-            "flat": flat}
+            "prior": grey_prior(lut, grey[v]) if lut is not None else plain, "plain": plain}
 
 
-def target_image(t: dict[str, Tensor], grey: Tensor, surface: str, shading: str) -> tuple[Tensor, Tensor]:
-    """The target ``[H, W, 3]`` of one grid setting on a held-out view of grey ``[H, W]`` and its pixels ``[H, W]``;
-    pixels without a target hold the flat guess."""
+def target_image(t: dict[str, Tensor], grey: Tensor, surface: str, shading: str, prior: str = "off"
+                 ) -> tuple[Tensor, Tensor]:
+    """The target ``[H, W, 3]`` of one grid setting on a held-out view of grey ``[H, W]`` and its pixels before
+    the prior ``[H, W]``; the other pixels hold the prior (``prior="grey"``) or the grey."""
     col, ok = t["pseudo"], t["pseudo_valid"]
     if surface == "fill":
         fill = t["surface_valid"] & ~ok
         col, ok = torch.where(fill[..., None], t["surface"], col), ok | fill
     a, b = t["shading"] if shading == "auto" else (1.0, 0.0)
-    rgb = torch.where(ok[..., None], shade(col[..., :3], col[..., 3], grey, a, b), t["flat"].expand_as(col[..., :3]))
+    rest = t["prior"] if prior == "grey" else t["plain"]
+    rgb = torch.where(ok[..., None], shade(col[..., :3], col[..., 3], grey, a, b), rest)
     return rgb, ok
 
 
@@ -124,24 +138,25 @@ def validate(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Tensor, r
     """
     from .surface import build_graph
 
-    errs = {f"{g['surface']}/{g['shading']}": [] for g in GRID}
+    name = lambda g: f"{g['surface']}/{g['shading']}/{g['prior']}"
+    errs = {name(g): [] for g in GRID}
     guide = {"tcm": [], "ccm": []}
     graph = build_graph(cams, depth, masks, grey, normal, cc.surface)
     for r in range(len(ridx)):
         v = ridx[r]
         t = held_out_targets(cams, depth, normal, masks, grey, ridx, images, r, cc, graph)
         for g in GRID:
-            rgb, _ = target_image(t, grey[v], g["surface"], g["shading"])
-            errs[f"{g['surface']}/{g['shading']}"].append(target_error(rgb, images[r], masks[v]))
+            rgb, _ = target_image(t, grey[v], g["surface"], g["shading"], g["prior"])
+            errs[name(g)].append(target_error(rgb, images[r], masks[v]))
         guide["rgb_" + str(r)] = t  # kept for the TCM/CCM scores below
     mean = {k: sum(e) / len(e) for k, e in errs.items()}
     best = min(mean, key=mean.get)
-    surface, shading = best.split("/")
-    out = {"references": len(ridx), "target_mse": mean, "surface": surface, "shading": shading}
+    surface, shading, prior = best.split("/")
+    out = {"references": len(ridx), "target_mse": mean, "surface": surface, "shading": shading, "prior": prior}
     if guidance is not None:
         for r in range(len(ridx)):
             held = guidance.without(r)
-            rgb, ok = target_image(guide["rgb_" + str(r)], grey[ridx[r]], surface, shading)
+            rgb, ok = target_image(guide["rgb_" + str(r)], grey[ridx[r]], surface, shading, prior)
             rest = [i for i in range(len(ridx)) if i != r]
             others = [ridx[i] for i in rest]
             acts = acting_cover(ok, masks[ridx[r]], cc, images[rest], grey[others], masks[others])
@@ -155,6 +170,37 @@ def validate(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Tensor, r
     return out
 
 
+def validate_single(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Tensor, v: int, image: Tensor, cc
+                    ) -> dict:
+    """One reference (view ``v``, colours ``image [H, W, 3]``): the surface spread and the prior chosen with half
+    of its specimen pixels held out in turn (the left and right of the median column); other arguments as
+    :func:`validate`. Returns the scores (``target_mse`` by ``surface/prior``) and the choice."""
+    from .surface import build_graph, surface_colors
+
+    graph = build_graph(cams, depth, masks, grey, normal, cc.surface)
+    m = masks[v].bool()
+    cols = torch.nonzero(m)[:, 1]
+    errs = {f"{s}/{p}": [] for s in ("fill", "off") for p in ("grey", "off")}
+    if len(cols) < 32:
+        return {"references": 1, "split": "halves", "target_mse": {}, "surface": cc.surface.mode,
+                "shading": cc.shading, "prior": cc.prior}
+    left = m & (torch.arange(m.shape[1])[None] < cols.median())
+    plain = grey[v].float()[..., None].expand(*m.shape, 3)
+    for seen, held in ((left, m & ~left), (m & ~left, left)):
+        s, sv, _ = surface_colors(cams, depth, masks, grey, normal, [v], image[None].float(), cc.surface, graph,
+                                  ref_keep=seen[None])
+        lut = fit_grey_prior(image[None], grey[v][None], seen[None])
+        rest = {"grey": grey_prior(lut, grey[v]) if lut is not None else plain, "off": plain}
+        for sm in ("fill", "off"):
+            for pm in ("grey", "off"):
+                rgb = torch.where((sv[v] & (sm == "fill"))[..., None], s[v][..., :3], rest[pm])
+                errs[f"{sm}/{pm}"].append(target_error(rgb, image, held))
+    mean = {k: sum(e) / len(e) for k, e in errs.items()}
+    surface, prior = min(mean, key=mean.get).split("/")
+    return {"references": 1, "split": "halves", "target_mse": mean, "surface": surface, "shading": cc.shading,
+            "prior": prior}
+
+
 def without_losses(cc, names: list[str]):
     """``cc`` (the stage-2 config) with the weight of each loss in ``names`` set to 0."""
     losses = {k: dict(v) for k, v in (cc.losses or {}).items()}
@@ -165,8 +211,8 @@ def without_losses(cc, names: list[str]):
 
 
 def apply_choice(cc, choice: dict):
-    """``cc`` (the stage-2 config) with the validation's choice: surface mode, shading, TCM/CCM weights (0 where
-    dropped)."""
+    """``cc`` (the stage-2 config) with the validation's choice: surface mode, shading, prior, TCM/CCM weights (0
+    where dropped)."""
     cc = without_losses(cc, [k for k in ("tcm", "ccm") if k in choice and not choice[k]["keep"]])
     return dataclasses.replace(cc, surface=dataclasses.replace(cc.surface, mode=choice["surface"]),
-                               shading=choice["shading"])
+                               shading=choice["shading"], prior=choice.get("prior", cc.prior))

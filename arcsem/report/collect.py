@@ -218,7 +218,7 @@ def read_run(run: Path) -> dict[str, Any]:
 
 def stage2_choice(rec: dict[str, Any]) -> str:
     """What stage 2 trained towards, from a run's flattened record: the pseudo-colour target chosen by the
-    leave-one-reference-out validation (``stage2.validation``: surface spread, shading, both or neither), with the
+    leave-one-reference-out validation (``stage2.validation``: surface spread, shading, grey prior, or none), with the
     chosen target's held-out error beside the pseudo-colours' alone, ``as configured`` when the run did not validate
     (one reference, ``colorize.validate=off``); then the guided losses that trained (``stage2.losses``: what the
     validation and the guard's match check kept; older runs: the validation's keep)."""
@@ -227,9 +227,11 @@ def stage2_choice(rec: dict[str, Any]) -> str:
     kept = [n.upper() for n in ("tcm", "ccm") if (n in trained if isinstance(trained, list) else v.get(f"{n}.keep"))]
     if "surface" not in v:
         return "as configured" + "".join(f" +{k}" for k in kept)
-    parts = [n for n, on in (("surface", v["surface"] != "off"), ("shading", v.get("shading") != "off")) if on]
+    parts = [n for n, on in (("surface", v["surface"] != "off"), ("shading", v.get("shading") != "off"),
+                             ("prior", v.get("prior", "off") != "off")) if on]
     target = "+".join(parts) or "pseudo-colours"
-    chosen, plain = v.get(f"target_mse.{v['surface']}/{v.get('shading')}"), v.get("target_mse.off/off")
+    key = f"{v['surface']}/{v.get('shading')}" + (f"/{v['prior']}" if "prior" in v else "")  # older runs: no prior
+    chosen, plain = v.get(f"target_mse.{key}"), v.get("target_mse.off/off" + ("/off" if "prior" in v else ""))
     err = ""
     if isinstance(chosen, (int, float)) and isinstance(plain, (int, float)) and chosen > 0 and plain > 0:
         import math

@@ -155,3 +155,23 @@ def test_one_reference_chooses_between_the_surface_spread_and_the_prior_on_its_h
     by_grey = validate_single(cams, depth, normal, masks, grey, 0, image, cc)
     assert (by_grey["surface"], by_grey["prior"]) == ("off", "grey")
     assert by_grey["target_mse"]["off/grey"] < 0.1 * by_grey["target_mse"]["fill/grey"]
+
+
+def test_an_addition_switched_off_stays_off_in_the_validation():
+    """``colorize.prior=off`` (or the surface spread, the shading): the validation chooses among the rest only, so
+    an ablation measures what it says; pseudo-colours alone is always a setting."""
+    import dataclasses
+
+    from arcsem.colorize.validate import grid, validate_single
+
+    cc = ColorizeConfig()
+    assert grid(cc) == GRID
+    no_prior = dataclasses.replace(cc, prior="off")
+    assert len(grid(no_prior)) == 4 and all(g["prior"] == "off" for g in grid(no_prior))
+    off = dataclasses.replace(no_prior, shading="off", surface=dataclasses.replace(cc.surface, mode="off"))
+    assert grid(off) == [{"surface": "off", "shading": "off", "prior": "off"}]
+    red, blue = [0.9, 0.1, 0.1], [0.1, 0.2, 0.9]
+    args = _plate([(0, 0.3, red), (10, 0.7, blue), (20, 0.3, red), (30, 0.7, blue)])
+    cams, depth, normal, masks, grey, image = args
+    choice = validate_single(cams, depth, normal, masks, grey, 0, image, no_prior)
+    assert set(choice["target_mse"]) == {"fill/off", "off/off"} and choice["prior"] == "off"

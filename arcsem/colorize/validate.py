@@ -8,7 +8,8 @@ specimen pixels. Closed form, no training: a few seconds per reference. The decl
   or off (``colorize.shading``) x the grey prior on or off (``colorize.prior``). Scored by its mean squared error
   over every specimen pixel of ``r``; a pixel the target does not reach is scored as what stage 2 leaves there:
   the other references' colour at its grey with the prior, its grey without (the stage-1 model's). The setting
-  with the least error is chosen; pseudo-colours alone (all off) is one of the eight;
+  with the least error is chosen; pseudo-colours alone (all off) is one of the eight. An addition switched off in
+  the config stays off (:func:`grid`: an ablation is one);
 * **TCM** is kept where its guarded guidance lies closer to the truth in the TCM loss space than the chosen
   target image (the same locations, mean cosine distance); **CCM** where its targets lie closer (squared error) to
   the truth's cell colours than the target's cell means on the cells it acts on. Both are scored where they act in
@@ -40,11 +41,27 @@ from .pseudocolor import pseudo_colors
 from .shading import fit_shading, shade
 from .surface import surface_colors
 
-__all__ = ["GRID", "acting_cover", "apply_choice", "held_out_targets", "target_error", "validate", "validate_single",
-           "without_losses"]
+__all__ = [
+    "GRID",
+    "acting_cover",
+    "apply_choice",
+    "grid",
+    "held_out_targets",
+    "target_error",
+    "validate",
+    "validate_single",
+    "without_losses",
+]
 
 GRID = [{"surface": s, "shading": h, "prior": p} for s in ("fill", "off") for h in ("auto", "off")
         for p in ("grey", "off")]
+
+
+def grid(cc) -> list[dict[str, str]]:
+    """The settings of :data:`GRID` the config allows: an addition switched off in ``cc`` (the stage-2 config)
+    stays off (an ablation), so pseudo-colours alone is always among them."""
+    on = {"surface": cc.surface.mode, "shading": cc.shading, "prior": cc.prior}
+    return [g for g in GRID if all(g[k] == "off" or on[k] != "off" for k in on)]
 
 
 def held_out_targets(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Tensor, ridx: list[int],
@@ -139,13 +156,14 @@ def validate(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Tensor, r
     from .surface import build_graph
 
     name = lambda g: f"{g['surface']}/{g['shading']}/{g['prior']}"
-    errs = {name(g): [] for g in GRID}
+    settings = grid(cc)
+    errs = {name(g): [] for g in settings}
     guide = {"tcm": [], "ccm": []}
     graph = build_graph(cams, depth, masks, grey, normal, cc.surface)
     for r in range(len(ridx)):
         v = ridx[r]
         t = held_out_targets(cams, depth, normal, masks, grey, ridx, images, r, cc, graph)
-        for g in GRID:
+        for g in settings:
             rgb, _ = target_image(t, grey[v], g["surface"], g["shading"], g["prior"])
             errs[name(g)].append(target_error(rgb, images[r], masks[v]))
         guide["rgb_" + str(r)] = t  # kept for the TCM/CCM scores below
@@ -180,7 +198,7 @@ def validate_single(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Te
     graph = build_graph(cams, depth, masks, grey, normal, cc.surface)
     m = masks[v].bool()
     cols = torch.nonzero(m)[:, 1]
-    errs = {f"{s}/{p}": [] for s in ("fill", "off") for p in ("grey", "off")}
+    errs = {f"{g['surface']}/{g['prior']}": [] for g in grid(cc) if g["shading"] == "off"}
     if len(cols) < 32:
         return {"references": 1, "split": "halves", "target_mse": {}, "surface": cc.surface.mode,
                 "shading": cc.shading, "prior": cc.prior}
@@ -191,10 +209,10 @@ def validate_single(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Te
                                   ref_keep=seen[None])
         lut = fit_grey_prior(image[None], grey[v][None], seen[None])
         rest = {"grey": grey_prior(lut, grey[v]) if lut is not None else plain, "off": plain}
-        for sm in ("fill", "off"):
-            for pm in ("grey", "off"):
-                rgb = torch.where((sv[v] & (sm == "fill"))[..., None], s[v][..., :3], rest[pm])
-                errs[f"{sm}/{pm}"].append(target_error(rgb, image, held))
+        for key, err in errs.items():
+            sm, pm = key.split("/")
+            rgb = torch.where((sv[v] & (sm == "fill"))[..., None], s[v][..., :3], rest[pm])
+            err.append(target_error(rgb, image, held))
     mean = {k: sum(e) / len(e) for k, e in errs.items()}
     surface, prior = min(mean, key=mean.get).split("/")
     return {"references": 1, "split": "halves", "target_mse": mean, "surface": surface, "shading": cc.shading,

@@ -114,6 +114,14 @@ def test_tcm_ccm_act_only_where_the_pseudo_colours_do_not_reach():
     assert on.ccm_valid.tolist() == [[[False, False], [True, True]]] * 2
     off = ColorTargetHook(*args, uncovered_only=False)(_batch([1, 2], h=16, w=16)).color
     assert bool(off.tcm_valid[0].all()) and bool(off.ccm_valid.all())
+    # the grey prior fills every specimen pixel's target; TCM/CCM still act where the evidence (``covered``) does not
+    full = (refs, torch.full((3, 16, 16, 3), 0.75), torch.ones(3, 16, 16, dtype=torch.bool), _AllValidGuidance(),
+            None, 4, 8)
+    prior = ColorTargetHook(*full, uncovered_only=True, covered=valid)(_batch([1, 2], h=16, w=16)).color
+    assert torch.equal(prior.tcm_valid[0], expect_tcm) and torch.equal(prior.ccm_valid, on.ccm_valid)
+    assert bool(prior.pseudo_valid.all())
+    none = ColorTargetHook(*full, uncovered_only=True)(_batch([1, 2], h=16, w=16)).color  # covered = valid: all
+    assert not bool(none.ccm_valid.any())
 
 
 def test_tcm_ccm_skip_their_feature_pass_on_a_batch_of_reference_views():

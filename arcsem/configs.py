@@ -74,6 +74,9 @@ class EvalConfig:
     # 3dgs = the 3DGS/2DGS evaluation scripts the paper used (8-bit render, zero-padded SSIM, LPIPS-VGG);
     # skimage = float render, scikit-image SSIM, LPIPS-AlexNet
     lpips: bool = True  # LPIPS (the convention's network); NaN + reason when its ImageNet weights are missing
+    # views LPIPS scores: all (every evaluated view, the paper) | test (held-out views only: LPIPS-VGG is most of an
+    # evaluation's time on the CPU; the training views' LPIPS is then NaN)
+    lpips_splits: str = checked("all", choices=("all", "test"))
     renders: bool = True  # write renders/{train,test}/<name>.png and <name>_depth.png
     video: bool = True  # turntable.mp4: novel views on a full orbit around the specimen
     video_frames: int = checked(60, ge=1)

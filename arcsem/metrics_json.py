@@ -25,6 +25,8 @@ def _reason(path: list[str], value: float, parents: list[dict]) -> str:
     """Why the number at ``path`` (its ``parents``, innermost last) is not finite."""
     leaf = path[-1]
     if leaf.startswith("lpips"):
+        if any(p.get("lpips_splits") == "test" for p in parents) and "test" not in path:
+            return "LPIPS scores the held-out views only (eval.lpips_splits=test)"
         weights = next((p["lpips_weights"] for p in reversed(parents) if isinstance(p.get("lpips_weights"), str)),
                        None)
         return f"LPIPS not computed (lpips_weights: {weights})" if weights else \

@@ -196,3 +196,24 @@ def test_periodic_evaluation_reports_psnr_ssim_and_depth_error(tmp_path):
     for e in out["periodic"]:
         assert set(e) == {"step", "test_psnr", "test_ssim", "test_depth_mae_pct"}
         assert math.isfinite(e["test_psnr"]) and e["test_depth_mae_pct"] >= 0
+
+
+def test_lpips_on_the_held_out_views_only(tmp_path, monkeypatch):
+    """``eval.lpips_splits=test`` (the demo's): LPIPS scores the test views and no training view; the training
+    views' LPIPS is NaN, and metrics.json says why."""
+    import arcsem.metrics as metrics_module
+    from arcsem.metrics_json import strict_metrics
+
+    calls = []
+    monkeypatch.setattr(metrics_module, "lpips", lambda pred, gt, mask=None, **kw: (calls.append(mask) or 0.25, "ok"))
+    scene = tiny_scene()
+    cfg = _cfg(tmp_path, eval={"lpips": True, "lpips_splits": "test", "video": False, "renders": False})
+    out = run_stage1(cfg, scene, tmp_path)["stage1"]
+    assert len(calls) == 2 * len(scene.test)  # whole and masked, held-out views only
+    assert out["test"]["lpips"] == 0.25 and math.isnan(out["train"]["lpips"]) and out["lpips_weights"] == "ok"
+    nulls = strict_metrics({"stage1": out})["nulls"]
+    assert "held-out views only" in nulls["stage1.train.lpips"]
+    calls.clear()
+    cfg = _cfg(tmp_path / "all", eval={"lpips": True, "video": False, "renders": False})  # the default: every view
+    out = run_stage1(cfg, scene, tmp_path / "all")["stage1"]
+    assert out["train"]["lpips"] == 0.25 and len(calls) == 2 * (2 * len(scene.train) + len(scene.test))

@@ -41,15 +41,19 @@ def evaluate_colour(backbone, scene, refs, run_dir: Path, cc, progress: bool = F
             out[name] = {}
             continue
         limit = cc.eval.max_train_views if name.startswith("train") else None
+        lpips = cc.eval.lpips and (cc.eval.lpips_splits == "all" or name == "test")
         r, summary, _ = evaluate_split(backbone, colour_split(split, idx), split_name=name, length_scale=scene.scale[0],
-                                       with_lpips=cc.eval.lpips, max_views=limit, metrics=cc.eval.metrics,
+                                       with_lpips=lpips, max_views=limit, metrics=cc.eval.metrics,
                                        progress=progress)
-        weights.add(summary.pop("lpips_weights", "skipped"))
+        status = summary.pop("lpips_weights", "skipped")
+        if lpips:  # a part LPIPS skipped says nothing of the weights
+            weights.add(status)
         for k in [k for k in summary if k.startswith("depth")]:
             summary.pop(k)
         out[name], rows = summary, rows + r
-    out["lpips_weights"] = "; ".join(sorted(weights))
+    out["lpips_weights"] = "; ".join(sorted(weights)) or "skipped"
     out["metrics_convention"] = metric_convention(cc.eval.metrics)
+    out["lpips_splits"] = cc.eval.lpips_splits
     write_views_csv(Path(run_dir) / "colorize" / "views.csv", rows)
     return out
 

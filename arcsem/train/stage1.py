@@ -185,19 +185,23 @@ def evaluate(backbone, scene: Scene, run_dir: str | Path | None, ec: EvalConfig 
             result[sname] = {}
             continue
         r, summary, _ = evaluate_split(backbone, split, split_name=sname, length_scale=scene.scale[0], out_dir=where,
-                                       with_lpips=ec.lpips, max_views=limit, protocol=protocol, metrics=ec.metrics,
+                                       with_lpips=ec.lpips and (ec.lpips_splits == "all" or sname == "test"),
+                                       max_views=limit, protocol=protocol, metrics=ec.metrics,
                                        progress=progress)
         rows += r
         for k in ("depth_mae", "depth_mae_pct"):
             if k in summary and sname != "train_paper":
                 depth[f"{sname}_{k[6:]}"] = summary.pop(k)
-        result["lpips_weights"] = summary.pop("lpips_weights")
+        weights = summary.pop("lpips_weights")
+        if weights != "skipped" or "lpips_weights" not in result:  # a split LPIPS skipped says nothing of the weights
+            result["lpips_weights"] = weights
         result[sname] = summary
         protocols[sname] = PROTOCOLS[resolve_protocol(split, protocol)]
     if "train_paper" not in result and "train" in result:
         result["train_paper"], protocols["train_paper"] = result["train"], protocols.get("train")
     result["protocols"] = protocols
     result["metrics_convention"] = metric_convention(ec.metrics)
+    result["lpips_splits"] = ec.lpips_splits
     if depth:
         source = "median_depth" if "median_depth" in backbone.provides else "depth"
         depth.update(length_scale=scene.scale[0], length_scale_name=scene.scale[1], source=source,

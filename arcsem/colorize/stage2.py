@@ -342,7 +342,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     if not any(n in losses.terms for n in ("tcm", "ccm")):
         guidance, space = None, None
     hook = ColorTargetHook(refs, pseudo, valid, guidance, space, cc.tcm_downscale, cc.ccm_downscale,
-                           uncovered_only=cc.guard.enabled and cc.guard.uncovered_only, covered=pinfo.pop("covered"))
+                           uncovered_only=cc.guard.enabled and cc.guard.uncovered_only, covered=pinfo["covered"])
     hook.to(run_device(cfg))  # the targets, the guidance and the loss space's extractor follow the model
     loop = LoopConfig(steps=cc.steps, stage="color", batch_views=cc.batch_views, frozen_mb=cc.frozen_mb,
                       log_every=cc.log_every, checkpoint_every=cc.checkpoint_every, resume=cc.resume,
@@ -358,14 +358,20 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
         result.setdefault(part, {}).update(extra)
     result.update(write_outputs(backbone, scene, run_dir, cc, pseudo, valid, progress=cc.progress))
     result.update(write_colored_products(rc, backbone, scene, run_dir, res.steps, cc.progress))
+    record = {**_pseudo_quality(split, masks, refs, pseudo, pinfo["valid2d"]), "cache_hit": pinfo["cache_hit"],
+              "time_s": pinfo["time_s"], "shading": pinfo["shading"]}
+    covered = pinfo["covered"] & masks.bool()
+    if "surface" in pinfo:  # what each fill gave, and how close to the truth where the dataset has colour
+        record["surface"] = {**pinfo["surface"], **_pseudo_quality(split, masks, refs, pseudo,
+                                                                   covered & ~pinfo["valid2d"], "filled")}
+    if "background" in pinfo:
+        record["background"] = pinfo["background"]
+    if "prior" in pinfo:
+        record["prior"] = {**pinfo["prior"], **_pseudo_quality(split, masks, refs, pseudo, valid & ~covered, "filled")}
     result.update(
         features=features, references=refs.names, losses=sorted(losses.terms), steps=res.steps, time_s=res.time_s,
         steps_per_s=res.steps_per_s, frozen_renders=res.frozen, stage1_checkpoint=str(ckpt), image_size=[split.cameras.width, split.cameras.height],
-        pseudo={**_pseudo_quality(split, masks, refs, pseudo, pinfo["valid2d"]), "cache_hit": pinfo["cache_hit"],
-                "time_s": pinfo["time_s"], "shading": pinfo["shading"], **({"surface": {**pinfo["surface"], **_pseudo_quality(
-                    split, masks, refs, pseudo, valid & ~pinfo["valid2d"] & masks, "filled")}} if "surface" in pinfo else {}),
-                **({"background": pinfo["background"]} if "background" in pinfo else {}),
-                **({"prior": pinfo["prior"]} if "prior" in pinfo else {})}, guidance_time_s=finfo["time_s"] if guidance is not None else 0.0,
+        pseudo=record, guidance_time_s=finfo["time_s"] if guidance is not None else 0.0,
         feature_extractor=finfo, final_loss=res.history[-1]["loss"] if res.history else None,
         validation=validation)
     warning = loss_trend_warning(res.history, loop.desc)

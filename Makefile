@@ -48,7 +48,7 @@ browser:
 # which submitit polls), installed like Chromium; elsewhere those tests are skipped and say why.
 SLURM_PKGS := slurmctld slurmd slurm-client slurmdbd munge mariadb-server
 slurm:
-	@{ for exe in slurmctld slurmd slurmdbd sbatch munged mariadbd; do command -v $$exe || exit 1; done; } >/dev/null 2>&1 || \
+	@( for exe in slurmctld slurmd slurmdbd sbatch munged mariadbd; do command -v $$exe || exit 1; done ) >/dev/null 2>&1 || \
 	  { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && \
 	  echo "installing slurm, munge and mariadb (apt) for the slurm tests" && apt-get update -qq >/dev/null && \
 	  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $(SLURM_PKGS) >/dev/null; } || \

@@ -231,7 +231,8 @@ def test_colorization_benchmark_composes_both_stage2_rows(conf_dir, ablation):
     on = [(c.losses.get(t) or {}).get("weight", 1.0) != 0 for t in ("tcm", "ccm")]
     default = ablation == "full"
     assert on == [default, default] and cfg.act.enabled and cfg.stage == "all" and cfg.dataset.specimen == "diatom"
-    assert (c.get("validate", "auto"), c.get("shading", "auto")) == (("auto", "auto") if default else ("off", "off"))
+    assert (c.get("validate", "auto"), c.get("shading", "auto"), c.get("prior", "grey")) == (
+        ("auto", "auto", "grey") if default else ("off", "off", "off"))
     p = cfg.hydra.sweeper.params
     rows = [f"{d}/{r}/{a}" for d in p["dataset"].split(",") for r in p["colorize.references"].split(",")
             for a in p["ablation"].split(",")]

@@ -41,3 +41,7 @@ def test_the_validated_stage2_target_is_a_column_of_the_colour_tables(tmp_path):
     prior = {"stage2.validation.surface": "off", "stage2.validation.shading": "auto", "stage2.validation.prior": "grey",
              "stage2.validation.target_mse.off/auto/grey": 0.01, "stage2.validation.target_mse.off/off/off": 0.1}
     assert stage2_choice(prior) == "shading+prior (+10.0 dB)"  # the grid with the grey prior (issue 38)
+    one = {"stage2.validation.references": 1, "stage2.validation.surface": "fill", "stage2.validation.shading": "auto",
+           "stage2.validation.prior": "grey", "stage2.validation.target_mse.fill/grey": 0.02,
+           "stage2.validation.target_mse.off/off": 0.04}
+    assert stage2_choice(one) == "surface+shading+prior (+3.0 dB)"  # one reference: its halves chose

@@ -220,7 +220,7 @@ def stage2_choice(rec: dict[str, Any]) -> str:
     """What stage 2 trained towards, from a run's flattened record: the pseudo-colour target chosen by the
     leave-one-reference-out validation (``stage2.validation``: surface spread, shading, grey prior, or none), with the
     chosen target's held-out error beside the pseudo-colours' alone, ``as configured`` when the run did not validate
-    (one reference, ``colorize.validate=off``); then the guided losses that trained (``stage2.losses``: what the
+    (``colorize.validate=off``, or a run from before one reference validated); then the guided losses that trained (``stage2.losses``: what the
     validation and the guard's match check kept; older runs: the validation's keep)."""
     v = {k.removeprefix("stage2.validation."): x for k, x in rec.items() if k.startswith("stage2.validation.")}
     trained = rec.get("stage2.losses")
@@ -230,8 +230,13 @@ def stage2_choice(rec: dict[str, Any]) -> str:
     parts = [n for n, on in (("surface", v["surface"] != "off"), ("shading", v.get("shading") != "off"),
                              ("prior", v.get("prior", "off") != "off")) if on]
     target = "+".join(parts) or "pseudo-colours"
-    key = f"{v['surface']}/{v.get('shading')}" + (f"/{v['prior']}" if "prior" in v else "")  # older runs: no prior
-    chosen, plain = v.get(f"target_mse.{key}"), v.get("target_mse.off/off" + ("/off" if "prior" in v else ""))
+    if v.get("references") == 1:  # one reference: its halves chose the surface spread and the prior
+        key, none = f"{v['surface']}/{v['prior']}", "off/off"
+    elif "prior" in v:
+        key, none = f"{v['surface']}/{v.get('shading')}/{v['prior']}", "off/off/off"
+    else:  # runs from before the prior
+        key, none = f"{v['surface']}/{v.get('shading')}", "off/off"
+    chosen, plain = v.get(f"target_mse.{key}"), v.get(f"target_mse.{none}")
     err = ""
     if isinstance(chosen, (int, float)) and isinstance(plain, (int, float)) and chosen > 0 and plain > 0:
         import math

@@ -241,15 +241,17 @@ def _notes(study: str, df: pd.DataFrame, nums: pd.DataFrame, columns: list[Colum
         notes += _feature_notes(df, feats)
         if any(c.key.endswith("psnr_uncovered") for c in columns):
             notes.append("PSNR in / out cov.: held-out colour PSNR pooled over the specimen pixels that pseudo-colours "
-                         "reach (a reference point within the search radius) and over the rest, which only TCM, "
-                         "CCM and the model's own interpolation colour; coverage: the covered share.")
+                         "reach (a reference point within the search radius) and over the rest, which only the "
+                         "surface spread, the grey prior, TCM, CCM and the model's own interpolation colour; "
+                         "coverage: the covered share.")
     if any(c.key == CHOICE.key for c in columns):
         notes.append("validated target: what stage 2 trained towards, chosen per run by holding each artist reference "
-                     "out in turn (colorize.validate=auto, two or more references): the pseudo-colours spread over "
-                     "the surface and/or carried with the SEM shading, or the pseudo-colours alone; in brackets the "
-                     "chosen target's gain over the pseudo-colours alone on the held-out references; +TCM/+CCM: the "
-                     "guided losses that trained (kept by the validation and by the match check against the "
-                     "pseudo-colours). 'as configured': no validation (one reference, or validate=off).")
+                     "out in turn (colorize.validate=auto; with one reference, each half of it): the pseudo-colours "
+                     "spread over the surface, carried with the SEM shading, completed by the grey prior (the "
+                     "references' colour at a pixel's grey), or the pseudo-colours alone; in brackets the chosen "
+                     "target's gain over the pseudo-colours alone on what was held out; +TCM/+CCM: the guided losses "
+                     "that trained (kept by the validation and by the match check against the pseudo-colours). "
+                     "'as configured': no validation (validate=off).")
     seeds = sorted({str(s) for s in df["seed"].dropna()}) if "seed" in df else []
     if seeds:
         notes.append(f"seeds: {', '.join(seeds)}; several runs per row are shown as mean ± std.")

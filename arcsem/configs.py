@@ -207,8 +207,9 @@ class ColorizeConfig:
     # specimen pixels no pseudo-colour or surface spread reaches: grey (the references' expected colour at the
     # pixel's grey level, arcsem.colorize.prior) | off (no target there: they keep the stage-1 grey)
     prior: str = checked("grey", choices=("grey", "off"))
-    # with two or more references: auto (each reference held out in turn chooses the surface spread, the shading, the
-    # prior and whether TCM/CCM act, arcsem.colorize.validate; recorded in metrics.json) | off (the settings as written)
+    # auto: each reference held out in turn chooses the surface spread, the shading, the prior and whether TCM/CCM act
+    # (one reference: its two halves choose the surface spread and the prior; arcsem.colorize.validate; recorded in
+    # metrics.json) | off (the settings as written)
     validate: str = checked("auto", choices=("auto", "off"))
     guard: GuardConfig = field(default_factory=GuardConfig)
 

@@ -155,7 +155,8 @@ def _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo: Surface
         lut = fit_grey_prior(refs.images, grey[ridx], masks[ridx])
         where = masks.bool() & ~valid
         if lut is not None:
-            colors, valid = torch.where(where[..., None], grey_prior(lut, grey), colors), valid | where
+            info["prior_rgb"] = grey_prior(lut, grey)  # [N, H, W, 3]; the match check's guess too
+            colors, valid = torch.where(where[..., None], info["prior_rgb"], colors), valid | where
         info["prior"] = {"filled_px": int(where.sum()) if lut is not None else 0}
     return colors, valid, info
 
@@ -254,19 +255,21 @@ def _agree(guidance: Guidance, split, geo: SurfaceGeometry, tol: float) -> dict[
     return guidance.agree(pts, float(foot.median()) if foot.numel() else 1.0, tol)
 
 
-def _match_check(cc, guidance: Guidance, split, refs, masks, pseudo, valid2d):
-    """:func:`arcsem.colorize.guard.match_check` on the non-reference views: the config without the losses whose
-    matches carry no colour, and the scores."""
+def _match_check(cc, guidance: Guidance, split, refs, masks, pseudo, valid2d, prior_rgb=None):
+    """:func:`arcsem.colorize.guard.match_check` on the non-reference views (``prior_rgb [N, H, W, 3]``: the grey
+    prior's colours, the guess without matches; None: the references' mean colour): the config without the losses
+    whose matches carry no colour, and the scores."""
     from .guard import match_check
     from .validate import without_losses
 
     others = [i for i in range(len(split)) if i not in set(refs.indices.tolist())]
     ref_masks = masks[refs.indices]
-    guess = refs.images.float()[ref_masks].mean(0) if bool(ref_masks.any()) else refs.images.float().mean((0, 1, 2))
-    lut = fit_grey_prior(refs.images, split.images.float().mean(-1)[refs.indices].cpu(), ref_masks) \
-        if cc.prior == "grey" else None
-    if lut is not None:  # what the uncovered cells hold without matches: the prior
-        guess = grey_prior(lut, split.images.float().mean(-1).cpu())
+    if prior_rgb is not None:  # what the uncovered cells hold without matches: the prior
+        guess = prior_rgb
+    elif bool(ref_masks.any()):
+        guess = refs.images.float()[ref_masks].mean(0)
+    else:
+        guess = refs.images.float().mean((0, 1, 2))
     check = match_check(guidance, others, pseudo.cpu(), valid2d.cpu(), guess)
     return without_losses(cc, [k for k, c in check.items() if not c["keep"]]), check
 
@@ -328,6 +331,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     guidance = make(refs.indices.tolist(), refs.images) if make is not None else None
     cc, validation = _validate(cc, split, masks, refs, geo, guidance)
     pseudo, valid, pinfo = _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo)
+    prior_rgb = pinfo.pop("prior_rgb", None)
     losses = colorize_losses(cc, backbone, validated)
     if any(n in losses.terms for n in ("tcm", "ccm")):
         t0 = time.perf_counter()
@@ -336,7 +340,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
         if cc.guard.enabled:
             finfo["agreement_dropped"] = _agree(guidance, split, geo, cc.guard.views_tol)
             if cc.guard.check and (validation is None or validation["references"] < 2):  # else the validation
-                cc, finfo["match_check"] = _match_check(cc, guidance, split, refs, masks, pseudo, pinfo["valid2d"])
+                cc, finfo["match_check"] = _match_check(cc, guidance, split, refs, masks, pseudo, pinfo["valid2d"], prior_rgb)
                 losses = colorize_losses(cc, backbone, validated)
         finfo["time_s"] += time.perf_counter() - t0
     if not any(n in losses.terms for n in ("tcm", "ccm")):
@@ -367,7 +371,8 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     if "background" in pinfo:
         record["background"] = pinfo["background"]
     if "prior" in pinfo:
-        record["prior"] = {**pinfo["prior"], **_pseudo_quality(split, masks, refs, pseudo, valid & ~covered, "filled")}
+        record["prior"] = {**pinfo["prior"], **_pseudo_quality(split, masks, refs, pseudo, valid & ~pinfo["covered"],
+                                                                 "filled")}
     result.update(
         features=features, references=refs.names, losses=sorted(losses.terms), steps=res.steps, time_s=res.time_s,
         steps_per_s=res.steps_per_s, frozen_renders=res.frozen, stage1_checkpoint=str(ckpt), image_size=[split.cameras.width, split.cameras.height],

@@ -7,11 +7,13 @@
 #            the tests, for the held-out grey and colour PSNR against the CPU's (not timed: they share the GPU)
 #   demoprobe  stage 1 of the demo on gsplat with every gradient at gsplat watched (nan_probe.py --demo), beside the
 #            tests
-#   tests    pytest -m cuda
 #   probe    where a non-finite value first appears, if the gsplat 2DGS run of the tests failed (nan_probe.py)
 #   launch   gsplat's 2DGS backward at 8/16/32-px tiles and its kernels' register counts
-#   profile  stage 1 of the demo: steps/s, SM utilisation, host syncs, kernels (benchmarks/gpu/stage1_profile.py)
-#   demo     the whole `make demo` job with device=cuda, both rasterisers, nvidia-smi dmon sampling
+#   tests    pytest -m cuda (with the Triton compositing's kernels against the PyTorch path)
+#   profile  stage 1 of the demo: steps/s, SM utilisation, host syncs, kernels (benchmarks/gpu/stage1_profile.py;
+#            PROFILE_VARIANTS, default gs2d_triton gs2d gs2d_gsplat; gs3d gs3d_gsplat when named)
+#   demo     the whole `make demo` job with device=cuda, each of DEMO_RASTERIZERS (default triton gsplat auto),
+#            nvidia-smi dmon sampling
 #   stage2ab (only when named) stage 2 of the demo twice on the auto demo's stage 1 (S2AB_STAGE1, default
 #            /tmp/demo_auto): through recorded renders (colorize.frozen_mb default) and compositing every step
 #            (frozen_mb=0); their times and held-out colour into $OUT/stage2ab.txt (S2AB_DEVICE, default cuda)
@@ -77,7 +79,7 @@ fi
 
 if has tests; then
   stamp tests
-  timeout "${TESTS_TIMEOUT:-420}" python3 -m pytest -q -m cuda tests/test_cuda.py tests/test_gsplat_bridge.py -p no:cacheprovider \
+  timeout "${TESTS_TIMEOUT:-420}" python3 -m pytest -q -m cuda tests/test_cuda.py tests/test_gsplat_bridge.py tests/test_triton2d.py -p no:cacheprovider \
     -o addopts="" -W ignore::DeprecationWarning 2>&1 | tee "$OUT/cuda_tests.log" | tail -25
 fi
 
@@ -108,8 +110,9 @@ fi
 if has profile; then
   stamp profile
   declare -A VARIANT=([gs2d]="backbone.rasterizer=auto" [gs2d_gsplat]="backbone.rasterizer=gsplat"
+    [gs2d_triton]="backbone.rasterizer=triton"
     [gs3d]="backbone=gs3d backbone.rasterizer=auto" [gs3d_gsplat]="backbone=gs3d backbone.rasterizer=gsplat")
-  for name in ${PROFILE_VARIANTS:-gs2d gs2d_gsplat gs3d gs3d_gsplat}; do
+  for name in ${PROFILE_VARIANTS:-gs2d_triton gs2d gs2d_gsplat}; do
     ov=${VARIANT[$name]}
     echo "=== $name" >> "$OUT/profile.log"
     # shellcheck disable=SC2086
@@ -121,7 +124,7 @@ fi
 
 if has demo; then
   stamp demo
-  for r in ${DEMO_RASTERIZERS:-gsplat auto}; do
+  for r in ${DEMO_RASTERIZERS:-triton gsplat auto}; do
     nvidia-smi dmon -s u -d 1 -o T > "/tmp/dmon_$r.txt" 2>&1 & DMON=$!
     demo "demo_$r" "$r" 0
     kill $DMON 2>/dev/null

@@ -39,9 +39,11 @@ def test_torch_rasterizer_on_cuda_matches_cpu(kind, model):
 @pytest.mark.parametrize("backbone,stages,extra", [
     ("gs2d", ["gray", "color"], []), ("gs3d", ["gray", "color"], []),
     ("plenoxels", ["gray"], []),  # stage 2's losses need image batches
-    ("gs2d", ["gray", "color"], ["backbone.rasterizer=gsplat"]), ("gs3d", ["gray", "color"], ["backbone.rasterizer=gsplat"])])
+    ("gs2d", ["gray", "color"], ["backbone.rasterizer=gsplat"]), ("gs3d", ["gray", "color"], ["backbone.rasterizer=gsplat"]),
+    ("gs2d", ["gray", "color"], ["backbone.rasterizer=triton"])])
 def test_stages_end_to_end_on_cuda(tmp_path, backbone, stages, extra):
-    """``device=cuda``: every stage completes (Plenoxels: stage 1), also on gsplat's rasterisers, and the checkpoint
+    """``device=cuda``: every stage completes (Plenoxels: stage 1), also on gsplat's rasterisers and the Triton
+    compositing, and the checkpoint
     written from the GPU loads on a machine without one (tensors mapped to the CPU)."""
     from arcsem import app
     from arcsem.train.checkpoint import load_checkpoint

@@ -66,11 +66,26 @@ class GaussianBackbone(Backbone):
     # ------------------------------------------------------------------ run checks (arcsem.plugins.Backbone)
     @classmethod
     def check_config(cls, cfg: GaussianConfig, device: str) -> None:
-        """``rasterizer=gsplat`` (the optional CUDA rasteriser) needs gsplat and a CUDA ``device``."""
+        """``rasterizer=gsplat`` (the optional CUDA rasteriser) needs gsplat and a CUDA ``device``; ``triton``: 2-D
+        splats, triton and a CUDA ``device``."""
         if cfg.rasterizer == "gsplat":
             from .gsplat_bridge import require_gsplat
 
             require_gsplat(device)
+        if cfg.rasterizer == "triton":
+            cls._require_triton(device)
+
+    @classmethod
+    def _require_triton(cls, device) -> None:
+        from arcsem.errors import ConfigError
+
+        from .triton2d import available
+
+        if cls.num_scales != 2:
+            raise ConfigError("backbone.rasterizer=triton composites 2-D splats only (backbone=gs2d); use auto")
+        why = available(device)
+        if why is not None:
+            raise ConfigError(f"backbone.rasterizer=triton {why}")
 
     @classmethod
     def check_scene(cls, cfg: GaussianConfig, scene: Any) -> None:
@@ -97,7 +112,7 @@ class GaussianBackbone(Backbone):
         cams = cams.to(device=m.means.device, dtype=m.means.dtype)
         impl = self._impl(m.means.device)
         with region("arcsem::render/sh"):  # SH colours and ACT; profiler regions: benchmarks/profile_step.py
-            colors = m.colors(cams, impl="torch" if impl == "gsplat" else impl, act=self.act)  # [C, N, 3]
+            colors = m.colors(cams, impl="cpp" if impl == "cpp" else "torch", act=self.act)  # [C, N, 3]
         if background is None:
             background = self._default_background(m.means)
         means, quats, scales, opacities = self.splat_params()
@@ -114,18 +129,19 @@ class GaussianBackbone(Backbone):
         m = self.model
         cams = cams.to(device=m.means.device, dtype=m.means.dtype)
         impl = self._impl(m.means.device)
-        if impl not in ("cpp", "torch") or self.act is not None:
+        if impl not in ("cpp", "torch", "triton") or self.act is not None:
             return None
         from .frozen import FrozenColours, FrozenRender
 
         bg = self._default_background(m.means)
         with torch.no_grad():
             means, quats, scales, opacities = self.splat_params()
-            out = self._rasterize(means, quats, scales, opacities, m.colors(cams, impl=impl), cams, background=bg,
+            sh = "cpp" if impl == "cpp" else "torch"
+            out = self._rasterize(means, quats, scales, opacities, m.colors(cams, impl=sh), cams, background=bg,
                                   tile=self.cfg.tile, chunk_tiles=self.cfg.chunk_tiles, impl=impl, colour_weights=True)
         weights = out.pop("colour_weights")
         colours = FrozenColours(weights, tuple(out["rgb"].shape[:3]), bg)
-        return FrozenRender(out, colours, lambda: m.colors(cams, impl=impl))
+        return FrozenRender(out, colours, lambda: m.colors(cams, impl=sh))
 
     def _default_background(self, like: Tensor) -> Tensor:
         """``cfg.background`` ``[3]`` on ``like``'s device and dtype, made on the first render there (not each step:
@@ -137,7 +153,8 @@ class GaussianBackbone(Backbone):
 
     def _impl(self, device) -> str:
         """The ``rasterizer`` choice resolved for ``device``: ``cpp`` (fused kernels: SH colours and the rasteriser),
-        ``torch``, or ``gsplat`` (gsplat's CUDA rasteriser, PyTorch SH colours; a ConfigError where it cannot run)."""
+        ``torch``, ``gsplat`` (gsplat's CUDA rasteriser, PyTorch SH colours) or ``triton`` (the PyTorch path with
+        Triton compositing); a ConfigError where the choice cannot run."""
         from .fused import resolve_impl
 
         if self.cfg.rasterizer == "gsplat":
@@ -145,6 +162,9 @@ class GaussianBackbone(Backbone):
 
             require_gsplat(device)
             return "gsplat"
+        if self.cfg.rasterizer == "triton":
+            self._require_triton(device)
+            return "triton"
         return resolve_impl(self.cfg.rasterizer, str(device))
 
     def splat_params(self) -> tuple[Tensor, Tensor, Tensor, Tensor]:

@@ -78,9 +78,10 @@ class Binning:
 
 
 def raster_impl(impl: str) -> str:
-    """The path ``impl`` takes (2DGS and 3DGS alike): ``torch`` stays here; ``cpp`` / ``auto`` go through the
-    fused-kernel loader (:func:`arcsem.backbones.gaussians.fused.resolve_impl`, which validates)."""
-    if impl == "torch":
+    """The path ``impl`` takes (2DGS and 3DGS alike): ``torch`` stays here (and ``triton``, 2DGS's compositing on
+    CUDA, resolved by the backbone); ``cpp`` / ``auto`` go through the fused-kernel loader
+    (:func:`arcsem.backbones.gaussians.fused.resolve_impl`, which validates)."""
+    if impl in ("torch", "triton"):
         return impl
     from arcsem.backbones.gaussians.fused import resolve_impl
 

@@ -122,13 +122,19 @@ def _pixel_box(lo: Tensor, hi: Tensor, W: int, H: int, ok: Tensor) -> Tensor:
     return box
 
 
-def _splat_table(Hm: Tensor, centre2d: Tensor, opac: Tensor, feats: Tensor) -> Tensor:
-    """``[21, M]`` per (camera, splat), one row per quantity: adjugate columns a, b, c of ``[Tu; Tv; Tw]``
-    (``(u, v, 1) ~ x a + y b + c``), centre ``(2)``, opacity, depth row ``Tz (3)``, colour, normal ``(6)``.
-    Rows are gathered per pair-pixel and unbound at once (cheap backward: one stack, no slice copies)."""
+def _splat_columns(Hm: Tensor, centre2d: Tensor, opac: Tensor, feats: Tensor) -> Tensor:
+    """``[M, 21]`` per (camera, splat), one column per quantity: adjugate columns a, b, c of ``[Tu; Tv; Tw]``
+    (``(u, v, 1) ~ x a + y b + c``), centre ``(2)``, opacity, depth row ``Tz (3)``, colour, normal ``(6)``
+    (the Triton kernels' table, ``triton2d.TABLE``)."""
     Tu, Tv, Tw, Tz = Hm.unbind(1)
     adj = [torch.cross(Tv, Tw, dim=-1), torch.cross(Tw, Tu, dim=-1), torch.cross(Tu, Tv, dim=-1)]
-    return torch.cat([*adj, centre2d, opac[:, None], Tz, feats], -1).t().contiguous()
+    return torch.cat([*adj, centre2d, opac[:, None], Tz, feats], -1)
+
+
+def _splat_table(Hm: Tensor, centre2d: Tensor, opac: Tensor, feats: Tensor) -> Tensor:
+    """:func:`_splat_columns` as ``[21, M]``: rows are gathered per pair-pixel and unbound at once (cheap backward:
+    one stack, no slice copies)."""
+    return _splat_columns(Hm, centre2d, opac, feats).t().contiguous()
 
 
 def _shade_2dgs(table: Tensor, mcoef: tuple[float, float, float], lowpass_sigma: float = LOWPASS_SIGMA):
@@ -187,7 +193,8 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
         in (0, 1), colors ``[C, N, 3]`` or ``[N, 3]`` (decoded), cams: ``C`` cameras (pinhole or
         orthographic); background ``[3]`` composited as ``rgb + (1 - alpha) bg``; splats whose centre
         depth is ``<= near`` are culled.
-        impl: ``torch`` (this module, the reference), ``cpp`` (fused kernels) or ``auto``.
+        impl: ``torch`` (this module, the reference), ``cpp`` (fused kernels), ``auto``, or ``triton`` (this module's
+            projection and tile lists, the compositing as Triton kernels: :mod:`..gaussians.triton2d`).
         dist_depth: ``(c0, c1, c2)`` of the distortion's normalised depth (:func:`distortion_depth`;
         default the official NDC mapping).
         lowpass_sigma: sigma (pixels) of the screen-space low-pass filter (official ``1/sqrt(2)``). It
@@ -219,8 +226,17 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     # translating a splat's image by (dx, dy) pixels: Tu += dx Tw, Tv += dy Tw (dx, dy = 0 in value)
     Hm = torch.cat([Hm[..., :2, :] + shift[..., None] * Hm[..., 2:3, :], Hm[..., 2:, :]], -2)
     centre2d = (Hm[..., :2, 2] / Hm[..., 2, 2:3]).reshape(C * N, 2)
-    alpha_fn, shade = _shade_2dgs(_splat_table(Hm.reshape(C * N, 4, 3), centre2d, opacities.repeat(C), feats), mcoef,
-                                  lowpass_sigma)
+    columns = _splat_columns(Hm.reshape(C * N, 4, 3), centre2d, opacities.repeat(C), feats)
+    alpha_fn, shade = _shade_2dgs(columns.t().contiguous(), mcoef, lowpass_sigma)
+    if impl == "triton":
+        geometry = any(t.requires_grad for t in (means, quats, scales, opacities))  # else colours alone (stage 2)
+        result = {**_render_triton(columns, eff.reshape(C * N, 4), b, mcoef, C, Hh, W, tile, background,
+                                   lowpass_sigma, geometry),
+                  **_visibility(radius, rects), "means2d": means2d}
+        if colour_weights:
+            result["colour_weights"] = weights_record(b, eff.reshape(C * N, 4), alpha_fn, means.dtype,
+                                                      result["alpha"], chunk_tiles)
+        return result
     out = rasterize(b, eff.reshape(C * N, 4), alpha_fn, shade, 10, means.dtype, chunk_tiles).reshape(C, Hh, W, 10)
     result = {**_outputs(out, background, radius, rects), "means2d": means2d}
     if colour_weights:
@@ -267,14 +283,34 @@ def _render_2dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
     return out
 
 
+def _render_triton(columns: Tensor, eff: Tensor, b, mcoef: tuple[float, float, float], C: int, Hh: int, W: int,
+                   tile: int, background: Tensor | None, lowpass_sigma: float, geometry: bool) -> dict[str, Tensor]:
+    """The compositing of :func:`render_2dgs` as the Triton kernels (:mod:`..gaussians.triton2d`): one launch forward,
+    one backward, on the PyTorch path's splat table ``columns [C*N, 21]`` and tile lists ``b``."""
+    from arcsem.backbones.gaussians.triton2d import composite2d_triton
+
+    bg = None if background is not None and background.requires_grad else background  # else composited here
+    mc = columns.new_tensor(mcoef).expand(C, 3)
+    with region("arcsem::render/composite"):
+        rgb, normal, alpha, depth, med, dist = composite2d_triton(columns, eff, b.offsets, b.splat, mc, C, Hh, W, tile,
+                                                                  bg, lowpass_sigma=lowpass_sigma, geometry=geometry)
+    if background is not None and bg is None:
+        rgb = rgb + (1 - alpha) * background.to(rgb)
+    return {"rgb": rgb, "alpha": alpha, "depth": depth, "median_depth": med, "normal": normal, "distortion": dist}
+
+
+def _visibility(radius: Tensor, rects: Tensor) -> dict[str, Tensor]:
+    """``radii`` and ``visible [C, N]``: drawn with a non-empty tile rectangle."""
+    visible = (radius > 0) & (rects[..., 1] > rects[..., 0]) & (rects[..., 3] > rects[..., 2])
+    return {"radii": torch.where(visible, radius, torch.zeros_like(radius)), "visible": visible}
+
+
 def _outputs(out: Tensor, background: Tensor | None, radius: Tensor, rects: Tensor) -> dict[str, Tensor]:
     rgb, alpha, wz = out[..., :3], out[..., 6:7], out[..., 7:8]
     depth = torch.where(alpha > 0, wz / alpha.clamp_min(1e-30), torch.zeros_like(wz))
     if background is not None:
         rgb = rgb + (1 - alpha) * background.to(rgb)
-    visible = (radius > 0) & (rects[..., 1] > rects[..., 0]) & (rects[..., 3] > rects[..., 2])
     return {
         "rgb": rgb, "alpha": alpha, "depth": depth, "median_depth": out[..., 9:10],
-        "normal": out[..., 3:6], "distortion": out[..., 8:9],
-        "radii": torch.where(visible, radius, torch.zeros_like(radius)), "visible": visible,
+        "normal": out[..., 3:6], "distortion": out[..., 8:9], **_visibility(radius, rects),
     }

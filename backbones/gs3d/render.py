@@ -112,6 +112,8 @@ def render_3dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
         backward is the gradient w.r.t. the screen positions, as in 2DGS).
     """
     impl = raster_impl(impl)
+    if impl == "triton":
+        raise ValueError("render_3dgs: the Triton rasteriser composites 2-D splats only (backbone=gs2d); use torch")
     C, N, H, W = len(cams), means.shape[0], cams.height, cams.width
     cams = cams.to(dtype=means.dtype)
     if impl == "cpp":

@@ -1,0 +1,243 @@
+"""The Triton kernels of :mod:`.triton2d` (imported on first use: importing triton takes a second).
+
+Pixel lanes: a program is one camera-tile; lane ``r`` is its pixel ``(r % TILE, r // TILE)`` (``BLOCK``: the power of
+two from ``TILE * TILE`` up; the lanes past it idle). A pair's 21 table
+values are scalar loads (every lane reads the same entry); per-pixel state lives in registers.
+Only what Triton compiles is used (no ``break``: the forward's early stop is the ``while`` condition).
+"""
+import triton
+import triton.language as tl
+
+BATCH = tl.constexpr(32)  # pairs the forward composites between two counts of its live pixels
+
+
+@triton.jit
+def _hit(tab, s, px, py, lp, near, NCOL: tl.constexpr, MAX_ALPHA_: tl.constexpr, MIN_ALPHA_: tl.constexpr):
+    """Entry ``s`` on the lanes' pixel centres ``(px, py)``: what cpp/composite2d.h's ``eval2`` computes."""
+    row = tab + s * NCOL
+    a0, a1, a2 = tl.load(row + 0), tl.load(row + 1), tl.load(row + 2)
+    b0, b1, b2 = tl.load(row + 3), tl.load(row + 4), tl.load(row + 5)
+    c0, c1, c2 = tl.load(row + 6), tl.load(row + 7), tl.load(row + 8)
+    cx, cy, op = tl.load(row + 9), tl.load(row + 10), tl.load(row + 11)
+    tz0, tz1, tz2 = tl.load(row + 12), tl.load(row + 13), tl.load(row + 14)
+    q0 = px * a0 + py * b0 + c0
+    q1 = px * a1 + py * b1 + c1
+    q2 = px * a2 + py * b2 + c2
+    nz = q2 != 0
+    ip = tl.where(nz, 1.0 / tl.where(nz, q2, 1.0), 0.0)
+    u = q0 * ip
+    v = q1 * ip
+    rho3d = u * u + v * v
+    dx = cx - px
+    dy = cy - py
+    rho2d = lp * (dx * dx + dy * dy)
+    use3d = rho3d <= rho2d
+    z = tl.where(use3d, u * tz0 + v * tz1 + tz2, tz2)
+    power = -0.5 * tl.where(use3d, rho3d, rho2d)
+    g = tl.exp(power)
+    alpha = tl.minimum(op * g, MAX_ALPHA_)
+    ok = nz & (z >= near) & (power <= 0) & (alpha >= MIN_ALPHA_)
+    return u, v, ip, dx, dy, z, g, alpha, op, use3d, ok, tz0, tz1
+
+
+@triton.jit
+def _in_box(box, s, x, y):
+    b = box + s * 4
+    return (x >= tl.load(b)) & (x <= tl.load(b + 1)) & (y >= tl.load(b + 2)) & (y <= tl.load(b + 3))
+
+
+@triton.jit
+def forward_kernel(tab, box, off, ids, mc, bg, rgb, nrm, tf_, alpha_, wz_, depth_, med_, dist_, m1_, m2_, mref_,
+                   last_, medi_, H, W, TX, TY, near, lp, HAS_BG: tl.constexpr, TILE: tl.constexpr,
+                   BLOCK: tl.constexpr, DT: tl.constexpr, NCOL: tl.constexpr, MIN_ALPHA_: tl.constexpr,
+                   MAX_ALPHA_: tl.constexpr, MIN_T_: tl.constexpr):
+    pid = tl.program_id(0)
+    c = pid // (TX * TY)
+    t = pid % (TX * TY)
+    r = tl.arange(0, BLOCK)
+    x = (t % TX) * TILE + r % TILE
+    y = (t // TX) * TILE + r // TILE
+    inimg = (r < TILE * TILE) & (x < W) & (y < H)
+    px = x.to(DT) + 0.5
+    py = y.to(DT) + 0.5
+    mc0, mc1, mc2 = tl.load(mc + 3 * c), tl.load(mc + 3 * c + 1), tl.load(mc + 3 * c + 2)
+    zero = tl.zeros([BLOCK], DT)
+    T = zero + 1.0
+    f0, f1, f2, n0, n1, n2 = zero, zero, zero, zero, zero, zero
+    ws, wz, m1, m2, dist, mref, med = zero, zero, zero, zero, zero, zero, zero
+    last = tl.full([BLOCK], -1, tl.int32)
+    medi = tl.full([BLOCK], -1, tl.int32)
+    live = inimg
+    j0 = tl.load(off + pid)
+    end = tl.load(off + pid + 1)
+    nlive = tl.sum(live.to(tl.int32), 0)
+    while (j0 < end) & (nlive > 0):  # batches of BATCH pairs: the live count (a block reduction) once a batch
+        for b in range(BATCH):
+            j = j0 + b
+            s = tl.load(ids + j, mask=j < end, other=0)
+            _, _, _, _, _, z, _, alpha, _, _, ok, _, _ = _hit(tab, s, px, py, lp, near, NCOL, MAX_ALPHA_, MIN_ALPHA_)
+            # (the pair's validity as a lane vector: Triton's interpreter mistypes a scalar-bool & vector-bool)
+            ok = ok & live & ((r * 0 + j) < end) & _in_box(box, s, x, y)
+            nxt = T * (1.0 - alpha)
+            stop = ok & (nxt < MIN_T_)
+            use = ok & (nxt >= MIN_T_)
+            w = tl.where(use, alpha * T, 0.0)
+            zz = tl.where(use, z, 1.0)
+            m_abs = mc0 + mc1 * zz + mc2 / zz
+            mr = tl.where(use & (last < 0), m_abs, mref)
+            m = m_abs - mr
+            dist += (m * m * (1.0 - T) + m2 - 2.0 * m * m1) * w
+            wz += zz * w
+            ws += w
+            m1 += m * w
+            m2 += m * m * w
+            mref = mr
+            median = use & (T > 0.5)
+            med = tl.where(median, z, med)
+            jj = j.to(tl.int32)
+            medi = tl.where(median, jj, medi)
+            row = tab + s * NCOL
+            f0 += w * tl.load(row + 15)
+            f1 += w * tl.load(row + 16)
+            f2 += w * tl.load(row + 17)
+            n0 += w * tl.load(row + 18)
+            n1 += w * tl.load(row + 19)
+            n2 += w * tl.load(row + 20)
+            T = tl.where(use, nxt, T)
+            last = tl.where(use, jj, last)
+            live = live & (stop == 0)
+        j0 += BATCH
+        nlive = tl.sum(live.to(tl.int32), 0)
+    pix = (c * H + y) * W + x
+    if HAS_BG:
+        f0 += T * tl.load(bg)
+        f1 += T * tl.load(bg + 1)
+        f2 += T * tl.load(bg + 2)
+    tl.store(rgb + 3 * pix, f0, mask=inimg)
+    tl.store(rgb + 3 * pix + 1, f1, mask=inimg)
+    tl.store(rgb + 3 * pix + 2, f2, mask=inimg)
+    tl.store(nrm + 3 * pix, n0, mask=inimg)
+    tl.store(nrm + 3 * pix + 1, n1, mask=inimg)
+    tl.store(nrm + 3 * pix + 2, n2, mask=inimg)
+    tl.store(tf_ + pix, T, mask=inimg)
+    tl.store(alpha_ + pix, ws, mask=inimg)
+    tl.store(wz_ + pix, wz, mask=inimg)
+    tl.store(depth_ + pix, tl.where(ws > 0, wz / tl.maximum(ws, 1e-30), 0.0), mask=inimg)
+    tl.store(med_ + pix, med, mask=inimg)
+    tl.store(dist_ + pix, dist, mask=inimg)
+    tl.store(m1_ + pix, m1, mask=inimg)
+    tl.store(m2_ + pix, m2, mask=inimg)
+    tl.store(mref_ + pix, mref, mask=inimg)
+    tl.store(last_ + pix, last, mask=inimg)
+    tl.store(medi_ + pix, medi, mask=inimg)
+
+
+@triton.jit
+def _load_or_zero(ptr, idx, mask, ON: tl.constexpr, zero):
+    if ON:
+        return tl.load(ptr + idx, mask=mask, other=0.0)
+    return zero
+
+
+@triton.jit
+def backward_kernel(tab, box, off, ids, mc, bg, tf_, alpha_, wz_, m1_, m2_, mref_, last_, medi_, g_rgb, g_nrm,
+                    g_alpha, g_depth, g_med, g_dist, grad, H, W, TX, TY, near, lp, HAS_BG: tl.constexpr,
+                    G_RGB: tl.constexpr, G_NRM: tl.constexpr, G_ALPHA: tl.constexpr, G_DEPTH: tl.constexpr,
+                    G_MED: tl.constexpr, G_DIST: tl.constexpr, GEO: tl.constexpr, TILE: tl.constexpr,
+                    BLOCK: tl.constexpr, DT: tl.constexpr, NCOL: tl.constexpr, MAX_ALPHA_: tl.constexpr,
+                    MIN_ALPHA_: tl.constexpr):
+    pid = tl.program_id(0)
+    c = pid // (TX * TY)
+    t = pid % (TX * TY)
+    r = tl.arange(0, BLOCK)
+    x = (t % TX) * TILE + r % TILE
+    y = (t // TX) * TILE + r // TILE
+    inimg = (r < TILE * TILE) & (x < W) & (y < H)
+    px = x.to(DT) + 0.5
+    py = y.to(DT) + 0.5
+    pix = (c * H + y) * W + x
+    mc0, mc1, mc2 = tl.load(mc + 3 * c), tl.load(mc + 3 * c + 1), tl.load(mc + 3 * c + 2)
+    zero = tl.zeros([BLOCK], DT)
+    # the composited sums' gradients: rgb = sum w c + (1 - alpha) bg, depth = sum w z / alpha
+    go0 = _load_or_zero(g_rgb, 3 * pix, inimg, G_RGB, zero)
+    go1 = _load_or_zero(g_rgb, 3 * pix + 1, inimg, G_RGB, zero)
+    go2 = _load_or_zero(g_rgb, 3 * pix + 2, inimg, G_RGB, zero)
+    gn0 = _load_or_zero(g_nrm, 3 * pix, inimg, G_NRM, zero)
+    gn1 = _load_or_zero(g_nrm, 3 * pix + 1, inimg, G_NRM, zero)
+    gn2 = _load_or_zero(g_nrm, 3 * pix + 2, inimg, G_NRM, zero)
+    ga = _load_or_zero(g_alpha, pix, inimg, G_ALPHA, zero)
+    if HAS_BG:
+        ga -= go0 * tl.load(bg) + go1 * tl.load(bg + 1) + go2 * tl.load(bg + 2)
+    a = tl.load(alpha_ + pix, mask=inimg, other=0.0)
+    gd = zero
+    if G_DEPTH:
+        gdep = tl.load(g_depth + pix, mask=inimg, other=0.0)
+        ac = tl.maximum(a, 1e-30)
+        gd = tl.where(a > 0, gdep / ac, 0.0)
+        ga -= tl.where(a >= 1e-30, gdep * tl.load(wz_ + pix, mask=inimg, other=0.0) / ac / ac, 0.0)
+    gm = _load_or_zero(g_med, pix, inimg, G_MED, zero)
+    gdis = _load_or_zero(g_dist, pix, inimg, G_DIST, zero)
+    tf = tl.load(tf_ + pix, mask=inimg, other=1.0)
+    m1 = tl.load(m1_ + pix, mask=inimg, other=0.0)
+    m2 = tl.load(m2_ + pix, mask=inimg, other=0.0)
+    mref = tl.load(mref_ + pix, mask=inimg, other=0.0)
+    last = tl.load(last_ + pix, mask=inimg, other=-1)
+    medi = tl.load(medi_ + pix, mask=inimg, other=-1)
+    Wt = 1.0 - tf
+    tr = tf
+    sa = zero
+    jmax = tl.max(last, 0)
+    start = tl.load(off + pid).to(tl.int32)
+    for k in range(jmax - start + 1):
+        j = jmax - k
+        s = tl.load(ids + j)
+        u, v, ip, dx, dy, z, g, alpha, op, use3d, ok, tz0, tz1 = _hit(tab, s, px, py, lp, near, NCOL, MAX_ALPHA_,
+                                                                      MIN_ALPHA_)
+        ok = ok & (j <= last) & _in_box(box, s, x, y)
+        inv = 1.0 / (1.0 - alpha)
+        Ti = tr * inv
+        w = tl.where(ok, alpha * Ti, 0.0)
+        tr = tl.where(ok, Ti, tr)
+        row = tab + s * NCOL
+        out = grad + s * NCOL
+        tl.atomic_add(out + 15, tl.sum(w * go0, 0))
+        tl.atomic_add(out + 16, tl.sum(w * go1, 0))
+        tl.atomic_add(out + 17, tl.sum(w * go2, 0))
+        if GEO:
+            zz = tl.where(ok, z, 1.0)
+            iz = 1.0 / zz
+            m = mc0 + mc1 * zz + mc2 * iz - mref
+            dm_dz = mc1 - mc2 * iz * iz
+            gw = ga + gd * zz + gdis * (m * m * Wt - 2.0 * m * m1 + m2)
+            gw += go0 * tl.load(row + 15) + go1 * tl.load(row + 16) + go2 * tl.load(row + 17)
+            gw += gn0 * tl.load(row + 18) + gn1 * tl.load(row + 19) + gn2 * tl.load(row + 20)
+            tl.atomic_add(out + 18, tl.sum(w * gn0, 0))
+            tl.atomic_add(out + 19, tl.sum(w * gn1, 0))
+            tl.atomic_add(out + 20, tl.sum(w * gn2, 0))
+            gz = w * gd + gdis * 2.0 * w * (m * Wt - m1) * dm_dz + tl.where(ok & (medi == j), gm, 0.0)
+            dalpha = gw * Ti - sa * inv
+            sa += gw * w
+            gok = ok & (op * g <= MAX_ALPHA_)  # a clamped alpha has no gradient
+            dpow = tl.where(gok, dalpha * op * g, 0.0)
+            tl.atomic_add(out + 11, tl.sum(tl.where(gok, dalpha * g, 0.0), 0))
+            h3 = ok & use3d
+            h2 = ok & (use3d == 0)
+            gu = tl.where(h3, -dpow * u + gz * tz0, 0.0)
+            gv = tl.where(h3, -dpow * v + gz * tz1, 0.0)
+            gp0 = gu * ip
+            gp1 = gv * ip
+            gp2 = -(gu * u + gv * v) * ip
+            tl.atomic_add(out + 0, tl.sum(px * gp0, 0))
+            tl.atomic_add(out + 1, tl.sum(px * gp1, 0))
+            tl.atomic_add(out + 2, tl.sum(px * gp2, 0))
+            tl.atomic_add(out + 3, tl.sum(py * gp0, 0))
+            tl.atomic_add(out + 4, tl.sum(py * gp1, 0))
+            tl.atomic_add(out + 5, tl.sum(py * gp2, 0))
+            tl.atomic_add(out + 6, tl.sum(gp0, 0))
+            tl.atomic_add(out + 7, tl.sum(gp1, 0))
+            tl.atomic_add(out + 8, tl.sum(gp2, 0))
+            tl.atomic_add(out + 9, tl.sum(tl.where(h2, -dpow * lp * dx, 0.0), 0))
+            tl.atomic_add(out + 10, tl.sum(tl.where(h2, -dpow * lp * dy, 0.0), 0))
+            tl.atomic_add(out + 12, tl.sum(tl.where(h3, gz * u, 0.0), 0))
+            tl.atomic_add(out + 13, tl.sum(tl.where(h3, gz * v, 0.0), 0))
+            tl.atomic_add(out + 14, tl.sum(tl.where(ok, gz, 0.0), 0))

@@ -1,0 +1,161 @@
+"""``rasterizer=triton``: the 2DGS compositing (forward + backward) as two Triton kernels, for CUDA.
+
+On a GPU the PyTorch rasteriser issues ~1,400 operators a step, most of them the compositing's (pair expansion,
+splat evaluation, segmented sums and their backward); the host cannot issue them as fast as the GPU runs them
+(benchmarks/results/gpu/README.md). Here the compositing is one kernel launch forward and one backward; the
+projection, footprint and tile binning stay PyTorch operators (``render._render_2dgs_triton``).
+
+The arithmetic and the rules are those of the fused C++ kernels (cpp/composite2d.h: official 2DGS ray-splat
+intersection, low-pass filter, skip / clamp / early stop, median depth, shifted distortion sums) in the PyTorch
+path's frame (absolute pixel centres, the adjugate of ``[Tu; Tv; Tw]`` from ``render._splat_table``), so the
+PyTorch path is the reference (tests/test_triton2d.py, values and gradients).
+
+* Forward: one program per camera-tile, its ``tile x tile`` pixels as one block of lanes, the tile's pairs front to
+  back until every pixel has stopped.
+* Backward: the same program back to front from the last pair any of its pixels composited, the transmittance
+  restored (``T_i = T_{i+1} / (1 - alpha_i)``); each pair's gradient row (21 values: the splat table's rows) is
+  summed over the tile's pixels and added atomically into the entry's row.
+
+Triton compiles these for the GPU at first use. With ``TRITON_INTERPRET=1`` in the environment when this module is
+first imported they run on CPU tensors through Triton's interpreter (slowly: the tests' path on a machine without a
+GPU); benchmarks/gpu/triton_compile.py compiles them for a given GPU architecture without one.
+"""
+from __future__ import annotations
+
+import os
+
+import torch
+from torch import Tensor
+
+from .config import LOWPASS_SIGMA
+from .raster import MAX_ALPHA, MIN_ALPHA, MIN_T
+
+__all__ = ["TABLE", "available", "composite2d_triton", "interpreted"]
+
+TABLE = 21
+"""Columns of the splat table (``render._splat_table`` transposed): adjugate a, b, c (9), centre (2), opacity,
+depth row ``Tz`` (3), colour (3), normal (3)."""
+
+
+def interpreted() -> bool:
+    """Whether Triton runs the kernels through its CPU interpreter (``TRITON_INTERPRET=1``)."""
+    return os.environ.get("TRITON_INTERPRET", "0") not in ("", "0")
+
+
+def available(device) -> str | None:
+    """None when ``rasterizer=triton`` can run on ``device``, else why not (one line)."""
+    try:
+        import triton  # noqa: F401
+    except ImportError:
+        return "needs the triton package (installed with PyTorch's CUDA wheels; pip install triton)"
+    dev = str(device).split(":")[0]
+    if dev == "cuda" or (dev == "cpu" and interpreted()):
+        return None
+    return f"runs on CUDA tensors (the device is {device}; on the CPU only under TRITON_INTERPRET=1, for tests)"
+
+
+_KERNELS = None
+
+
+def _kernels():
+    """The two kernels, defined on first use (importing triton costs a second)."""
+    global _KERNELS
+    if _KERNELS is None:
+        from . import _triton2d_kernels as k
+
+        _KERNELS = (k.forward_kernel, k.backward_kernel)
+    return _KERNELS
+
+
+def _dtype(t: Tensor):
+    import triton.language as tl
+
+    if t.dtype == torch.float32:
+        return tl.float32
+    if t.dtype == torch.float64:
+        return tl.float64
+    raise TypeError(f"triton rasteriser: float32 or float64 tensors, got {t.dtype}")
+
+
+def _block(tile: int) -> int:
+    """Lanes a program: the tile's pixels, rounded up to a power of two (Triton's blocks)."""
+    return 1 << max(0, (tile * tile - 1).bit_length())
+
+
+def _warps(tile: int) -> int:
+    """Warps a program: one thread a pixel up to 8 warps (sm_90, 16-px tiles: 48 / 61 registers a thread forward /
+    backward, no spills; ``benchmarks/gpu/triton_compile.py``)."""
+    return max(1, min(8, _block(tile) // 32))
+
+
+class _Composite2DTriton(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, table, box, offsets, ids, mcoef, bg, geo, C, H, W, tile, near, lp):
+        M = table.shape[0]
+        dev, dt = table.device, table.dtype
+        TX, TY = -(-W // tile), -(-H // tile)
+        img = lambda k: torch.empty(C * H * W, k, dtype=dt, device=dev)
+        rgb, nrm = img(3), img(3)
+        tf, alpha, wz, depth, med, dist, m1, m2, mref = (torch.empty(C * H * W, dtype=dt, device=dev) for _ in range(9))
+        last, medi = (torch.empty(C * H * W, dtype=torch.int32, device=dev) for _ in range(2))
+        fwd, _ = _kernels()
+        has_bg = bg.numel() == 3
+        fwd[(C * TX * TY,)](table, box, offsets, ids, mcoef, bg if has_bg else table, rgb, nrm, tf, alpha, wz, depth,
+                            med, dist, m1, m2, mref, last, medi, H, W, TX, TY, float(near), float(lp),
+                            HAS_BG=has_bg, TILE=tile, BLOCK=_block(tile), DT=_dtype(table), NCOL=TABLE,
+                            MIN_ALPHA_=MIN_ALPHA, MAX_ALPHA_=MAX_ALPHA, MIN_T_=MIN_T, num_warps=_warps(tile))
+        ctx.save_for_backward(table, box, offsets, ids, mcoef, bg, tf, alpha, wz, m1, m2, mref, last, medi)
+        ctx.sizes = (M, C, H, W, tile, float(near), float(lp), bool(geo))
+        ctx.set_materialize_grads(False)
+        shape = (C, H, W)
+        return (rgb.view(*shape, 3), nrm.view(*shape, 3), alpha.view(*shape, 1), depth.view(*shape, 1),
+                med.view(*shape, 1), dist.view(*shape, 1))
+
+    @staticmethod
+    def backward(ctx, g_rgb, g_nrm, g_alpha, g_depth, g_med, g_dist):
+        table, box, offsets, ids, mcoef, bg, tf, alpha, wz, m1, m2, mref, last, medi = ctx.saved_tensors
+        M, C, H, W, tile, near, lp, geo = ctx.sizes
+        TX, TY = -(-W // tile), -(-H // tile)
+        grad = torch.zeros(M, TABLE, dtype=table.dtype, device=table.device)
+        gs = [g_rgb, g_nrm, g_alpha, g_depth, g_med, g_dist]
+        has = [g is not None for g in gs]
+        gs = [g.contiguous() if g is not None else table for g in gs]
+        _, bwd = _kernels()
+        has_bg = bg.numel() == 3
+        bwd[(C * TX * TY,)](table, box, offsets, ids, mcoef, bg if has_bg else table, tf, alpha, wz, m1, m2, mref,
+                            last, medi, *gs, grad, H, W, TX, TY, near, lp,
+                            HAS_BG=has_bg, G_RGB=has[0], G_NRM=has[1], G_ALPHA=has[2], G_DEPTH=has[3], G_MED=has[4],
+                            G_DIST=has[5], GEO=geo, TILE=tile, BLOCK=_block(tile), DT=_dtype(table), NCOL=TABLE,
+                            MAX_ALPHA_=MAX_ALPHA, MIN_ALPHA_=MIN_ALPHA, num_warps=_warps(tile))
+        return grad, None, None, None, None, None, None, None, None, None, None, None, None
+
+
+def composite2d_triton(table: Tensor, box: Tensor, offsets: Tensor, ids: Tensor, mcoef: Tensor, C: int, H: int,
+                       W: int, tile: int, background: Tensor | None = None, near: float = float("-inf"),
+                       lowpass_sigma: float = LOWPASS_SIGMA, geometry: bool = True):
+    """Composite sorted 2-D Gaussian surfels front to back (the rules of ``fused.composite2d``).
+
+    Args:
+        table: ``[M, 21]`` per (camera, splat) entry (:data:`TABLE`); its gradient is returned by backward.
+        box: ``[M, 4]`` inclusive pixel box ``(x0, x1, y0, y1)`` outside which the entry's alpha < 1/255;
+        offsets: ``[C*TY*TX + 1]`` start of each camera-tile's pairs; ids: ``[P]`` the entry of each pair, sorted
+            by camera-tile then depth (:func:`raster.bin_tiles`); mcoef: ``[C, 3]`` normalised depth
+            ``m = m0 + m1 z + m2 / z`` of the distortion; background ``[3]`` (a constant) or None;
+        near: hits nearer than this are skipped; lowpass_sigma: the screen-space low-pass filter's sigma (px);
+        geometry: False when only the colour columns need a gradient (a frozen geometry: the backward skips the rest,
+            which it leaves zero).
+    Returns:
+        rgb ``[C,H,W,3]`` (background composited), normal ``[C,H,W,3]``, alpha, depth (``sum w z / alpha``),
+        median depth, distortion ``[C,H,W,1]``.
+    """
+    if background is not None and background.requires_grad:
+        raise ValueError("triton rasteriser: the background is a constant (requires_grad background: use torch)")
+    dev = table.device
+    why = available(dev)
+    if why is not None:
+        raise RuntimeError(f"rasterizer=triton {why}")
+    box32 = box.detach().clamp(-1, 1 << 30).to(torch.int32).contiguous()
+    bg = table.new_empty(0) if background is None else background.detach().to(table).contiguous()
+    return _Composite2DTriton.apply(table.contiguous(), box32, offsets.contiguous(), ids.contiguous(),
+                                    mcoef.to(table).contiguous(), bg, bool(geometry), int(C), int(H), int(W), int(tile),
+                                    float(near), 1.0 / float(lowpass_sigma) ** 2)

@@ -1,0 +1,101 @@
+"""Compile the Triton 2DGS kernels (``rasterizer=triton``) for a GPU architecture, on a machine without a GPU.
+
+Triton compiles ahead of time for a named target (its own LLVM and ptxas, no driver): this checks that the kernels
+are ones Triton compiles (its interpreter, which the CPU tests run, accepts more) and reports what the GPU would get:
+registers a thread, spilled bytes, shared memory::
+
+    python benchmarks/gpu/triton_compile.py                 # sm_90 (H100/H200), float32, 16-px tiles, 8 warps
+    python benchmarks/gpu/triton_compile.py --arch 80 --tile 8
+
+Prints one line per kernel; exit status 1 when a kernel does not compile.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+
+def signatures(tile: int) -> dict[str, tuple[dict, dict]]:
+    """Each kernel's argument types and constants as ``rasterizer=triton`` launches them (float32 tensors)."""
+    f, i32, i64 = "*fp32", "*i32", "*i64"
+    common = {"tab": f, "box": i32, "off": i64, "ids": i64, "mc": f, "bg": f}
+    sizes = {"H": "i32", "W": "i32", "TX": "i32", "TY": "i32", "near": "fp32", "lp": "fp32"}
+    fwd = {**common, **{k: f for k in ("rgb", "nrm", "tf_", "alpha_", "wz_", "depth_", "med_", "dist_", "m1_", "m2_",
+                                       "mref_")}, "last_": i32, "medi_": i32, **sizes}
+    bwd = {**common, **{k: f for k in ("tf_", "alpha_", "wz_", "m1_", "m2_", "mref_")}, "last_": i32, "medi_": i32,
+           **{k: f for k in ("g_rgb", "g_nrm", "g_alpha", "g_depth", "g_med", "g_dist", "grad")}, **sizes}
+    from arcsem.backbones.gaussians.raster import MAX_ALPHA, MIN_ALPHA, MIN_T
+    from arcsem.backbones.gaussians.triton2d import TABLE, _block
+
+    shared = {"TILE": tile, "BLOCK": _block(tile), "NCOL": TABLE, "MAX_ALPHA_": MAX_ALPHA, "MIN_ALPHA_": MIN_ALPHA}
+    fwd_c = {**shared, "HAS_BG": True, "MIN_T_": MIN_T}
+    bwd_c = {**shared, "HAS_BG": True, "G_RGB": True, "G_NRM": True, "G_ALPHA": True, "G_DEPTH": True, "G_MED": True,
+             "G_DIST": True, "GEO": True}
+    return {"forward_kernel": (fwd, fwd_c), "backward_kernel": (bwd, bwd_c)}
+
+
+def ptxas_usage(ptx: str, arch: int) -> str:
+    """Triton's bundled ``ptxas -v`` on the kernel's PTX: registers a thread and spill stores (no driver needed)."""
+    import re
+    import subprocess
+    import tempfile
+
+    import triton
+
+    out = ""
+    with tempfile.TemporaryDirectory() as d:
+        src = Path(d) / "k.ptx"
+        src.write_text(ptx)
+        for ptxas in sorted((Path(triton.__file__).parent / "backends" / "nvidia" / "bin").glob("ptxas*")):
+            r = subprocess.run([str(ptxas), "-v", f"--gpu-name=sm_{arch}a" if arch >= 90 else f"--gpu-name=sm_{arch}",
+                                str(src), "-o", str(Path(d) / "k.cubin")], capture_output=True, text=True, check=False)
+            if r.returncode == 0:  # (Triton ships two; the PTX version decides which one reads it)
+                out = r.stdout + r.stderr
+                break
+    regs = re.search(r"Used (\d+) registers", out)
+    spill = re.search(r"(\d+) bytes spill stores", out)
+    if regs is None:
+        return "ptxas usage not read"
+    return f"{regs.group(1)} registers a thread, {spill.group(1) if spill else '?'} bytes of spill stores"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--arch", type=int, default=90, help="CUDA compute capability x 10 (90: H100/H200)")
+    ap.add_argument("--tile", type=int, default=16)
+    ap.add_argument("--warps", type=int, default=None, help="default: what rasterizer=triton launches")
+    args = ap.parse_args(argv)
+    if os.environ.get("TRITON_INTERPRET", "0") not in ("", "0"):
+        print("error: TRITON_INTERPRET is set: the interpreter compiles nothing", file=sys.stderr)
+        return 2
+    import triton
+    import triton.language as tl
+    from arcsem.backbones.gaussians import _triton2d_kernels as K
+    from arcsem.backbones.gaussians.triton2d import _warps
+    from triton.backends.compiler import GPUTarget
+    from triton.compiler import ASTSource
+
+    args.warps = args.warps or _warps(args.tile)
+
+    failed = 0
+    for name, (sig, consts) in signatures(args.tile).items():
+        consts = {**consts, "DT": tl.float32}
+        sig = {**sig, **{k: "constexpr" for k in consts}}
+        try:
+            k = triton.compile(ASTSource(fn=getattr(K, name), signature=sig, constexprs=consts),
+                               target=GPUTarget("cuda", args.arch, 32), options={"num_warps": args.warps})
+        except Exception as e:  # noqa: BLE001 - report any compiler failure as one line
+            failed += 1
+            print(f"{name}: does not compile for sm_{args.arch}: {type(e).__name__}: {str(e).splitlines()[0]}")
+            continue
+        print(f"{name}: compiled for sm_{args.arch}, {args.warps} warps, {args.tile}-px tiles: "
+              f"cubin {len(k.asm['cubin'])} bytes, shared {k.metadata.shared} bytes; {ptxas_usage(k.asm['ptx'], args.arch)}")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -47,8 +47,8 @@ def _in_box(box, s, x, y):
 
 
 @triton.jit
-def forward_kernel(tab, box, off, ids, mc, bg, rgb, nrm, tf_, alpha_, wz_, depth_, med_, dist_, m1_, m2_, mref_,
-                   last_, medi_, H, W, TX, TY, near, lp, HAS_BG: tl.constexpr, TILE: tl.constexpr,
+def forward_kernel(tab, box, off, ids, prm, bg, rgb, nrm, tf_, alpha_, wz_, depth_, med_, dist_, m1_, m2_, mref_,
+                   last_, medi_, H, W, TX, TY, near, HAS_BG: tl.constexpr, TILE: tl.constexpr,
                    BLOCK: tl.constexpr, DT: tl.constexpr, NCOL: tl.constexpr, MIN_ALPHA_: tl.constexpr,
                    MAX_ALPHA_: tl.constexpr, MIN_T_: tl.constexpr):
     pid = tl.program_id(0)
@@ -60,8 +60,8 @@ def forward_kernel(tab, box, off, ids, mc, bg, rgb, nrm, tf_, alpha_, wz_, depth
     inimg = (r < TILE * TILE) & (x < W) & (y < H)
     px = x.to(DT) + 0.5
     py = y.to(DT) + 0.5
-    mc0, mc1, mc2 = tl.load(mc + 3 * c), tl.load(mc + 3 * c + 1), tl.load(mc + 3 * c + 2)
     zero = tl.zeros([BLOCK], DT)
+    mc0, mc1, mc2, lp = tl.load(prm), tl.load(prm + 1), tl.load(prm + 2), tl.load(prm + 3)
     T = zero + 1.0
     f0, f1, f2, n0, n1, n2 = zero, zero, zero, zero, zero, zero
     ws, wz, m1, m2, dist, mref, med = zero, zero, zero, zero, zero, zero, zero
@@ -140,8 +140,8 @@ def _load_or_zero(ptr, idx, mask, ON: tl.constexpr, zero):
 
 
 @triton.jit
-def backward_kernel(tab, box, off, ids, mc, bg, tf_, alpha_, wz_, m1_, m2_, mref_, last_, medi_, g_rgb, g_nrm,
-                    g_alpha, g_depth, g_med, g_dist, grad, H, W, TX, TY, near, lp, HAS_BG: tl.constexpr,
+def backward_kernel(tab, box, off, ids, prm, bg, tf_, alpha_, wz_, m1_, m2_, mref_, last_, medi_, g_rgb, g_nrm,
+                    g_alpha, g_depth, g_med, g_dist, grad, H, W, TX, TY, near, HAS_BG: tl.constexpr,
                     G_RGB: tl.constexpr, G_NRM: tl.constexpr, G_ALPHA: tl.constexpr, G_DEPTH: tl.constexpr,
                     G_MED: tl.constexpr, G_DIST: tl.constexpr, GEO: tl.constexpr, TILE: tl.constexpr,
                     BLOCK: tl.constexpr, DT: tl.constexpr, NCOL: tl.constexpr, MAX_ALPHA_: tl.constexpr,
@@ -156,8 +156,8 @@ def backward_kernel(tab, box, off, ids, mc, bg, tf_, alpha_, wz_, m1_, m2_, mref
     px = x.to(DT) + 0.5
     py = y.to(DT) + 0.5
     pix = (c * H + y) * W + x
-    mc0, mc1, mc2 = tl.load(mc + 3 * c), tl.load(mc + 3 * c + 1), tl.load(mc + 3 * c + 2)
     zero = tl.zeros([BLOCK], DT)
+    mc0, mc1, mc2, lp = tl.load(prm), tl.load(prm + 1), tl.load(prm + 2), tl.load(prm + 3)
     # the composited sums' gradients: rgb = sum w c + (1 - alpha) bg, depth = sum w z / alpha
     go0 = _load_or_zero(g_rgb, 3 * pix, inimg, G_RGB, zero)
     go1 = _load_or_zero(g_rgb, 3 * pix + 1, inimg, G_RGB, zero)

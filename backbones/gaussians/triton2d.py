@@ -67,6 +67,18 @@ def _kernels():
     return _KERNELS
 
 
+_CONSTANTS: dict = {}
+
+
+def _constants(like: Tensor, values: tuple[float, ...]) -> Tensor:
+    """``values`` as a tensor on ``like``'s device and dtype, made once per (device, dtype, values): the kernels read
+    them in the run's precision (Python floats reach Triton as float32) without a transfer to the device a step."""
+    key = (like.device, like.dtype, tuple(float(v) for v in values))
+    if key not in _CONSTANTS:
+        _CONSTANTS[key] = torch.tensor(key[2], dtype=like.dtype).to(like.device)
+    return _CONSTANTS[key]
+
+
 def _dtype(t: Tensor):
     import triton.language as tl
 
@@ -90,7 +102,7 @@ def _warps(tile: int) -> int:
 
 class _Composite2DTriton(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, table, box, offsets, ids, mcoef, bg, geo, C, H, W, tile, near, lp):
+    def forward(ctx, table, box, offsets, ids, prm, bg, geo, C, H, W, tile, near):
         M = table.shape[0]
         dev, dt = table.device, table.dtype
         TX, TY = -(-W // tile), -(-H // tile)
@@ -100,12 +112,12 @@ class _Composite2DTriton(torch.autograd.Function):
         last, medi = (torch.empty(C * H * W, dtype=torch.int32, device=dev) for _ in range(2))
         fwd, _ = _kernels()
         has_bg = bg.numel() == 3
-        fwd[(C * TX * TY,)](table, box, offsets, ids, mcoef, bg if has_bg else table, rgb, nrm, tf, alpha, wz, depth,
-                            med, dist, m1, m2, mref, last, medi, H, W, TX, TY, float(near), float(lp),
+        fwd[(C * TX * TY,)](table, box, offsets, ids, prm, bg if has_bg else table, rgb, nrm, tf, alpha, wz, depth,
+                            med, dist, m1, m2, mref, last, medi, H, W, TX, TY, float(near),
                             HAS_BG=has_bg, TILE=tile, BLOCK=_block(tile), DT=_dtype(table), NCOL=TABLE,
                             MIN_ALPHA_=MIN_ALPHA, MAX_ALPHA_=MAX_ALPHA, MIN_T_=MIN_T, num_warps=_warps(tile))
-        ctx.save_for_backward(table, box, offsets, ids, mcoef, bg, tf, alpha, wz, m1, m2, mref, last, medi)
-        ctx.sizes = (M, C, H, W, tile, float(near), float(lp), bool(geo))
+        ctx.save_for_backward(table, box, offsets, ids, prm, bg, tf, alpha, wz, m1, m2, mref, last, medi)
+        ctx.sizes = (M, C, H, W, tile, float(near), bool(geo))
         ctx.set_materialize_grads(False)
         shape = (C, H, W)
         return (rgb.view(*shape, 3), nrm.view(*shape, 3), alpha.view(*shape, 1), depth.view(*shape, 1),
@@ -113,8 +125,8 @@ class _Composite2DTriton(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, g_rgb, g_nrm, g_alpha, g_depth, g_med, g_dist):
-        table, box, offsets, ids, mcoef, bg, tf, alpha, wz, m1, m2, mref, last, medi = ctx.saved_tensors
-        M, C, H, W, tile, near, lp, geo = ctx.sizes
+        table, box, offsets, ids, prm, bg, tf, alpha, wz, m1, m2, mref, last, medi = ctx.saved_tensors
+        M, C, H, W, tile, near, geo = ctx.sizes
         TX, TY = -(-W // tile), -(-H // tile)
         grad = torch.zeros(M, TABLE, dtype=table.dtype, device=table.device)
         gs = [g_rgb, g_nrm, g_alpha, g_depth, g_med, g_dist]
@@ -122,15 +134,16 @@ class _Composite2DTriton(torch.autograd.Function):
         gs = [g.contiguous() if g is not None else table for g in gs]
         _, bwd = _kernels()
         has_bg = bg.numel() == 3
-        bwd[(C * TX * TY,)](table, box, offsets, ids, mcoef, bg if has_bg else table, tf, alpha, wz, m1, m2, mref,
-                            last, medi, *gs, grad, H, W, TX, TY, near, lp,
+        bwd[(C * TX * TY,)](table, box, offsets, ids, prm, bg if has_bg else table, tf, alpha, wz, m1, m2, mref,
+                            last, medi, *gs, grad, H, W, TX, TY, near,
                             HAS_BG=has_bg, G_RGB=has[0], G_NRM=has[1], G_ALPHA=has[2], G_DEPTH=has[3], G_MED=has[4],
                             G_DIST=has[5], GEO=geo, TILE=tile, BLOCK=_block(tile), DT=_dtype(table), NCOL=TABLE,
                             MAX_ALPHA_=MAX_ALPHA, MIN_ALPHA_=MIN_ALPHA, num_warps=_warps(tile))
-        return grad, None, None, None, None, None, None, None, None, None, None, None, None
+        return grad, None, None, None, None, None, None, None, None, None, None, None
 
 
-def composite2d_triton(table: Tensor, box: Tensor, offsets: Tensor, ids: Tensor, mcoef: Tensor, C: int, H: int,
+def composite2d_triton(table: Tensor, box: Tensor, offsets: Tensor, ids: Tensor, mcoef: tuple[float, float, float],
+                       C: int, H: int,
                        W: int, tile: int, background: Tensor | None = None, near: float = float("-inf"),
                        lowpass_sigma: float = LOWPASS_SIGMA, geometry: bool = True):
     """Composite sorted 2-D Gaussian surfels front to back (the rules of ``fused.composite2d``).
@@ -139,8 +152,9 @@ def composite2d_triton(table: Tensor, box: Tensor, offsets: Tensor, ids: Tensor,
         table: ``[M, 21]`` per (camera, splat) entry (:data:`TABLE`); its gradient is returned by backward.
         box: ``[M, 4]`` inclusive pixel box ``(x0, x1, y0, y1)`` outside which the entry's alpha < 1/255;
         offsets: ``[C*TY*TX + 1]`` start of each camera-tile's pairs; ids: ``[P]`` the entry of each pair, sorted
-            by camera-tile then depth (:func:`raster.bin_tiles`); mcoef: ``[C, 3]`` normalised depth
-            ``m = m0 + m1 z + m2 / z`` of the distortion; background ``[3]`` (a constant) or None;
+            by camera-tile then depth (:func:`raster.bin_tiles`); mcoef: ``(m0, m1, m2)`` of the distortion's
+            normalised depth ``m = m0 + m1 z + m2 / z`` (every camera; Python numbers: no transfer a step);
+        background ``[3]`` (a constant) or None;
         near: hits nearer than this are skipped; lowpass_sigma: the screen-space low-pass filter's sigma (px);
         geometry: False when only the colour columns need a gradient (a frozen geometry: the backward skips the rest,
             which it leaves zero).
@@ -156,6 +170,6 @@ def composite2d_triton(table: Tensor, box: Tensor, offsets: Tensor, ids: Tensor,
         raise RuntimeError(f"rasterizer=triton {why}")
     box32 = box.detach().clamp(-1, 1 << 30).to(torch.int32).contiguous()
     bg = table.new_empty(0) if background is None else background.detach().to(table).contiguous()
-    return _Composite2DTriton.apply(table.contiguous(), box32, offsets.contiguous(), ids.contiguous(),
-                                    mcoef.to(table).contiguous(), bg, bool(geometry), int(C), int(H), int(W), int(tile),
-                                    float(near), 1.0 / float(lowpass_sigma) ** 2)
+    prm = _constants(table, (*mcoef, 1.0 / float(lowpass_sigma) ** 2))
+    return _Composite2DTriton.apply(table.contiguous(), box32, offsets.contiguous(), ids.contiguous(), prm, bg,
+                                    bool(geometry), int(C), int(H), int(W), int(tile), float(near))

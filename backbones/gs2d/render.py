@@ -290,9 +290,8 @@ def _render_triton(columns: Tensor, eff: Tensor, b, mcoef: tuple[float, float, f
     from arcsem.backbones.gaussians.triton2d import composite2d_triton
 
     bg = None if background is not None and background.requires_grad else background  # else composited here
-    mc = columns.new_tensor(mcoef).expand(C, 3)
     with region("arcsem::render/composite"):
-        rgb, normal, alpha, depth, med, dist = composite2d_triton(columns, eff, b.offsets, b.splat, mc, C, Hh, W, tile,
+        rgb, normal, alpha, depth, med, dist = composite2d_triton(columns, eff, b.offsets, b.splat, mcoef, C, Hh, W, tile,
                                                                   bg, lowpass_sigma=lowpass_sigma, geometry=geometry)
     if background is not None and bg is None:
         rgb = rgb + (1 - alpha) * background.to(rgb)

@@ -22,8 +22,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 def signatures(tile: int) -> dict[str, tuple[dict, dict]]:
     """Each kernel's argument types and constants as ``rasterizer=triton`` launches them (float32 tensors)."""
     f, i32, i64 = "*fp32", "*i32", "*i64"
-    common = {"tab": f, "box": i32, "off": i64, "ids": i64, "mc": f, "bg": f}
-    sizes = {"H": "i32", "W": "i32", "TX": "i32", "TY": "i32", "near": "fp32", "lp": "fp32"}
+    common = {"tab": f, "box": i32, "off": i64, "ids": i64, "prm": f, "bg": f}
+    sizes = {"H": "i32", "W": "i32", "TX": "i32", "TY": "i32", "near": "fp32"}
     fwd = {**common, **{k: f for k in ("rgb", "nrm", "tf_", "alpha_", "wz_", "depth_", "med_", "dist_", "m1_", "m2_",
                                        "mref_")}, "last_": i32, "medi_": i32, **sizes}
     bwd = {**common, **{k: f for k in ("tf_", "alpha_", "wz_", "m1_", "m2_", "mref_")}, "last_": i32, "medi_": i32,

@@ -101,15 +101,38 @@ def test_triton_backbone_renders_trains_and_records_as_torch():
     assert_rel(f["rgb"].detach(), f_ref["rgb"].detach(), 2e-5, "recorded render")
 
 
+@pytest.mark.parametrize("model", ["pinhole", "orthographic"])
+def test_triton_footprints_equal_torch(model):
+    """The footprint kernel's radii, tile rectangles, effective pixel boxes and depths are those of
+    ``footprint_2dgs`` exactly (splats partly off-screen and behind the camera, opacities down to 0.001, a
+    non-default low-pass sigma on the orthographic cameras), and so are the tile lists binned from them."""
+    from arcsem.backbones.gaussians._triton2d_footprint import footprint_bin_2dgs_triton
+    from arcsem.backbones.gaussians.raster import bin_tiles
+    from arcsem.backbones.gaussians.raster_scenes import orbit_cameras, random_splats
+    from arcsem.backbones.gs2d.render import footprint_2dgs, splat_homographies
+
+    s = random_splats(3001, 1, seed=3, scale=(0.002, 0.3), extent=4.0, opacity=(0.001, 1.0))
+    cams = orbit_cameras(2, 72, 40, ortho=model == "orthographic")
+    Hm, _ = splat_homographies(s.means, s.quats, s.scales[:, :2], cams)
+    sigma = 0.4 if model == "orthographic" else 0.7071
+    radius, rects, eff, depth = footprint_2dgs(Hm, s.opacities, cams, 16, 0.01, sigma)
+    r2, rects2, eff2, b2 = footprint_bin_2dgs_triton(Hm, s.opacities, 72, 40, 16, 0.01, sigma)
+    vis = (radius > 0) & (rects[..., 1] > rects[..., 0]) & (rects[..., 3] > rects[..., 2])
+    assert 0 < int(vis.sum()) < vis.numel(), "the scene should have visible and culled splats"
+    assert torch.equal(r2, radius) and torch.equal(rects2, rects) and torch.equal(eff2[vis], eff[vis])
+    b = bin_tiles(rects, depth, 72, 40, 16)
+    assert torch.equal(b2.offsets, b.offsets) and torch.equal(b2.splat, b.splat)
+
+
 def test_triton_kernels_compile_for_a_gpu_here():
-    """Triton compiles both kernels for sm_90 without a GPU (its interpreter, which the tests above use, accepts
+    """Triton compiles the three kernels for sm_90 without a GPU (its interpreter, which the tests above use, accepts
     constructs the compiler rejects), with no register spills."""
     env = {k: v for k, v in os.environ.items() if k != "TRITON_INTERPRET"}
     r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "gpu" / "triton_compile.py"), "--arch", "90"],
                        capture_output=True, text=True, env=env, cwd=ROOT, timeout=600, check=False)
     assert r.returncode == 0, r.stdout + r.stderr
     lines = [ln for ln in r.stdout.splitlines() if "compiled for sm_90" in ln]
-    assert len(lines) == 2 and all("0 bytes of spill" in ln for ln in lines), r.stdout
+    assert len(lines) == 3 and all("0 bytes of spill" in ln for ln in lines), r.stdout
 
 
 def test_triton_choice_says_where_it_cannot_run(monkeypatch):

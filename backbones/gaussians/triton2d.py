@@ -2,8 +2,9 @@
 
 On a GPU the PyTorch rasteriser issues ~1,400 operators a step, most of them the compositing's (pair expansion,
 splat evaluation, segmented sums and their backward); the host cannot issue them as fast as the GPU runs them
-(benchmarks/results/gpu/README.md). Here the compositing is one kernel launch forward and one backward; the
-projection, footprint and tile binning stay PyTorch operators (``render._render_2dgs_triton``).
+(benchmarks/results/gpu/README.md). Here the compositing is one kernel launch forward and one backward, and the
+footprints one more (:mod:`._triton2d_footprint`); the projection and the tile binning stay PyTorch operators
+(``gs2d.render.render_2dgs``).
 
 The arithmetic and the rules are those of the fused C++ kernels (cpp/composite2d.h: official 2DGS ray-splat
 intersection, low-pass filter, skip / clamp / early stop, median depth, shifted distortion sums) in the PyTorch

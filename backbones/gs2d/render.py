@@ -217,8 +217,13 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
         return _render_2dgs_fused(means, quats, scales, opacities, colors, cams, background, tile, near, mcoef,
                                   lowpass_sigma, colour_weights)
     Hm, R = splat_homographies(means, quats, scales, cams)
-    radius, rects, eff, depth = footprint_2dgs(Hm, opacities, cams, tile, near, lowpass_sigma)
-    b = bin_tiles(rects, depth, W, Hh, tile)
+    if impl == "triton":  # the footprints as one kernel (~140 operators fewer a render)
+        from arcsem.backbones.gaussians._triton2d_footprint import footprint_bin_2dgs_triton
+
+        radius, rects, eff, b = footprint_bin_2dgs_triton(Hm, opacities, W, Hh, tile, near, lowpass_sigma)
+    else:
+        radius, rects, eff, depth = footprint_2dgs(Hm, opacities, cams, tile, near, lowpass_sigma)
+        b = bin_tiles(rects, depth, W, Hh, tile)
     normals = camera_facing_normals(R[:, :, 2], means, cams)
     colors = colors.expand(C, N, 3) if colors.ndim == 2 else colors
     feats = torch.cat([colors, normals], -1).reshape(C * N, 6)

@@ -35,7 +35,10 @@ def signatures(tile: int) -> dict[str, tuple[dict, dict]]:
     fwd_c = {**shared, "HAS_BG": True, "MIN_T_": MIN_T}
     bwd_c = {**shared, "HAS_BG": True, "G_RGB": True, "G_NRM": True, "G_ALPHA": True, "G_DEPTH": True, "G_MED": True,
              "G_DIST": True, "GEO": True}
-    return {"forward_kernel": (fwd, fwd_c), "backward_kernel": (bwd, bwd_c)}
+    foot = {"Hm": f, "op": f, "prm": "*fp64", **{k: i64 for k in ("radius_", "rects_", "eff_")}, "depth_": "*fp64",
+            **{k: "i32" for k in ("M", "N", "W", "H", "TX", "TY")}}
+    return {"forward_kernel": (fwd, {**fwd_c, "DT": "float32"}), "backward_kernel": (bwd, {**bwd_c, "DT": "float32"}),
+            "footprint_kernel": (foot, {"TILE": tile, "BLOCK": 256})}
 
 
 def ptxas_usage(ptx: str, arch: int) -> str:
@@ -74,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     import triton
     import triton.language as tl
-    from arcsem.backbones.gaussians import _triton2d_kernels as K
+    from arcsem.backbones.gaussians import _triton2d_footprint, _triton2d_kernels
     from arcsem.backbones.gaussians.triton2d import _warps
     from triton.backends.compiler import GPUTarget
     from triton.compiler import ASTSource
@@ -83,16 +86,18 @@ def main(argv: list[str] | None = None) -> int:
 
     failed = 0
     for name, (sig, consts) in signatures(args.tile).items():
-        consts = {**consts, "DT": tl.float32}
+        consts = {k: getattr(tl, v) if k == "DT" else v for k, v in consts.items()}
         sig = {**sig, **{k: "constexpr" for k in consts}}
+        module = _triton2d_footprint if name == "footprint_kernel" else _triton2d_kernels
+        options = {"num_warps": 4, "enable_fp_fusion": False} if name == "footprint_kernel" else {"num_warps": args.warps}
         try:
-            k = triton.compile(ASTSource(fn=getattr(K, name), signature=sig, constexprs=consts),
-                               target=GPUTarget("cuda", args.arch, 32), options={"num_warps": args.warps})
+            k = triton.compile(ASTSource(fn=getattr(module, name), signature=sig, constexprs=consts),
+                               target=GPUTarget("cuda", args.arch, 32), options=options)
         except Exception as e:  # noqa: BLE001 - report any compiler failure as one line
             failed += 1
             print(f"{name}: does not compile for sm_{args.arch}: {type(e).__name__}: {str(e).splitlines()[0]}")
             continue
-        print(f"{name}: compiled for sm_{args.arch}, {args.warps} warps, {args.tile}-px tiles: "
+        print(f"{name}: compiled for sm_{args.arch}, {options['num_warps']} warps, {args.tile}-px tiles: "
               f"cubin {len(k.asm['cubin'])} bytes, shared {k.metadata.shared} bytes; {ptxas_usage(k.asm['ptx'], args.arch)}")
     return 1 if failed else 0
 

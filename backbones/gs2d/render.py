@@ -122,19 +122,14 @@ def _pixel_box(lo: Tensor, hi: Tensor, W: int, H: int, ok: Tensor) -> Tensor:
     return box
 
 
-def _splat_columns(Hm: Tensor, centre2d: Tensor, opac: Tensor, feats: Tensor) -> Tensor:
-    """``[M, 21]`` per (camera, splat), one column per quantity: adjugate columns a, b, c of ``[Tu; Tv; Tw]``
-    (``(u, v, 1) ~ x a + y b + c``), centre ``(2)``, opacity, depth row ``Tz (3)``, colour, normal ``(6)``
-    (the Triton kernels' table, ``triton2d.TABLE``)."""
+def _splat_table(Hm: Tensor, centre2d: Tensor, opac: Tensor, feats: Tensor) -> Tensor:
+    """``[21, M]`` per (camera, splat), one row per quantity: adjugate columns a, b, c of ``[Tu; Tv; Tw]``
+    (``(u, v, 1) ~ x a + y b + c``), centre ``(2)``, opacity, depth row ``Tz (3)``, colour, normal ``(6)``.
+    Rows are gathered per pair-pixel and unbound at once (cheap backward: one stack, no slice copies). Transposed,
+    the Triton kernels' table (``triton2d.TABLE``)."""
     Tu, Tv, Tw, Tz = Hm.unbind(1)
     adj = [torch.cross(Tv, Tw, dim=-1), torch.cross(Tw, Tu, dim=-1), torch.cross(Tu, Tv, dim=-1)]
-    return torch.cat([*adj, centre2d, opac[:, None], Tz, feats], -1)
-
-
-def _splat_table(Hm: Tensor, centre2d: Tensor, opac: Tensor, feats: Tensor) -> Tensor:
-    """:func:`_splat_columns` as ``[21, M]``: rows are gathered per pair-pixel and unbound at once (cheap backward:
-    one stack, no slice copies)."""
-    return _splat_columns(Hm, centre2d, opac, feats).t().contiguous()
+    return torch.cat([*adj, centre2d, opac[:, None], Tz, feats], -1).t().contiguous()
 
 
 def _shade_2dgs(table: Tensor, mcoef: tuple[float, float, float], lowpass_sigma: float = LOWPASS_SIGMA):
@@ -216,14 +211,12 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     if impl == "cpp":
         return _render_2dgs_fused(means, quats, scales, opacities, colors, cams, background, tile, near, mcoef,
                                   lowpass_sigma, colour_weights)
+    if impl == "triton":
+        return _render_2dgs_triton(means, quats, scales, opacities, colors, cams, background, tile, near, mcoef,
+                                   lowpass_sigma, chunk_tiles, colour_weights)
     Hm, R = splat_homographies(means, quats, scales, cams)
-    if impl == "triton":  # the footprints as one kernel (~140 operators fewer a render)
-        from arcsem.backbones.gaussians._triton2d_footprint import footprint_bin_2dgs_triton
-
-        radius, rects, eff, b = footprint_bin_2dgs_triton(Hm, opacities, W, Hh, tile, near, lowpass_sigma)
-    else:
-        radius, rects, eff, depth = footprint_2dgs(Hm, opacities, cams, tile, near, lowpass_sigma)
-        b = bin_tiles(rects, depth, W, Hh, tile)
+    radius, rects, eff, depth = footprint_2dgs(Hm, opacities, cams, tile, near, lowpass_sigma)
+    b = bin_tiles(rects, depth, W, Hh, tile)
     normals = camera_facing_normals(R[:, :, 2], means, cams)
     colors = colors.expand(C, N, 3) if colors.ndim == 2 else colors
     feats = torch.cat([colors, normals], -1).reshape(C * N, 6)
@@ -231,17 +224,8 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
     # translating a splat's image by (dx, dy) pixels: Tu += dx Tw, Tv += dy Tw (dx, dy = 0 in value)
     Hm = torch.cat([Hm[..., :2, :] + shift[..., None] * Hm[..., 2:3, :], Hm[..., 2:, :]], -2)
     centre2d = (Hm[..., :2, 2] / Hm[..., 2, 2:3]).reshape(C * N, 2)
-    columns = _splat_columns(Hm.reshape(C * N, 4, 3), centre2d, opacities.repeat(C), feats)
-    alpha_fn, shade = _shade_2dgs(columns.t().contiguous(), mcoef, lowpass_sigma)
-    if impl == "triton":
-        geometry = any(t.requires_grad for t in (means, quats, scales, opacities))  # else colours alone (stage 2)
-        result = {**_render_triton(columns, eff.reshape(C * N, 4), b, mcoef, C, Hh, W, tile, background,
-                                   lowpass_sigma, geometry),
-                  **_visibility(radius, rects), "means2d": means2d}
-        if colour_weights:
-            result["colour_weights"] = weights_record(b, eff.reshape(C * N, 4), alpha_fn, means.dtype,
-                                                      result["alpha"], chunk_tiles)
-        return result
+    alpha_fn, shade = _shade_2dgs(_splat_table(Hm.reshape(C * N, 4, 3), centre2d, opacities.repeat(C), feats), mcoef,
+                                  lowpass_sigma)
     out = rasterize(b, eff.reshape(C * N, 4), alpha_fn, shade, 10, means.dtype, chunk_tiles).reshape(C, Hh, W, 10)
     result = {**_outputs(out, background, radius, rects), "means2d": means2d}
     if colour_weights:
@@ -288,19 +272,43 @@ def _render_2dgs_fused(means: Tensor, quats: Tensor, scales: Tensor, opacities: 
     return out
 
 
-def _render_triton(columns: Tensor, eff: Tensor, b, mcoef: tuple[float, float, float], C: int, Hh: int, W: int,
-                   tile: int, background: Tensor | None, lowpass_sigma: float, geometry: bool) -> dict[str, Tensor]:
-    """The compositing of :func:`render_2dgs` as the Triton kernels (:mod:`..gaussians.triton2d`): one launch forward,
-    one backward, on the PyTorch path's splat table ``columns [C*N, 21]`` and tile lists ``b``."""
+def _render_2dgs_triton(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, colors: Tensor,
+                        cams: Cameras, background: Tensor | None, tile: int, near: float,
+                        mcoef: tuple[float, float, float], lowpass_sigma: float, chunk_tiles: int | None,
+                        colour_weights: bool = False) -> dict[str, Tensor]:
+    """:func:`render_2dgs` on Triton kernels (CUDA; :mod:`..gaussians.triton2d`): the projection to the splat table
+    (forward and backward), the footprints and the compositing (forward and backward) are a launch each; the tile
+    binning is this module's (:func:`bin_tiles`)."""
+    from arcsem.backbones.gaussians._triton2d_footprint import footprint_bin_2dgs_triton
+    from arcsem.backbones.gaussians._triton2d_project import project_2dgs_triton
     from arcsem.backbones.gaussians.triton2d import composite2d_triton
 
+    C, N, Hh, W = len(cams), means.shape[0], cams.height, cams.width
+    P = pixel_projection(cams)
+    view = cams.forward if cams.is_ortho else cams.centers
+    leaf = means.new_empty(C, N, 2).requires_grad_(torch.is_grad_enabled() and means.requires_grad)
+    with region("arcsem::render/project"):  # profiler regions: benchmarks/profile_step.py
+        table, hm = project_2dgs_triton(means, quats, scales, opacities, colors.expand(C, N, 3), leaf, P, view,
+                                        cams.is_ortho)
+        with torch.no_grad():
+            leaf.copy_(table[:, 9:11].view(C, N, 2))
+    with region("arcsem::render/bin"):
+        radius, rects, eff, b = footprint_bin_2dgs_triton(hm.view(C, N, 4, 3), opacities, W, Hh, tile, near,
+                                                          lowpass_sigma)
     bg = None if background is not None and background.requires_grad else background  # else composited here
+    geometry = any(t.requires_grad for t in (means, quats, scales, opacities))  # else colours alone (stage 2)
     with region("arcsem::render/composite"):
-        rgb, normal, alpha, depth, med, dist = composite2d_triton(columns, eff, b.offsets, b.splat, mcoef, C, Hh, W, tile,
-                                                                  bg, lowpass_sigma=lowpass_sigma, geometry=geometry)
+        rgb, normal, alpha, depth, med, dist = composite2d_triton(table, eff.reshape(C * N, 4), b.offsets, b.splat,
+                                                                  mcoef, C, Hh, W, tile, bg,
+                                                                  lowpass_sigma=lowpass_sigma, geometry=geometry)
     if background is not None and bg is None:
         rgb = rgb + (1 - alpha) * background.to(rgb)
-    return {"rgb": rgb, "alpha": alpha, "depth": depth, "median_depth": med, "normal": normal, "distortion": dist}
+    out = {"rgb": rgb, "alpha": alpha, "depth": depth, "median_depth": med, "normal": normal, "distortion": dist,
+           **_visibility(radius, rects), "means2d": leaf}
+    if colour_weights:  # stage 2's record: the PyTorch path's, on the same table and tile lists
+        alpha_fn, _ = _shade_2dgs(table.detach().t().contiguous(), mcoef, lowpass_sigma)
+        out["colour_weights"] = weights_record(b, eff.reshape(C * N, 4), alpha_fn, means.dtype, alpha, chunk_tiles)
+    return out
 
 
 def _visibility(radius: Tensor, rects: Tensor) -> dict[str, Tensor]:

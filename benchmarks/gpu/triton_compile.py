@@ -37,8 +37,14 @@ def signatures(tile: int) -> dict[str, tuple[dict, dict]]:
              "G_DIST": True, "GEO": True}
     foot = {"Hm": f, "op": f, "prm": "*fp64", **{k: i64 for k in ("radius_", "rects_", "eff_")}, "depth_": "*fp64",
             **{k: "i32" for k in ("M", "N", "W", "H", "TX", "TY")}}
-    return {"forward_kernel": (fwd, {**fwd_c, "DT": "float32"}), "backward_kernel": (bwd, {**bwd_c, "DT": "float32"}),
-            "footprint_kernel": (foot, {"TILE": tile, "BLOCK": 256})}
+    pf = {**{k: f for k in ("means", "quats", "scales", "opac", "colors", "P", "view", "table", "hm")}, "N": "i32",
+          "C": "i32"}
+    pb = {**{k: f for k in ("means", "quats", "scales", "P", "view", "gtab", "g_means", "g_quats", "g_scales", "g_opac",
+                            "g_colors", "g_shift")}, "N": "i32", "C": "i32"}
+    proj = {"ORTHO": False, "NCOL": TABLE, "BLOCK": 128}
+    return {"project_forward": (pf, proj), "project_backward": (pb, {**proj, "DT": "float32"}),
+            "footprint_kernel": (foot, {"TILE": tile, "BLOCK": 256}),
+            "forward_kernel": (fwd, {**fwd_c, "DT": "float32"}), "backward_kernel": (bwd, {**bwd_c, "DT": "float32"})}
 
 
 def ptxas_usage(ptx: str, arch: int) -> str:
@@ -77,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     import triton
     import triton.language as tl
-    from arcsem.backbones.gaussians import _triton2d_footprint, _triton2d_kernels
+    from arcsem.backbones.gaussians import _triton2d_footprint, _triton2d_kernels, _triton2d_project
     from arcsem.backbones.gaussians.triton2d import _warps
     from triton.backends.compiler import GPUTarget
     from triton.compiler import ASTSource
@@ -88,8 +94,10 @@ def main(argv: list[str] | None = None) -> int:
     for name, (sig, consts) in signatures(args.tile).items():
         consts = {k: getattr(tl, v) if k == "DT" else v for k, v in consts.items()}
         sig = {**sig, **{k: "constexpr" for k in consts}}
-        module = _triton2d_footprint if name == "footprint_kernel" else _triton2d_kernels
-        options = {"num_warps": 4, "enable_fp_fusion": False} if name == "footprint_kernel" else {"num_warps": args.warps}
+        module = {"footprint_kernel": _triton2d_footprint, "project_forward": _triton2d_project,
+                  "project_backward": _triton2d_project}.get(name, _triton2d_kernels)
+        options = ({"num_warps": 4, "enable_fp_fusion": False} if name == "footprint_kernel"
+                   else {"num_warps": 4} if name.startswith("project") else {"num_warps": args.warps})
         try:
             k = triton.compile(ASTSource(fn=getattr(module, name), signature=sig, constexprs=consts),
                                target=GPUTarget("cuda", args.arch, 32), options=options)

@@ -1,25 +1,26 @@
-"""``rasterizer=triton``: the 2DGS compositing (forward + backward) as two Triton kernels, for CUDA.
+"""``rasterizer=triton``: 2DGS rendering on Triton kernels, for CUDA: the compositing here, forward and backward.
 
-On a GPU the PyTorch rasteriser issues ~1,400 operators a step, most of them the compositing's (pair expansion,
-splat evaluation, segmented sums and their backward); the host cannot issue them as fast as the GPU runs them
-(benchmarks/results/gpu/README.md). Here the compositing is one kernel launch forward and one backward, and the
-footprints one more (:mod:`._triton2d_footprint`); the projection and the tile binning stay PyTorch operators
-(``gs2d.render.render_2dgs``).
+On a GPU the PyTorch rasteriser issues ~1,400 operators a step; the host cannot issue them as fast as the GPU runs
+them (benchmarks/results/gpu/README.md). ``gs2d.render.render_2dgs(impl="triton")`` runs its steps as five kernels
+instead: the projection to a splat table, forward and backward (:mod:`._triton2d_project`), the footprints
+(:mod:`._triton2d_footprint`) and the compositing below (kernels: :mod:`._triton2d_kernels`); the tile binning (a
+sort and its offsets) stays PyTorch's (:func:`.raster.bin_tiles`).
 
-The arithmetic and the rules are those of the fused C++ kernels (cpp/composite2d.h: official 2DGS ray-splat
-intersection, low-pass filter, skip / clamp / early stop, median depth, shifted distortion sums) in the PyTorch
-path's frame (absolute pixel centres, the adjugate of ``[Tu; Tv; Tw]`` from ``render._splat_table``), so the
-PyTorch path is the reference (tests/test_triton2d.py, values and gradients).
+The compositing's arithmetic and rules are those of the fused C++ kernels (cpp/composite2d.h: official 2DGS
+ray-splat intersection, low-pass filter, skip / clamp / early stop, median depth, shifted distortion sums) in the
+PyTorch path's frame (absolute pixel centres, the adjugate of ``[Tu; Tv; Tw]``), so the PyTorch path is the reference
+(tests/test_triton2d.py, values and gradients).
 
 * Forward: one program per camera-tile, its ``tile x tile`` pixels as one block of lanes, the tile's pairs front to
   back until every pixel has stopped.
 * Backward: the same program back to front from the last pair any of its pixels composited, the transmittance
-  restored (``T_i = T_{i+1} / (1 - alpha_i)``); each pair's gradient row (21 values: the splat table's rows) is
+  restored (``T_i = T_{i+1} / (1 - alpha_i)``); each pair's gradient row (21 values: the splat table's columns) is
   summed over the tile's pixels and added atomically into the entry's row.
 
-Triton compiles these for the GPU at first use. With ``TRITON_INTERPRET=1`` in the environment when this module is
-first imported they run on CPU tensors through Triton's interpreter (slowly: the tests' path on a machine without a
-GPU); benchmarks/gpu/triton_compile.py compiles them for a given GPU architecture without one.
+Triton compiles the kernels for the GPU at first use (cached under ``~/.triton``). With ``TRITON_INTERPRET=1`` in the
+environment when they are first imported they run on CPU tensors through Triton's interpreter (slowly: the tests'
+path on a machine without a GPU); benchmarks/gpu/triton_compile.py compiles them for a given GPU architecture without
+one.
 """
 from __future__ import annotations
 

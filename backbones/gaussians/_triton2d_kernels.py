@@ -41,6 +41,18 @@ def _hit(tab, s, px, py, lp, near, NCOL: tl.constexpr, MAX_ALPHA_: tl.constexpr,
 
 
 @triton.jit
+def _tile_lanes(pid, TX, TY, W, H, TILE: tl.constexpr, BLOCK: tl.constexpr, DT: tl.constexpr):
+    """Program ``pid``'s camera ``c`` and lanes: index ``r``, pixel ``(x, y)``, whether it is in the image, its centre."""
+    c = pid // (TX * TY)
+    t = pid % (TX * TY)
+    r = tl.arange(0, BLOCK)
+    x = (t % TX) * TILE + r % TILE
+    y = (t // TX) * TILE + r // TILE
+    inimg = (r < TILE * TILE) & (x < W) & (y < H)
+    return c, r, x, y, inimg, x.to(DT) + 0.5, y.to(DT) + 0.5
+
+
+@triton.jit
 def _in_box(box, s, x, y):
     b = box + s * 4
     return (x >= tl.load(b)) & (x <= tl.load(b + 1)) & (y >= tl.load(b + 2)) & (y <= tl.load(b + 3))
@@ -52,14 +64,7 @@ def forward_kernel(tab, box, off, ids, prm, bg, rgb, nrm, tf_, alpha_, wz_, dept
                    BLOCK: tl.constexpr, DT: tl.constexpr, NCOL: tl.constexpr, MIN_ALPHA_: tl.constexpr,
                    MAX_ALPHA_: tl.constexpr, MIN_T_: tl.constexpr):
     pid = tl.program_id(0)
-    c = pid // (TX * TY)
-    t = pid % (TX * TY)
-    r = tl.arange(0, BLOCK)
-    x = (t % TX) * TILE + r % TILE
-    y = (t // TX) * TILE + r // TILE
-    inimg = (r < TILE * TILE) & (x < W) & (y < H)
-    px = x.to(DT) + 0.5
-    py = y.to(DT) + 0.5
+    c, r, x, y, inimg, px, py = _tile_lanes(pid, TX, TY, W, H, TILE, BLOCK, DT)
     zero = tl.zeros([BLOCK], DT)
     mc0, mc1, mc2, lp = tl.load(prm), tl.load(prm + 1), tl.load(prm + 2), tl.load(prm + 3)
     T = zero + 1.0
@@ -147,14 +152,7 @@ def backward_kernel(tab, box, off, ids, prm, bg, tf_, alpha_, wz_, m1_, m2_, mre
                     BLOCK: tl.constexpr, DT: tl.constexpr, NCOL: tl.constexpr, MAX_ALPHA_: tl.constexpr,
                     MIN_ALPHA_: tl.constexpr):
     pid = tl.program_id(0)
-    c = pid // (TX * TY)
-    t = pid % (TX * TY)
-    r = tl.arange(0, BLOCK)
-    x = (t % TX) * TILE + r % TILE
-    y = (t // TX) * TILE + r // TILE
-    inimg = (r < TILE * TILE) & (x < W) & (y < H)
-    px = x.to(DT) + 0.5
-    py = y.to(DT) + 0.5
+    c, _, x, y, inimg, px, py = _tile_lanes(pid, TX, TY, W, H, TILE, BLOCK, DT)
     pix = (c * H + y) * W + x
     zero = tl.zeros([BLOCK], DT)
     mc0, mc1, mc2, lp = tl.load(prm), tl.load(prm + 1), tl.load(prm + 2), tl.load(prm + 3)

@@ -55,11 +55,11 @@ def _site() -> str:
     return "outside the project"
 
 
-def _run(kind: str, stage: str, frozen_mb: int = 0):
+def _run(kind: str, stage: str, frozen_mb: int = 0, rasterizer: str = "torch"):
     scene = tiny_scene(n=4, w=48, h=32)
     cls = BACKBONES.get(kind)
     act = ACT(len(scene.train)) if stage == "geometry" else None
-    bb = cls(cls.Config(rasterizer="torch", random_init_points=300), scene=scene, **({"act": act} if act else {}))
+    bb = cls(cls.Config(rasterizer=rasterizer, random_init_points=300), scene=scene, **({"act": act} if act else {}))
     hook = None
     if stage == "geometry":
         terms = {"l1": {"weight": 0.8}, "dssim": {"weight": 0.2, "impl": "torch"}}

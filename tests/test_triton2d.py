@@ -124,6 +124,31 @@ def test_triton_footprints_equal_torch(model):
     assert torch.equal(b2.offsets, b.offsets) and torch.equal(b2.splat, b.splat)
 
 
+def test_triton_training_step_reads_back_only_the_binning():
+    """A stage-1 step on ``rasterizer=triton`` (2DGS + ACT, the geometry losses) waits for the device only where the
+    tile binning sizes its lists (tests/test_step_syncs.py's detector; the PyTorch rasteriser reads more there)."""
+    from test_step_syncs import ALLOWED, HostReads, _run
+
+    from arcsem.train import loop as loop_module
+
+    run, losses, hook = _run("gs2d", "geometry", rasterizer="triton")
+    for s in range(2):
+        loop_module._step(run, losses, hook, s, record=False)
+    reads = {}
+    for impl in ("triton", "torch"):
+        if impl == "torch":
+            run, losses, hook = _run("gs2d", "geometry")
+            for s in range(2):
+                loop_module._step(run, losses, hook, s, record=False)
+        mode = HostReads()
+        with mode:
+            loop_module._step(run, losses, hook, 2, record=False)
+        reads[impl] = mode.sites
+    stray = {k: n for k, n in reads["triton"].items() if not k[1].startswith(ALLOWED)}
+    assert not stray, f"host reads in a triton training step (op, source line: count): {stray}"
+    assert 0 < sum(reads["triton"].values()) < sum(reads["torch"].values()), reads
+
+
 def test_triton_kernels_compile_for_a_gpu_here():
     """Triton compiles the five kernels for sm_90 without a GPU (its interpreter, which the tests above use, accepts
     constructs the compiler rejects), with no register spills."""

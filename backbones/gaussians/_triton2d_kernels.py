@@ -192,50 +192,51 @@ def backward_kernel(tab, box, off, ids, prm, bg, tf_, alpha_, wz_, m1_, m2_, mre
         u, v, ip, dx, dy, z, g, alpha, op, use3d, ok, tz0, tz1 = _hit(tab, s, px, py, lp, near, NCOL, MAX_ALPHA_,
                                                                       MIN_ALPHA_)
         ok = ok & (j <= last) & _in_box(box, s, x, y)
-        inv = 1.0 / (1.0 - alpha)
-        Ti = tr * inv
-        w = tl.where(ok, alpha * Ti, 0.0)
-        tr = tl.where(ok, Ti, tr)
-        row = tab + s * NCOL
-        out = grad + s * NCOL
-        tl.atomic_add(out + 15, tl.sum(w * go0, 0))
-        tl.atomic_add(out + 16, tl.sum(w * go1, 0))
-        tl.atomic_add(out + 17, tl.sum(w * go2, 0))
-        if GEO:
-            zz = tl.where(ok, z, 1.0)
-            iz = 1.0 / zz
-            m = mc0 + mc1 * zz + mc2 * iz - mref
-            dm_dz = mc1 - mc2 * iz * iz
-            gw = ga + gd * zz + gdis * (m * m * Wt - 2.0 * m * m1 + m2)
-            gw += go0 * tl.load(row + 15) + go1 * tl.load(row + 16) + go2 * tl.load(row + 17)
-            gw += gn0 * tl.load(row + 18) + gn1 * tl.load(row + 19) + gn2 * tl.load(row + 20)
-            tl.atomic_add(out + 18, tl.sum(w * gn0, 0))
-            tl.atomic_add(out + 19, tl.sum(w * gn1, 0))
-            tl.atomic_add(out + 20, tl.sum(w * gn2, 0))
-            gz = w * gd + gdis * 2.0 * w * (m * Wt - m1) * dm_dz + tl.where(ok & (medi == j), gm, 0.0)
-            dalpha = gw * Ti - sa * inv
-            sa += gw * w
-            gok = ok & (op * g <= MAX_ALPHA_)  # a clamped alpha has no gradient
-            dpow = tl.where(gok, dalpha * op * g, 0.0)
-            tl.atomic_add(out + 11, tl.sum(tl.where(gok, dalpha * g, 0.0), 0))
-            h3 = ok & use3d
-            h2 = ok & (use3d == 0)
-            gu = tl.where(h3, -dpow * u + gz * tz0, 0.0)
-            gv = tl.where(h3, -dpow * v + gz * tz1, 0.0)
-            gp0 = gu * ip
-            gp1 = gv * ip
-            gp2 = -(gu * u + gv * v) * ip
-            tl.atomic_add(out + 0, tl.sum(px * gp0, 0))
-            tl.atomic_add(out + 1, tl.sum(px * gp1, 0))
-            tl.atomic_add(out + 2, tl.sum(px * gp2, 0))
-            tl.atomic_add(out + 3, tl.sum(py * gp0, 0))
-            tl.atomic_add(out + 4, tl.sum(py * gp1, 0))
-            tl.atomic_add(out + 5, tl.sum(py * gp2, 0))
-            tl.atomic_add(out + 6, tl.sum(gp0, 0))
-            tl.atomic_add(out + 7, tl.sum(gp1, 0))
-            tl.atomic_add(out + 8, tl.sum(gp2, 0))
-            tl.atomic_add(out + 9, tl.sum(tl.where(h2, -dpow * lp * dx, 0.0), 0))
-            tl.atomic_add(out + 10, tl.sum(tl.where(h2, -dpow * lp * dy, 0.0), 0))
-            tl.atomic_add(out + 12, tl.sum(tl.where(h3, gz * u, 0.0), 0))
-            tl.atomic_add(out + 13, tl.sum(tl.where(h3, gz * v, 0.0), 0))
-            tl.atomic_add(out + 14, tl.sum(tl.where(ok, gz, 0.0), 0))
+        if tl.max(ok.to(tl.int32), 0) > 0:  # else no pixel of the tile composited the pair: nothing to do
+            inv = 1.0 / (1.0 - alpha)
+            Ti = tr * inv
+            w = tl.where(ok, alpha * Ti, 0.0)
+            tr = tl.where(ok, Ti, tr)
+            row = tab + s * NCOL
+            out = grad + s * NCOL
+            tl.atomic_add(out + 15, tl.sum(w * go0, 0))
+            tl.atomic_add(out + 16, tl.sum(w * go1, 0))
+            tl.atomic_add(out + 17, tl.sum(w * go2, 0))
+            if GEO:
+                zz = tl.where(ok, z, 1.0)
+                iz = 1.0 / zz
+                m = mc0 + mc1 * zz + mc2 * iz - mref
+                dm_dz = mc1 - mc2 * iz * iz
+                gw = ga + gd * zz + gdis * (m * m * Wt - 2.0 * m * m1 + m2)
+                gw += go0 * tl.load(row + 15) + go1 * tl.load(row + 16) + go2 * tl.load(row + 17)
+                gw += gn0 * tl.load(row + 18) + gn1 * tl.load(row + 19) + gn2 * tl.load(row + 20)
+                tl.atomic_add(out + 18, tl.sum(w * gn0, 0))
+                tl.atomic_add(out + 19, tl.sum(w * gn1, 0))
+                tl.atomic_add(out + 20, tl.sum(w * gn2, 0))
+                gz = w * gd + gdis * 2.0 * w * (m * Wt - m1) * dm_dz + tl.where(ok & (medi == j), gm, 0.0)
+                dalpha = gw * Ti - sa * inv
+                sa += gw * w
+                gok = ok & (op * g <= MAX_ALPHA_)  # a clamped alpha has no gradient
+                dpow = tl.where(gok, dalpha * op * g, 0.0)
+                tl.atomic_add(out + 11, tl.sum(tl.where(gok, dalpha * g, 0.0), 0))
+                h3 = ok & use3d
+                h2 = ok & (use3d == 0)
+                gu = tl.where(h3, -dpow * u + gz * tz0, 0.0)
+                gv = tl.where(h3, -dpow * v + gz * tz1, 0.0)
+                gp0 = gu * ip
+                gp1 = gv * ip
+                gp2 = -(gu * u + gv * v) * ip
+                tl.atomic_add(out + 0, tl.sum(px * gp0, 0))
+                tl.atomic_add(out + 1, tl.sum(px * gp1, 0))
+                tl.atomic_add(out + 2, tl.sum(px * gp2, 0))
+                tl.atomic_add(out + 3, tl.sum(py * gp0, 0))
+                tl.atomic_add(out + 4, tl.sum(py * gp1, 0))
+                tl.atomic_add(out + 5, tl.sum(py * gp2, 0))
+                tl.atomic_add(out + 6, tl.sum(gp0, 0))
+                tl.atomic_add(out + 7, tl.sum(gp1, 0))
+                tl.atomic_add(out + 8, tl.sum(gp2, 0))
+                tl.atomic_add(out + 9, tl.sum(tl.where(h2, -dpow * lp * dx, 0.0), 0))
+                tl.atomic_add(out + 10, tl.sum(tl.where(h2, -dpow * lp * dy, 0.0), 0))
+                tl.atomic_add(out + 12, tl.sum(tl.where(h3, gz * u, 0.0), 0))
+                tl.atomic_add(out + 13, tl.sum(tl.where(h3, gz * v, 0.0), 0))
+                tl.atomic_add(out + 14, tl.sum(tl.where(ok, gz, 0.0), 0))

@@ -7,6 +7,8 @@ autograd (a ``TorchDispatchMode``; the backward pass's too), grouped by the proj
 in the backward pass, by the autograd node::
 
     python benchmarks/gpu/op_count.py -- backbone.rasterizer=torch     # the PyTorch rasteriser (CUDA's `auto`)
+    TRITON_INTERPRET=1 python benchmarks/gpu/op_count.py --skip 1 --window 2 -- backbone.rasterizer=triton train.width=48
+        # the Triton kernels through Triton's CPU interpreter (a launch counts one; slow: ~20 min for 3 steps)
     python benchmarks/gpu/op_count.py --top 30 -- backbone=gs3d backbone.rasterizer=torch
 
 The profiler on a GPU counts more (``aten_calls_per_step`` in gpu_check.json includes the operators an operator
@@ -40,15 +42,41 @@ def _site() -> str:
 
 
 class OpCount(TorchDispatchMode):
-    """Counts every dispatched operator by :func:`_site`."""
+    """Counts every dispatched operator by :func:`_site`; a Triton kernel launch (``rasterizer=triton``) counts as one
+    operator, ``triton kernel: <name>``, whatever Triton's CPU interpreter dispatches to run it (:func:`_launches`)."""
 
     def __init__(self):
         super().__init__()
         self.sites: Counter = Counter()
+        self.paused = False
 
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
-        self.sites[_site()] += 1
+        if not self.paused:
+            self.sites[_site()] += 1
         return func(*args, **(kwargs or {}))
+
+
+def _launches(mode: OpCount):
+    """Under ``TRITON_INTERPRET=1``: count each kernel launch once and pause the count while the interpreter copies
+    the launch's tensors (on a GPU a launch is one call, not the interpreter's copies). Returns an undo function."""
+    try:
+        from triton.runtime import interpreter
+    except ImportError:
+        return lambda: None
+    call = interpreter.GridExecutor.__call__
+
+    def counted(self, *args, **kwargs):
+        if mode.paused:
+            return call(self, *args, **kwargs)
+        mode.sites[f"triton kernel: {getattr(self.fn, '__name__', 'kernel')}"] += 1
+        mode.paused = True
+        try:
+            return call(self, *args, **kwargs)
+        finally:
+            mode.paused = False
+
+    interpreter.GridExecutor.__call__ = counted
+    return lambda: setattr(interpreter.GridExecutor, "__call__", call)
 
 
 def count(overrides: list[str], skip: int, window: int) -> tuple[Counter, int]:
@@ -81,12 +109,14 @@ def count(overrides: list[str], skip: int, window: int) -> tuple[Counter, int]:
 
     periodic = loop_module._periodic  # called after every step with the run
     loop_module._periodic = lambda run, *a: (periodic(run, *a), on_step(run.step))
+    undo = _launches(mode)
     try:
         with tempfile.TemporaryDirectory() as tmp:
             train(backbone, scene.train, losses, loop, optim=tc.optim, ckpt_dir=Path(tmp) / "ck", act=act,
                   act_lr=act_config(cfg).lr)
     finally:
         loop_module._periodic = periodic
+        undo()
     return mode.sites, int(backbone.num_primitives())
 
 

@@ -58,6 +58,7 @@ if has setup; then
     python3 benchmarks/gpu/gsplat_build.py --out "$OUT/gsplat_csrc.so"
   fi
   python3 -c "import torch, gsplat; print('torch', torch.__version__, 'CUDA', torch.version.cuda, torch.cuda.get_device_name(), 'gsplat', gsplat.__version__)"
+  python3 -c "import triton; print('triton', triton.__version__, '(rasterizer=triton)')" || echo "no triton: rasterizer=triton cannot run here"
   python3 -c "import torch; print(torch.cuda.get_device_name())" > "$OUT/device.txt"
 fi
 

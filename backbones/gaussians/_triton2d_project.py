@@ -53,6 +53,14 @@ def _facing(r02, r12, r22, m0, m1, m2, view, c, ORTHO: tl.constexpr):
 
 
 @triton.jit
+def _gs_row(Pc, j: tl.constexpr, gu0, gu1, gu2, gv0, gv1, gv2, gw0, gw1, gw2, gz0, gz1, gz2):
+    """Row ``j`` of ``g_S = P^T g_H`` (``g_H``'s rows: the gradients of Tu, Tv, Tw, Tz)."""
+    p0, p1, p2, p3 = tl.load(Pc + j), tl.load(Pc + 4 + j), tl.load(Pc + 8 + j), tl.load(Pc + 12 + j)
+    return (p0 * gu0 + p1 * gv0 + p2 * gw0 + p3 * gz0, p0 * gu1 + p1 * gv1 + p2 * gw1 + p3 * gz1,
+            p0 * gu2 + p1 * gv2 + p2 * gw2 + p3 * gz2)
+
+
+@triton.jit
 def _cross(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
@@ -165,30 +173,15 @@ def project_backward(means, quats, scales, P, view, gtab, g_means, g_quats, g_sc
         tl.store(g_colors + 3 * e, tl.load(row + 15, mask=m, other=0.0), mask=m)
         tl.store(g_colors + 3 * e + 1, tl.load(row + 16, mask=m, other=0.0), mask=m)
         tl.store(g_colors + 3 * e + 2, tl.load(row + 17, mask=m, other=0.0), mask=m)
-        # g_S[j][k] = sum_i P[i][j] g_H[i][k]
-        for j in tl.static_range(3):
-            p0, p1, p2, p3 = tl.load(Pc + j), tl.load(Pc + 4 + j), tl.load(Pc + 8 + j), tl.load(Pc + 12 + j)
-            gS0 = p0 * gu0 + p1 * gv0 + p2 * gw0 + p3 * gz0
-            gS1 = p0 * gu1 + p1 * gv1 + p2 * gw1 + p3 * gz1
-            gS2 = p0 * gu2 + p1 * gv2 + p2 * gw2 + p3 * gz2
-            if j == 0:
-                g00 += gS0 * s0
-                g01 += gS1 * s1
-                gs0 += gS0 * r00
-                gs1 += gS1 * r01
-                gm0 += gS2
-            elif j == 1:
-                g10 += gS0 * s0
-                g11 += gS1 * s1
-                gs0 += gS0 * r10
-                gs1 += gS1 * r11
-                gm1 += gS2
-            else:
-                g20 += gS0 * s0
-                g21 += gS1 * s1
-                gs0 += gS0 * r20
-                gs1 += gS1 * r21
-                gm2 += gS2
+        # g_S[j][k] = sum_i P[i][j] g_H[i][k] (rows j of S = [R[:, 0] s0, R[:, 1] s1, m])
+        a0, a1, a2 = _gs_row(Pc, 0, gu0, gu1, gu2, gv0, gv1, gv2, gw0, gw1, gw2, gz0, gz1, gz2)
+        b0, b1, b2 = _gs_row(Pc, 1, gu0, gu1, gu2, gv0, gv1, gv2, gw0, gw1, gw2, gz0, gz1, gz2)
+        d0, d1, d2 = _gs_row(Pc, 2, gu0, gu1, gu2, gv0, gv1, gv2, gw0, gw1, gw2, gz0, gz1, gz2)
+        g00, g10, g20 = g00 + a0 * s0, g10 + b0 * s0, g20 + d0 * s0
+        g01, g11, g21 = g01 + a1 * s1, g11 + b1 * s1, g21 + d1 * s1
+        gs0 += a0 * r00 + b0 * r10 + d0 * r20
+        gs1 += a1 * r01 + b1 * r11 + d1 * r21
+        gm0, gm1, gm2 = gm0 + a2, gm1 + b2, gm2 + d2
         sg = _facing(r02, r12, r22, m0, m1, m2, view, c, ORTHO)
         g02 += sg * tl.load(row + 18, mask=m, other=0.0)
         g12 += sg * tl.load(row + 19, mask=m, other=0.0)

@@ -47,5 +47,5 @@ class GaussianConfig:
     chunk_tiles: int | None = checked(None, ge=1)  # tiles composited at once (None = renderer's default)
     # auto: fused C++ kernels when they build (CPU), else the PyTorch reference (one warning); torch | cpp explicit;
     # gsplat: gsplat's CUDA rasterisers (optional: pip install gsplat, device=cuda; backbones/gaussians/gsplat_bridge.py);
-    # triton: 2DGS only, the PyTorch path with its compositing as two Triton kernels (CUDA; backbones/gaussians/triton2d.py)
+    # triton: 2DGS only, projection, footprints and compositing as Triton kernels (CUDA; backbones/gaussians/triton2d.py)
     rasterizer: str = checked("auto", choices=("auto", "torch", "cpp", "gsplat", "triton"))

@@ -78,8 +78,8 @@ class Binning:
 
 
 def raster_impl(impl: str) -> str:
-    """The path ``impl`` takes (2DGS and 3DGS alike): ``torch`` stays here (and ``triton``, 2DGS's compositing on
-    CUDA, resolved by the backbone); ``cpp`` / ``auto`` go through the fused-kernel loader
+    """The path ``impl`` takes (2DGS and 3DGS alike): ``torch`` stays here (and ``triton``, 2DGS on Triton kernels
+    for CUDA, resolved by the backbone); ``cpp`` / ``auto`` go through the fused-kernel loader
     (:func:`arcsem.backbones.gaussians.fused.resolve_impl`, which validates)."""
     if impl in ("torch", "triton"):
         return impl

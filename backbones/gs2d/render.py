@@ -188,8 +188,8 @@ def render_2dgs(means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor,
         in (0, 1), colors ``[C, N, 3]`` or ``[N, 3]`` (decoded), cams: ``C`` cameras (pinhole or
         orthographic); background ``[3]`` composited as ``rgb + (1 - alpha) bg``; splats whose centre
         depth is ``<= near`` are culled.
-        impl: ``torch`` (this module, the reference), ``cpp`` (fused kernels), ``auto``, or ``triton`` (this module's
-            projection and tile lists, the compositing as Triton kernels: :mod:`..gaussians.triton2d`).
+        impl: ``torch`` (this module, the reference), ``cpp`` (fused kernels), ``auto``, or ``triton`` (projection,
+            footprints and compositing as Triton kernels, this module's tile binning: :mod:`..gaussians.triton2d`).
         dist_depth: ``(c0, c1, c2)`` of the distortion's normalised depth (:func:`distortion_depth`;
         default the official NDC mapping).
         lowpass_sigma: sigma (pixels) of the screen-space low-pass filter (official ``1/sqrt(2)``). It

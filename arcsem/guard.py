@@ -10,7 +10,7 @@ to a file object...), and refuses with :class:`~arcsem.errors.OutputError` a wri
 * targets an input file (the dataset's files, listed by the caller), or a path inside an input
   folder that is not inside the run folder or the cache (the ``own`` folders); or
 * lies outside every allowed folder (the run folder, the cache root, the torch hub and extension
-  folders, the temporary folder).
+  folders, Triton's kernel cache, the temporary folder).
 
 Writes made by C code (OpenCV's ``imwrite``, ``torch.save`` given a path name) or other processes
 (ffmpeg) are not seen: arcsem passes them only paths built with :func:`out_path` or inside the run folder. Outside :func:`protect` the hook does nothing.
@@ -81,14 +81,24 @@ _installed = False
 
 
 def allowed_roots(run_dir: str | os.PathLike, cache_dir: str | os.PathLike | None = None) -> list[Path]:
-    """The folders a run may write: its run folder, the cache, torch's hub and extension folders, the temp folder."""
+    """The folders a run may write: its run folder, the cache, torch's hub and extension folders, Triton's kernel
+    cache, the temp folder."""
     roots = [Path(run_dir)]
     if cache_dir is not None:
         roots.append(Path(cache_dir))
     torch_home = os.environ.get("TORCH_HOME") or os.path.join(
         os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "torch")
-    roots += [Path(torch_home), _extensions_root(), Path(tempfile.gettempdir())]
+    roots += [Path(torch_home), _extensions_root(), _triton_cache_root(), Path(tempfile.gettempdir())]
     return roots
+
+
+def _triton_cache_root() -> Path:
+    """Where Triton caches the kernels it compiles (``rasterizer=triton``): ``$TRITON_CACHE_DIR``, else
+    ``.triton/cache`` under ``$TRITON_HOME`` or the home folder (as Triton's ``knobs.cache.dir``; refused, the first
+    GPU run of the Triton kernels stopped before its first step)."""
+    if os.environ.get("TRITON_CACHE_DIR"):
+        return Path(os.environ["TRITON_CACHE_DIR"])
+    return Path(os.environ.get("TRITON_HOME") or os.path.expanduser("~")) / ".triton" / "cache"
 
 
 def _extensions_root() -> Path:

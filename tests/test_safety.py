@@ -6,6 +6,7 @@ import logging
 import os
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -149,3 +150,21 @@ def test_the_kernels_build_folder_is_allowed_wherever_torch_puts_it(tmp_path, mo
     assert any(inside(where, root) for root in allowed_roots(tmp_path / "run"))
     if "TORCH_EXTENSIONS_DIR" in env:
         assert inside(where, tmp_path / "ext")
+
+
+@pytest.mark.parametrize("env", [{}, {"TRITON_HOME": "th"}, {"TRITON_CACHE_DIR": "tc"}])
+def test_tritons_kernel_cache_is_allowed_wherever_triton_puts_it(tmp_path, monkeypatch, env):
+    """``rasterizer=triton`` compiles its kernels into Triton's cache on first use: the guard refused
+    ``~/.triton/cache`` and the first GPU run stopped before its first step. The folder as Triton itself
+    computes it (``triton.knobs.cache.dir``) is allowed, with and without Triton's variables."""
+    knobs = pytest.importorskip("triton.knobs")
+    from arcsem.guard import allowed_roots, inside
+
+    for k in ("TRITON_HOME", "TRITON_CACHE_DIR"):
+        monkeypatch.delenv(k, raising=False)
+    for k, v in env.items():
+        monkeypatch.setenv(k, str(tmp_path / v))
+    where = Path(knobs.cache.dir) / "XU5DT2AO5BD5AEHEYGLPP5LRDFHHCUEJT4LGDVLB4STXUGVGHFPA" / "kernel.cubin"
+    assert any(inside(where, root) for root in allowed_roots(tmp_path / "run")), where
+    if env:
+        assert inside(where, tmp_path / next(iter(env.values())))

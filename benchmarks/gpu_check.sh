@@ -111,7 +111,7 @@ if has quality; then
   python3 benchmarks/gpu/summary.py --check "$OUT" > /dev/null
 fi
 
-if has probe && grep -q "FAILED tests/test_cuda.py::test_stages_end_to_end_on_cuda\[gs2d-stages3" "$OUT/cuda_tests.log" 2>/dev/null; then
+if has probe && grep -q "FAILED tests/test_cuda.py::test_stages_end_to_end_on_cuda\[gs2d-gsplat" "$OUT/cuda_tests.log" 2>/dev/null; then
   stamp probe
   timeout 120 python3 benchmarks/gpu/nan_probe.py 2>&1 | tee "$OUT/nan_probe.log" | tail -40
 fi

@@ -55,6 +55,20 @@ def test_triton_matches_torch_values_and_gradients(model, dtype, tol):
     assert ref["alpha"].detach().max() > 0.99, "the opaque stack should stop some pixels early"
 
 
+@pytest.mark.parametrize("how", ["tile_acq", "tile", "row"])
+def test_every_backward_reduction_gives_the_gradients(monkeypatch, how):
+    """The compositing backward's other ways of summing a pair's 21 gradient columns over the tile
+    (``triton2d.BACKWARD_SUM``; the default, "warp", is checked above) give the same gradients, float64."""
+    from arcsem.backbones.gaussians import triton2d
+
+    monkeypatch.setattr(triton2d, "BACKWARD_SUM", how)
+    params, cams = scene("gs2d", torch.float64, "pinhole")
+    _, g_ref, cot = _values_and_grads(params, cams, "torch")
+    _, g_out, _ = _values_and_grads(params, cams, "triton", cot)
+    for name, a, b in zip(NAMES, g_out, g_ref):
+        assert_rel(a, b, 1e-10, f"{how} d/d{name}")
+
+
 def test_triton_frozen_geometry_colour_gradient_and_odd_tiles():
     """Stage 2 (only the colours train: the backward's colour columns alone) and 12-px tiles (144 pixels in blocks
     of 256 lanes) with the quick preset's low-pass filter and a linear distortion depth equal the PyTorch path."""

@@ -145,12 +145,137 @@ def _load_or_zero(ptr, idx, mask, ON: tl.constexpr, zero):
 
 
 @triton.jit
+def _tile_add(ptr, v, SEM: tl.constexpr):
+    """``*ptr += sum(v)``: one block-wide reduction (shared memory and barriers across the program's warps)."""
+    tl.atomic_add(ptr, tl.sum(v, 0), sem=SEM)
+
+
+@triton.jit
+def _warp_add(ptr, v, live, NW: tl.constexpr):
+    """``*ptr += sum(v)`` as ``NW`` partial sums, one a warp (lanes ``32 w .. 32 w + 31``: shuffles only, no barrier),
+    each added atomically by its warp's first lane where ``live`` (``[NW, 32]``: that lane, of a warp with a lane that
+    composited the pair). The adds stay in the reduction's ``[NW, 32]`` layout (a ``[NW]`` vector would be moved
+    through shared memory, a barrier each)."""
+    part = tl.broadcast_to(tl.sum(tl.reshape(v, [NW, 32]), 1)[:, None], [NW, 32])
+    tl.atomic_add(ptr + tl.zeros([NW, 32], tl.int32), part, mask=live, sem="relaxed")
+
+
+@triton.jit
+def _j4(a, b, c, d):
+    return tl.join(tl.join(a, b), tl.join(c, d))
+
+
+@triton.jit
+def _row_add(out, v0, v1, v2, v3, v4, v5, v6, v7, v8, v9, v10, v11, v12, v13, v14, v15, v16, v17, v18, v19, v20,
+             zero, BLOCK: tl.constexpr):
+    """``out[k] += sum(v_k)`` for the 21 columns with one block-wide reduction of a ``[BLOCK, 32]`` stack (built by
+    ``tl.join``, which keeps the values in each thread's registers). The join tree puts value ``k`` at column
+    ``bitreverse5(k)``; columns 21-31 hold zeros; a column that sums to zero is not added."""
+    lo = tl.join(_j4(v0, v1, v2, v3), _j4(v4, v5, v6, v7))
+    hi = tl.join(_j4(v8, v9, v10, v11), _j4(v12, v13, v14, v15))
+    top = tl.join(_j4(v16, v17, v18, v19), _j4(v20, zero, zero, zero))
+    nil = tl.join(_j4(zero, zero, zero, zero), _j4(zero, zero, zero, zero))
+    stack = tl.reshape(tl.join(tl.join(lo, hi), tl.join(top, nil)), [BLOCK, 32])
+    tot = tl.sum(stack, 0)
+    col = tl.arange(0, 32)
+    k = ((col & 1) << 4) | ((col & 2) << 2) | (col & 4) | ((col & 8) >> 2) | ((col & 16) >> 4)
+    tl.atomic_add(out + k, tot, mask=(k < 21) & (tot != 0), sem="relaxed")
+
+
+@triton.jit
+def _add(ptr, v, live, REDUCE: tl.constexpr, NW: tl.constexpr):
+    if REDUCE == 0:
+        _tile_add(ptr, v, "acq_rel")
+    elif REDUCE == 1:
+        _tile_add(ptr, v, "relaxed")
+    else:
+        _warp_add(ptr, v, live, NW)
+
+
+@triton.jit
+def _pair(tab, grad, s, j, ok, u, v, ip, dx, dy, z, g, alpha, op, use3d, tz0, tz1, px, py, lp, tr, sa, go0, go1, go2,
+          gn0, gn1, gn2, ga, gd, gm, gdis, mc0, mc1, mc2, mref, m1, m2, Wt, medi, zero, GEO: tl.constexpr,
+          REDUCE: tl.constexpr, NW: tl.constexpr, BLOCK: tl.constexpr, NCOL: tl.constexpr, MAX_ALPHA_: tl.constexpr):
+    """One pair of the backward (entry ``s``, list position ``j``): its 21 gradient columns added to ``grad[s]``;
+    returns the lanes' transmittance in front of it and the running sum of ``w * dL/dw`` behind it."""
+    live = ok
+    if REDUCE == 2:  # [NW, 32]: each warp's first lane, where a lane of the warp composited the pair
+        anyw = tl.max(tl.reshape(ok.to(tl.int32), [NW, 32]), 1)[:, None] > 0
+        live = anyw & (tl.arange(0, 32)[None, :] == 0)
+    inv = 1.0 / (1.0 - alpha)
+    Ti = tr * inv
+    w = tl.where(ok, alpha * Ti, 0.0)
+    tr = tl.where(ok, Ti, tr)
+    row = tab + s * NCOL
+    out = grad + s * NCOL
+    c15, c16, c17 = w * go0, w * go1, w * go2
+    if GEO:
+        zz = tl.where(ok, z, 1.0)
+        iz = 1.0 / zz
+        m = mc0 + mc1 * zz + mc2 * iz - mref
+        dm_dz = mc1 - mc2 * iz * iz
+        gw = ga + gd * zz + gdis * (m * m * Wt - 2.0 * m * m1 + m2)
+        gw += go0 * tl.load(row + 15) + go1 * tl.load(row + 16) + go2 * tl.load(row + 17)
+        gw += gn0 * tl.load(row + 18) + gn1 * tl.load(row + 19) + gn2 * tl.load(row + 20)
+        gz = w * gd + gdis * 2.0 * w * (m * Wt - m1) * dm_dz + tl.where(ok & (medi == j), gm, 0.0)
+        dalpha = gw * Ti - sa * inv
+        sa += gw * w
+        gok = ok & (op * g <= MAX_ALPHA_)  # a clamped alpha has no gradient
+        dpow = tl.where(gok, dalpha * op * g, 0.0)
+        h3 = ok & use3d
+        h2 = ok & (use3d == 0)
+        gu = tl.where(h3, -dpow * u + gz * tz0, 0.0)
+        gv = tl.where(h3, -dpow * v + gz * tz1, 0.0)
+        gp0 = gu * ip
+        gp1 = gv * ip
+        gp2 = -(gu * u + gv * v) * ip
+        c0, c1, c2, c3, c4, c5 = px * gp0, px * gp1, px * gp2, py * gp0, py * gp1, py * gp2
+        c9 = tl.where(h2, -dpow * lp * dx, 0.0)
+        c10 = tl.where(h2, -dpow * lp * dy, 0.0)
+        c11 = tl.where(gok, dalpha * g, 0.0)
+        c12 = tl.where(h3, gz * u, 0.0)
+        c13 = tl.where(h3, gz * v, 0.0)
+        c14 = tl.where(ok, gz, 0.0)
+        c18, c19, c20 = w * gn0, w * gn1, w * gn2
+        if REDUCE == 3:
+            _row_add(out, c0, c1, c2, c3, c4, c5, gp0, gp1, gp2, c9, c10, c11, c12, c13, c14, c15, c16, c17,
+                     c18, c19, c20, zero, BLOCK)
+        else:
+            _add(out + 0, c0, live, REDUCE, NW)
+            _add(out + 1, c1, live, REDUCE, NW)
+            _add(out + 2, c2, live, REDUCE, NW)
+            _add(out + 3, c3, live, REDUCE, NW)
+            _add(out + 4, c4, live, REDUCE, NW)
+            _add(out + 5, c5, live, REDUCE, NW)
+            _add(out + 6, gp0, live, REDUCE, NW)
+            _add(out + 7, gp1, live, REDUCE, NW)
+            _add(out + 8, gp2, live, REDUCE, NW)
+            _add(out + 9, c9, live, REDUCE, NW)
+            _add(out + 10, c10, live, REDUCE, NW)
+            _add(out + 11, c11, live, REDUCE, NW)
+            _add(out + 12, c12, live, REDUCE, NW)
+            _add(out + 13, c13, live, REDUCE, NW)
+            _add(out + 14, c14, live, REDUCE, NW)
+            _add(out + 15, c15, live, REDUCE, NW)
+            _add(out + 16, c16, live, REDUCE, NW)
+            _add(out + 17, c17, live, REDUCE, NW)
+            _add(out + 18, c18, live, REDUCE, NW)
+            _add(out + 19, c19, live, REDUCE, NW)
+            _add(out + 20, c20, live, REDUCE, NW)
+    else:
+        _add(out + 15, c15, live, REDUCE, NW)
+        _add(out + 16, c16, live, REDUCE, NW)
+        _add(out + 17, c17, live, REDUCE, NW)
+    return tr, sa
+
+
+@triton.jit
 def backward_kernel(tab, box, off, ids, prm, bg, tf_, alpha_, wz_, m1_, m2_, mref_, last_, medi_, g_rgb, g_nrm,
                     g_alpha, g_depth, g_med, g_dist, grad, H, W, TX, TY, near, HAS_BG: tl.constexpr,
                     G_RGB: tl.constexpr, G_NRM: tl.constexpr, G_ALPHA: tl.constexpr, G_DEPTH: tl.constexpr,
                     G_MED: tl.constexpr, G_DIST: tl.constexpr, GEO: tl.constexpr, TILE: tl.constexpr,
                     BLOCK: tl.constexpr, DT: tl.constexpr, NCOL: tl.constexpr, MAX_ALPHA_: tl.constexpr,
-                    MIN_ALPHA_: tl.constexpr):
+                    MIN_ALPHA_: tl.constexpr, REDUCE: tl.constexpr, NW: tl.constexpr):
     pid = tl.program_id(0)
     c, _, x, y, inimg, px, py = _tile_lanes(pid, TX, TY, W, H, TILE, BLOCK, DT)
     pix = (c * H + y) * W + x
@@ -192,51 +317,12 @@ def backward_kernel(tab, box, off, ids, prm, bg, tf_, alpha_, wz_, m1_, m2_, mre
         u, v, ip, dx, dy, z, g, alpha, op, use3d, ok, tz0, tz1 = _hit(tab, s, px, py, lp, near, NCOL, MAX_ALPHA_,
                                                                       MIN_ALPHA_)
         ok = ok & (j <= last) & _in_box(box, s, x, y)
-        if tl.max(ok.to(tl.int32), 0) > 0:  # else no pixel of the tile composited the pair: nothing to do
-            inv = 1.0 / (1.0 - alpha)
-            Ti = tr * inv
-            w = tl.where(ok, alpha * Ti, 0.0)
-            tr = tl.where(ok, Ti, tr)
-            row = tab + s * NCOL
-            out = grad + s * NCOL
-            tl.atomic_add(out + 15, tl.sum(w * go0, 0))
-            tl.atomic_add(out + 16, tl.sum(w * go1, 0))
-            tl.atomic_add(out + 17, tl.sum(w * go2, 0))
-            if GEO:
-                zz = tl.where(ok, z, 1.0)
-                iz = 1.0 / zz
-                m = mc0 + mc1 * zz + mc2 * iz - mref
-                dm_dz = mc1 - mc2 * iz * iz
-                gw = ga + gd * zz + gdis * (m * m * Wt - 2.0 * m * m1 + m2)
-                gw += go0 * tl.load(row + 15) + go1 * tl.load(row + 16) + go2 * tl.load(row + 17)
-                gw += gn0 * tl.load(row + 18) + gn1 * tl.load(row + 19) + gn2 * tl.load(row + 20)
-                tl.atomic_add(out + 18, tl.sum(w * gn0, 0))
-                tl.atomic_add(out + 19, tl.sum(w * gn1, 0))
-                tl.atomic_add(out + 20, tl.sum(w * gn2, 0))
-                gz = w * gd + gdis * 2.0 * w * (m * Wt - m1) * dm_dz + tl.where(ok & (medi == j), gm, 0.0)
-                dalpha = gw * Ti - sa * inv
-                sa += gw * w
-                gok = ok & (op * g <= MAX_ALPHA_)  # a clamped alpha has no gradient
-                dpow = tl.where(gok, dalpha * op * g, 0.0)
-                tl.atomic_add(out + 11, tl.sum(tl.where(gok, dalpha * g, 0.0), 0))
-                h3 = ok & use3d
-                h2 = ok & (use3d == 0)
-                gu = tl.where(h3, -dpow * u + gz * tz0, 0.0)
-                gv = tl.where(h3, -dpow * v + gz * tz1, 0.0)
-                gp0 = gu * ip
-                gp1 = gv * ip
-                gp2 = -(gu * u + gv * v) * ip
-                tl.atomic_add(out + 0, tl.sum(px * gp0, 0))
-                tl.atomic_add(out + 1, tl.sum(px * gp1, 0))
-                tl.atomic_add(out + 2, tl.sum(px * gp2, 0))
-                tl.atomic_add(out + 3, tl.sum(py * gp0, 0))
-                tl.atomic_add(out + 4, tl.sum(py * gp1, 0))
-                tl.atomic_add(out + 5, tl.sum(py * gp2, 0))
-                tl.atomic_add(out + 6, tl.sum(gp0, 0))
-                tl.atomic_add(out + 7, tl.sum(gp1, 0))
-                tl.atomic_add(out + 8, tl.sum(gp2, 0))
-                tl.atomic_add(out + 9, tl.sum(tl.where(h2, -dpow * lp * dx, 0.0), 0))
-                tl.atomic_add(out + 10, tl.sum(tl.where(h2, -dpow * lp * dy, 0.0), 0))
-                tl.atomic_add(out + 12, tl.sum(tl.where(h3, gz * u, 0.0), 0))
-                tl.atomic_add(out + 13, tl.sum(tl.where(h3, gz * v, 0.0), 0))
-                tl.atomic_add(out + 14, tl.sum(tl.where(ok, gz, 0.0), 0))
+        if REDUCE < 2:  # the block reductions skip a pair no pixel of the tile composited (a reduction too)
+            if tl.max(ok.to(tl.int32), 0) > 0:
+                tr, sa = _pair(tab, grad, s, j, ok, u, v, ip, dx, dy, z, g, alpha, op, use3d, tz0, tz1, px, py, lp, tr,
+                               sa, go0, go1, go2, gn0, gn1, gn2, ga, gd, gm, gdis, mc0, mc1, mc2, mref, m1, m2, Wt,
+                               medi, zero, GEO, REDUCE, NW, BLOCK, NCOL, MAX_ALPHA_)
+        else:  # every pair computed; one no pixel composited adds nothing
+            tr, sa = _pair(tab, grad, s, j, ok, u, v, ip, dx, dy, z, g, alpha, op, use3d, tz0, tz1, px, py, lp, tr,
+                           sa, go0, go1, go2, gn0, gn1, gn2, ga, gd, gm, gdis, mc0, mc1, mc2, mref, m1, m2, Wt,
+                           medi, zero, GEO, REDUCE, NW, BLOCK, NCOL, MAX_ALPHA_)

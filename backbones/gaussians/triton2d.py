@@ -91,6 +91,20 @@ def _dtype(t: Tensor):
     raise TypeError(f"triton rasteriser: float32 or float64 tensors, got {t.dtype}")
 
 
+# How the compositing backward sums a pair's 21 gradient columns over a tile's pixels (measured on an H200 by
+# benchmarks/gpu/triton_backward.py): "warp", a partial sum a warp (shuffles only) added atomically by each warp;
+# "row", the 21 columns stacked and summed in one block-wide reduction; "tile", 21 block-wide reductions;
+# "tile_acq", the same with acquire-release atomics (the first version). Equal up to float rounding.
+BACKWARD_SUM = "warp"
+_SUMS = {"tile_acq": 0, "tile": 1, "warp": 2, "row": 3}
+
+
+def _reduction(tile: int) -> tuple[int, int]:
+    """The backward's ``REDUCE`` and ``NW`` (lane rows of 32) for ``tile``: below 32 lanes, "tile"."""
+    block = _block(tile)
+    return (_SUMS[BACKWARD_SUM] if block >= 32 else 1), max(1, block // 32)
+
+
 def _block(tile: int) -> int:
     """Lanes a program: the tile's pixels, rounded up to a power of two (Triton's blocks)."""
     return 1 << max(0, (tile * tile - 1).bit_length())
@@ -136,11 +150,12 @@ class _Composite2DTriton(torch.autograd.Function):
         gs = [g.contiguous() if g is not None else table for g in gs]
         _, bwd = _kernels()
         has_bg = bg.numel() == 3
+        reduce, nw = _reduction(tile)
         bwd[(C * TX * TY,)](table, box, offsets, ids, prm, bg if has_bg else table, tf, alpha, wz, m1, m2, mref,
                             last, medi, *gs, grad, H, W, TX, TY, near,
                             HAS_BG=has_bg, G_RGB=has[0], G_NRM=has[1], G_ALPHA=has[2], G_DEPTH=has[3], G_MED=has[4],
                             G_DIST=has[5], GEO=geo, TILE=tile, BLOCK=_block(tile), DT=_dtype(table), NCOL=TABLE,
-                            MAX_ALPHA_=MAX_ALPHA, MIN_ALPHA_=MIN_ALPHA, num_warps=_warps(tile))
+                            MAX_ALPHA_=MAX_ALPHA, MIN_ALPHA_=MIN_ALPHA, REDUCE=reduce, NW=nw, num_warps=_warps(tile))
         return grad, None, None, None, None, None, None, None, None, None, None, None
 
 

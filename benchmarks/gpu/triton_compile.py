@@ -29,12 +29,13 @@ def signatures(tile: int) -> dict[str, tuple[dict, dict]]:
     bwd = {**common, **{k: f for k in ("tf_", "alpha_", "wz_", "m1_", "m2_", "mref_")}, "last_": i32, "medi_": i32,
            **{k: f for k in ("g_rgb", "g_nrm", "g_alpha", "g_depth", "g_med", "g_dist", "grad")}, **sizes}
     from arcsem.backbones.gaussians.raster import MAX_ALPHA, MIN_ALPHA, MIN_T
-    from arcsem.backbones.gaussians.triton2d import TABLE, _block
+    from arcsem.backbones.gaussians.triton2d import TABLE, _block, _reduction
 
     shared = {"TILE": tile, "BLOCK": _block(tile), "NCOL": TABLE, "MAX_ALPHA_": MAX_ALPHA, "MIN_ALPHA_": MIN_ALPHA}
     fwd_c = {**shared, "HAS_BG": True, "MIN_T_": MIN_T}
     bwd_c = {**shared, "HAS_BG": True, "G_RGB": True, "G_NRM": True, "G_ALPHA": True, "G_DEPTH": True, "G_MED": True,
              "G_DIST": True, "GEO": True}
+    bwd_c["REDUCE"], bwd_c["NW"] = _reduction(tile)
     foot = {"Hm": f, "op": f, "prm": "*fp64", **{k: i64 for k in ("radius_", "rects_", "eff_")}, "depth_": "*fp64",
             **{k: "i32" for k in ("M", "N", "W", "H", "TX", "TY")}}
     pf = {**{k: f for k in ("means", "quats", "scales", "opac", "colors", "P", "view", "table", "hm")}, "N": "i32",
@@ -77,18 +78,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--arch", type=int, default=90, help="CUDA compute capability x 10 (90: H100/H200)")
     ap.add_argument("--tile", type=int, default=16)
     ap.add_argument("--warps", type=int, default=None, help="default: what rasterizer=triton launches")
+    ap.add_argument("--sum", default=None, help="the backward's reduction (triton2d.BACKWARD_SUM; default: its own)")
     args = ap.parse_args(argv)
     if os.environ.get("TRITON_INTERPRET", "0") not in ("", "0"):
         print("error: TRITON_INTERPRET is set: the interpreter compiles nothing", file=sys.stderr)
         return 2
     import triton
     import triton.language as tl
-    from arcsem.backbones.gaussians import _triton2d_footprint, _triton2d_kernels, _triton2d_project
+    from arcsem.backbones.gaussians import _triton2d_footprint, _triton2d_kernels, _triton2d_project, triton2d
     from arcsem.backbones.gaussians.triton2d import _warps
     from triton.backends.compiler import GPUTarget
     from triton.compiler import ASTSource
 
     args.warps = args.warps or _warps(args.tile)
+    triton2d.BACKWARD_SUM = args.sum or triton2d.BACKWARD_SUM
 
     failed = 0
     for name, (sig, consts) in signatures(args.tile).items():
@@ -106,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{name}: does not compile for sm_{args.arch}: {type(e).__name__}: {str(e).splitlines()[0]}")
             continue
         print(f"{name}: compiled for sm_{args.arch}, {options['num_warps']} warps, {args.tile}-px tiles: "
-              f"cubin {len(k.asm['cubin'])} bytes, shared {k.metadata.shared} bytes; {ptxas_usage(k.asm['ptx'], args.arch)}")
+              f"cubin {len(k.asm['cubin'])} bytes, shared {k.metadata.shared} bytes; {ptxas_usage(k.asm['ptx'], args.arch)}"
+              f"; {k.asm['ptx'].count('bar.sync') + k.asm['ptx'].count('barrier.sync')} barriers in its PTX")
     return 1 if failed else 0
 
 

@@ -11,8 +11,9 @@
 #   launch   gsplat's 2DGS backward at 8/16/32-px tiles and its kernels' register counts
 #   tests    pytest -m cuda (with the Triton compositing's kernels against the PyTorch path)
 #   profile  stage 1 of the demo: steps/s, SM utilisation, host syncs, kernels (benchmarks/gpu/stage1_profile.py;
-#            PROFILE_VARIANTS, default gs2d_triton gs2d gs2d_gsplat; gs3d gs3d_gsplat when named)
-#   demo     the whole `make demo` job with device=cuda, each of DEMO_RASTERIZERS (default triton gsplat auto),
+#            PROFILE_VARIANTS, default gs2d gs2d_torch gs2d_gsplat (gs2d: auto, the Triton kernels on CUDA);
+#            gs2d_triton, gs3d, gs3d_gsplat when named)
+#   demo     the whole `make demo` job with device=cuda, each of DEMO_RASTERIZERS (default auto torch gsplat),
 #            nvidia-smi dmon sampling
 #   stage2ab (only when named) stage 2 of the demo twice on the auto demo's stage 1 (S2AB_STAGE1, default
 #            /tmp/demo_auto): through recorded renders (colorize.frozen_mb default) and compositing every step
@@ -119,9 +120,9 @@ fi
 if has profile; then
   stamp profile
   declare -A VARIANT=([gs2d]="backbone.rasterizer=auto" [gs2d_gsplat]="backbone.rasterizer=gsplat"
-    [gs2d_triton]="backbone.rasterizer=triton"
+    [gs2d_triton]="backbone.rasterizer=triton" [gs2d_torch]="backbone.rasterizer=torch"
     [gs3d]="backbone=gs3d backbone.rasterizer=auto" [gs3d_gsplat]="backbone=gs3d backbone.rasterizer=gsplat")
-  for name in ${PROFILE_VARIANTS:-gs2d_triton gs2d gs2d_gsplat}; do
+  for name in ${PROFILE_VARIANTS:-gs2d gs2d_torch gs2d_gsplat}; do
     ov=${VARIANT[$name]}
     echo "=== $name" >> "$OUT/profile.log"
     # shellcheck disable=SC2086
@@ -133,7 +134,7 @@ fi
 
 if has demo; then
   stamp demo
-  for r in ${DEMO_RASTERIZERS:-triton gsplat auto}; do
+  for r in ${DEMO_RASTERIZERS:-auto torch gsplat}; do
     nvidia-smi dmon -s u -d 1 -o T > "/tmp/dmon_$r.txt" 2>&1 & DMON=$!
     demo "demo_$r" "$r" 0
     kill $DMON 2>/dev/null

@@ -55,10 +55,10 @@ def test_triton_matches_torch_values_and_gradients(model, dtype, tol):
     assert ref["alpha"].detach().max() > 0.99, "the opaque stack should stop some pixels early"
 
 
-@pytest.mark.parametrize("how", ["tile_acq", "tile", "row"])
+@pytest.mark.parametrize("how", ["tile_acq", "tile", "warp"])
 def test_every_backward_reduction_gives_the_gradients(monkeypatch, how):
     """The compositing backward's other ways of summing a pair's 21 gradient columns over the tile
-    (``triton2d.BACKWARD_SUM``; the default, "warp", is checked above) give the same gradients, float64."""
+    (``triton2d.BACKWARD_SUM``; the default, "row", is checked above) give the same gradients, float64."""
     from arcsem.backbones.gaussians import triton2d
 
     monkeypatch.setattr(triton2d, "BACKWARD_SUM", how)
@@ -205,3 +205,20 @@ def test_triton_on_cuda_matches_torch_on_cpu(model):
         assert_rel(out[k].detach().double().cpu(), ref[k].detach(), 1e-4, f"{model} {k}")
     for name, a, b in zip(NAMES, g_out, g_ref):
         assert_rel(a.double().cpu(), b, 1e-3, f"{model} d/d{name}")
+
+
+def test_auto_takes_the_triton_kernels_for_2dgs_on_cuda_only(monkeypatch):
+    """``rasterizer=auto``: 2DGS on a CUDA device resolves to ``triton`` where Triton imports, else the PyTorch
+    path; 3DGS on CUDA and every backbone on the CPU keep their paths."""
+    from trainer_util import tiny_scene
+
+    from arcsem.backbones.gaussians import triton2d
+    from arcsem.plugins import BACKBONES
+
+    scene = tiny_scene(n=2)
+    gs2d, gs3d = (BACKBONES.build({"name": n, "random_init_points": 50}, scene=scene) for n in ("gs2d", "gs3d"))
+    assert gs2d._impl("cuda") == "triton" and gs2d._impl("cuda:1") == "triton"
+    assert gs3d._impl("cuda") == "torch"
+    assert gs2d._impl("cpu") in ("cpp", "torch")
+    monkeypatch.setattr(triton2d, "_importable", lambda: False)
+    assert gs2d._impl("cuda") == "torch"

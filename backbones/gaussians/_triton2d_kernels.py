@@ -199,7 +199,8 @@ def _pair(tab, grad, s, j, ok, u, v, ip, dx, dy, z, g, alpha, op, use3d, tz0, tz
     """One pair of the backward (entry ``s``, list position ``j``): its 21 gradient columns added to ``grad[s]``;
     returns the lanes' transmittance in front of it and the running sum of ``w * dL/dw`` behind it."""
     live = ok
-    if REDUCE == 2:  # [NW, 32]: each warp's first lane, where a lane of the warp composited the pair
+    if REDUCE >= 2:  # [NW, 32]: each warp's first lane, where a lane of the warp composited the pair ("row" sums
+        # the three colour columns of a frozen geometry this way)
         anyw = tl.max(tl.reshape(ok.to(tl.int32), [NW, 32]), 1)[:, None] > 0
         live = anyw & (tl.arange(0, 32)[None, :] == 0)
     inv = 1.0 / (1.0 - alpha)

@@ -154,7 +154,8 @@ class GaussianBackbone(Backbone):
     def _impl(self, device) -> str:
         """The ``rasterizer`` choice resolved for ``device``: ``cpp`` (fused kernels: SH colours and the rasteriser),
         ``torch``, ``gsplat`` (gsplat's CUDA rasteriser, PyTorch SH colours) or ``triton`` (the PyTorch path with
-        Triton compositing); a ConfigError where the choice cannot run."""
+        Triton projection, footprints and compositing; ``auto``'s choice for 2DGS on CUDA where Triton imports); a
+        ConfigError where the choice cannot run."""
         from .fused import resolve_impl
 
         if self.cfg.rasterizer == "gsplat":
@@ -165,6 +166,11 @@ class GaussianBackbone(Backbone):
         if self.cfg.rasterizer == "triton":
             self._require_triton(device)
             return "triton"
+        if self.cfg.rasterizer == "auto" and self.num_scales == 2:
+            from .triton2d import auto_on
+
+            if auto_on(device):  # 2DGS on CUDA with Triton (benchmarks/results/gpu/README.md)
+                return "triton"
         return resolve_impl(self.cfg.rasterizer, str(device))
 
     def splat_params(self) -> tuple[Tensor, Tensor, Tensor, Tensor]:

@@ -24,6 +24,7 @@ one.
 """
 from __future__ import annotations
 
+import functools
 import os
 
 import torch
@@ -54,6 +55,20 @@ def available(device) -> str | None:
     if dev == "cuda" or (dev == "cpu" and interpreted()):
         return None
     return f"runs on CUDA tensors (the device is {device}; on the CPU only under TRITON_INTERPRET=1, for tests)"
+
+
+def auto_on(device) -> bool:
+    """``rasterizer=auto`` takes these kernels for 2DGS on ``device``: a CUDA device, with Triton importable."""
+    return str(device).split(":")[0] == "cuda" and _importable()
+
+
+@functools.cache
+def _importable() -> bool:
+    try:
+        import triton  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 _KERNELS = None
@@ -91,11 +106,12 @@ def _dtype(t: Tensor):
     raise TypeError(f"triton rasteriser: float32 or float64 tensors, got {t.dtype}")
 
 
-# How the compositing backward sums a pair's 21 gradient columns over a tile's pixels (measured on an H200 by
-# benchmarks/gpu/triton_backward.py): "warp", a partial sum a warp (shuffles only) added atomically by each warp;
-# "row", the 21 columns stacked and summed in one block-wide reduction; "tile", 21 block-wide reductions;
-# "tile_acq", the same with acquire-release atomics (the first version). Equal up to float rounding.
-BACKWARD_SUM = "warp"
+# How the compositing backward sums a pair's 21 gradient columns over a tile's pixels. Its kernel on one view of
+# the demo's model at step 250 (79k splats, 288x192, every output weighted; an H200, benchmarks/gpu/triton_backward.py):
+# "row", the 21 columns stacked and summed in one block-wide reduction: 11.7 ms; "tile", 21 block-wide reductions:
+# 18.4 ms; "warp", a partial sum a warp (shuffles) added atomically by each warp: 20.1 ms (8x the atomic adds);
+# "tile_acq", "tile" with acquire-release atomics (the first version): 51.5 ms. Equal up to float rounding.
+BACKWARD_SUM = "row"
 _SUMS = {"tile_acq": 0, "tile": 1, "warp": 2, "row": 3}
 
 

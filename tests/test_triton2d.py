@@ -210,9 +210,9 @@ def test_triton_on_cuda_matches_torch_on_cpu(model):
 def test_auto_takes_the_triton_kernels_for_2dgs_on_cuda_only(monkeypatch):
     """``rasterizer=auto``: 2DGS on a CUDA device resolves to ``triton`` where Triton imports, else the PyTorch
     path; 3DGS on CUDA and every backbone on the CPU keep their paths."""
+    from arcsem.backbones.gaussians import triton2d
     from trainer_util import tiny_scene
 
-    from arcsem.backbones.gaussians import triton2d
     from arcsem.plugins import BACKBONES
 
     scene = tiny_scene(n=2)

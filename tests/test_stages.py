@@ -209,6 +209,12 @@ def test_a_whole_run_validates_each_group_once(tmp_path, monkeypatch):
     calls = _count_validations(monkeypatch)
     metrics = app.run(cfg, run_dir=tmp_path / "run")
     assert metrics["status"] == "complete" and metrics["completed_stages"] == ["gray", "color"]
+    t = metrics["timings"]  # each stage's phases, inside its wall time (where a job's time goes)
+    gray = ("prepare", "train", "evaluate", "export", "products")
+    color = ("prepare", "guidance", "pseudo", "train", "evaluate", "outputs", "products")
+    assert {f"gray.{p}_s" for p in gray} | {f"color.{p}_s" for p in color} <= set(t), sorted(t)
+    for stage, parts in (("gray", gray), ("color", color)):
+        assert 0 < sum(t[f"{stage}.{p}_s"] for p in parts) <= t[f"{stage}_s"]
     # once for the run; train, act and the backbone once more for the stage-1 checkpoint's own stored config,
     # which stage 2 rebuilds its model from (another input, read from disk)
     # the dataset once (its reader options, by the preflight; the scene is loaded from that checked spec)

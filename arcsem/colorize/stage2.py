@@ -25,6 +25,7 @@ from ..devices import run_device
 from ..errors import DataError
 from ..registry import plain
 from ..runconfig import run_config
+from ..timing import phase
 from .background import background_target, fit_background
 from .config import ColorizeConfig
 from .guidance import Guidance
@@ -313,24 +314,28 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     run_dir = Path(run_dir)
     rc = run_config(cfg)
     cfg, cc = rc.cfg, rc.colorize
-    ckpt = check_stage1_model(cfg, cc, scene, run_dir)
-    refs = load_references(scene, cc.references)  # validated against the dataset's views
-    backbone, _ = load_stage1(ckpt, scene, cfg)  # (resizes the scene as stage 1 did, internally)
-    scene = _prepare_scene(scene, ckpt, cc)
-    backbone.set_act(None)  # stage 2 never uses ACT (the paper found it hurt colourisation)
-    split = scene.train
-    refs.images = _resize_images(refs.images, split.cameras.height, split.cameras.width)
-    masks = specimen_masks(split, cc.masks, cc.mask_folder, cc.sam_checkpoint)
-    cache_dir = Path(cc.cache_dir) if cc.cache_dir else cache_root(cfg) / "colorize"
-    geo = SurfaceGeometry(backbone, split)
+    timings: dict[str, float] = {}
+    with phase(timings, "prepare"):  # the stage-1 model, references, masks
+        ckpt = check_stage1_model(cfg, cc, scene, run_dir)
+        refs = load_references(scene, cc.references)  # validated against the dataset's views
+        backbone, _ = load_stage1(ckpt, scene, cfg)  # (resizes the scene as stage 1 did, internally)
+        scene = _prepare_scene(scene, ckpt, cc)
+        backbone.set_act(None)  # stage 2 never uses ACT (the paper found it hurt colourisation)
+        split = scene.train
+        refs.images = _resize_images(refs.images, split.cameras.height, split.cameras.width)
+        masks = specimen_masks(split, cc.masks, cc.mask_folder, cc.sam_checkpoint)
+        cache_dir = Path(cc.cache_dir) if cc.cache_dir else cache_root(cfg) / "colorize"
+        geo = SurfaceGeometry(backbone, split)
     extractor, space, finfo, make = None, None, None, None
     validated = rc.loss_configs("colorize.losses")
-    if any(n in colorize_losses(cc, backbone, validated).terms for n in ("tcm", "ccm")):
-        extractor, space, finfo = _extractor(cc, cfg, ckpt, backbone, split, masks, cache_dir, rc.features)
-        make = _guide_factory(cc, extractor, space, split, geo, cache_dir)
-    guidance = make(refs.indices.tolist(), refs.images) if make is not None else None
-    cc, validation = _validate(cc, split, masks, refs, geo, guidance)
-    pseudo, valid, pinfo = _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo)
+    with phase(timings, "guidance"):  # features, the reference-by-reference validation
+        if any(n in colorize_losses(cc, backbone, validated).terms for n in ("tcm", "ccm")):
+            extractor, space, finfo = _extractor(cc, cfg, ckpt, backbone, split, masks, cache_dir, rc.features)
+            make = _guide_factory(cc, extractor, space, split, geo, cache_dir)
+        guidance = make(refs.indices.tolist(), refs.images) if make is not None else None
+        cc, validation = _validate(cc, split, masks, refs, geo, guidance)
+    with phase(timings, "pseudo"):
+        pseudo, valid, pinfo = _pseudo(cc, cfg, ckpt, backbone, split, masks, refs, cache_dir, geo)
     prior_rgb = pinfo.pop("prior_rgb", None)
     losses = colorize_losses(cc, backbone, validated)
     if any(n in losses.terms for n in ("tcm", "ccm")):
@@ -343,6 +348,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
                 cc, finfo["match_check"] = _match_check(cc, guidance, split, refs, masks, pseudo, pinfo["valid2d"], prior_rgb)
                 losses = colorize_losses(cc, backbone, validated)
         finfo["time_s"] += time.perf_counter() - t0
+        timings["matches_s"] = time.perf_counter() - t0
     if not any(n in losses.terms for n in ("tcm", "ccm")):
         guidance, space = None, None
     hook = ColorTargetHook(refs, pseudo, valid, guidance, space, cc.tcm_downscale, cc.ccm_downscale,
@@ -352,16 +358,20 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
                       log_every=cc.log_every, checkpoint_every=cc.checkpoint_every, resume=cc.resume,
                       seed=int(cfg.get("seed", 0)),
                       progress=cc.progress, desc=f"stage 2 ({backbone.name})")
-    res = train(backbone, split, losses, loop, optim=cc.optim, ckpt_dir=run_dir / "colorize" / "checkpoints",
-                config={"colorize": plain(cfg.get("colorize")), "stage1": str(ckpt), "pseudo": pinfo["key"]},
-                batch_hook=hook)
+    with phase(timings, "train"):
+        res = train(backbone, split, losses, loop, optim=cc.optim, ckpt_dir=run_dir / "colorize" / "checkpoints",
+                    config={"colorize": plain(cfg.get("colorize")), "stage1": str(ckpt), "pseudo": pinfo["key"]},
+                    batch_hook=hook)
     backbone.eval()
     features = finfo["label"] if guidance is not None else "unused"
-    result = evaluate_colour(backbone, scene, refs, run_dir, cc, progress=cc.progress)
-    for part, extra in coverage_metrics(backbone, scene, refs, masks, pinfo["valid2d"], cc).items():
-        result.setdefault(part, {}).update(extra)
-    result.update(write_outputs(backbone, scene, run_dir, cc, pseudo, valid, progress=cc.progress))
-    result.update(write_colored_products(rc, backbone, scene, run_dir, res.steps, cc.progress))
+    with phase(timings, "evaluate"):  # metrics (whole, inside and outside the coverage)
+        result = evaluate_colour(backbone, scene, refs, run_dir, cc, progress=cc.progress)
+        for part, extra in coverage_metrics(backbone, scene, refs, masks, pinfo["valid2d"], cc).items():
+            result.setdefault(part, {}).update(extra)
+    with phase(timings, "outputs"):  # renders, videos
+        result.update(write_outputs(backbone, scene, run_dir, cc, pseudo, valid, progress=cc.progress))
+    with phase(timings, "products"):  # the coloured mesh and viewer
+        result.update(write_colored_products(rc, backbone, scene, run_dir, res.steps, cc.progress))
     record = {**_pseudo_quality(split, masks, refs, pseudo, pinfo["valid2d"]), "cache_hit": pinfo["cache_hit"],
               "time_s": pinfo["time_s"], "shading": pinfo["shading"]}
     covered = pinfo["covered"] & masks.bool()
@@ -383,4 +393,4 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     if warning:
         log.warning(warning)
         result["warnings"] = [warning]
-    return {"stage2": result, "features": features}
+    return {"stage2": result, "features": features, "timings": timings}

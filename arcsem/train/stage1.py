@@ -28,6 +28,7 @@ from ..metrics import metric_convention
 from ..registry import plain
 from ..runconfig import run_config
 from ..scene import Scene
+from ..timing import phase
 from ..video import write_video
 from ..visual import DEPTH_SPAN, to_uint8
 from .evaluate import PROTOCOLS, evaluate_split, mean_metrics, resolve_protocol, write_views_csv
@@ -137,27 +138,33 @@ def run_stage1(cfg: Any, scene: Scene, run_dir: str | Path) -> dict:
     run_dir = Path(run_dir)
     rc = run_config(cfg)
     cfg, tc = rc.cfg, rc.train
-    raw_scene, scene = scene, prepare_scene(scene, tc)
-    backbone, act = build_model(rc, scene)
-    name = backbone.name
-    losses = stage1_losses(rc, tc, act)
+    timings: dict[str, float] = {}
+    with phase(timings, "prepare"):
+        raw_scene, scene = scene, prepare_scene(scene, tc)
+        backbone, act = build_model(rc, scene)
+        name = backbone.name
+        losses = stage1_losses(rc, tc, act)
     rays = tc.rays_per_batch or int(backbone.rays_per_step)
     loop = LoopConfig(steps=tc.steps, stage="geometry", batch_views=tc.batch_views, rays_per_batch=rays,
                       log_every=tc.log_every, eval_every=tc.eval_every, checkpoint_every=tc.checkpoint_every,
                       resume=tc.resume, seed=int(cfg.get("seed", 0)), progress=tc.progress, desc=f"stage 1 ({name})")
     act_lr = rc.act.lr
-    res = train(backbone, scene.train, losses, loop, optim=tc.optim, ckpt_dir=run_dir / "checkpoints",
-                config=stage1_config(cfg, raw_scene), act=act, act_lr=act_lr,
-                evaluate=_periodic_eval(backbone, scene, tc.eval) if tc.eval_every else None)
+    with phase(timings, "train"):
+        res = train(backbone, scene.train, losses, loop, optim=tc.optim, ckpt_dir=run_dir / "checkpoints",
+                    config=stage1_config(cfg, raw_scene), act=act, act_lr=act_lr,
+                    evaluate=_periodic_eval(backbone, scene, tc.eval) if tc.eval_every else None)
     _write_history(run_dir / "train_history.csv", res.history)
     warning = loss_trend_warning(res.history, loop.desc)
     if warning:
         log.warning(warning)
     backbone.eval()
-    result = evaluate(backbone, scene, run_dir, tc.eval, progress=tc.progress)
-    export = _export(backbone, run_dir)
-    result.update(write_products(rc, backbone, scene, run_dir, iteration=res.steps, progress=tc.progress))
-    return {"stage1": {**result, "steps": res.steps, "time_s": res.time_s, "steps_per_s": res.steps_per_s,
+    with phase(timings, "evaluate"):  # metrics, renders, the orbit video
+        result = evaluate(backbone, scene, run_dir, tc.eval, progress=tc.progress)
+    with phase(timings, "export"):
+        export = _export(backbone, run_dir)
+    with phase(timings, "products"):  # the mesh and the viewer
+        result.update(write_products(rc, backbone, scene, run_dir, iteration=res.steps, progress=tc.progress))
+    return {"timings": timings, "stage1": {**result, "steps": res.steps, "time_s": res.time_s, "steps_per_s": res.steps_per_s,
                        "resumed_from": res.resumed_from, "num_primitives": int(backbone.num_primitives()),
                        "image_size": [scene.train.cameras.width, scene.train.cameras.height],
                        "losses": sorted(losses.terms), "checkpoint": str(res.checkpoint), "export": export,

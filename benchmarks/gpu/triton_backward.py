@@ -11,8 +11,7 @@ a fixed random cotangent) with each of ``triton2d.BACKWARD_SUM``'s reductions an
 
     python benchmarks/gpu/triton_backward.py --steps 250 --json out.json
 
-Prints one line a reduction; needs Triton and a CUDA device (``--device cpu`` with ``TRITON_INTERPRET=1``: a smoke
-test of this script).
+Prints one line a reduction; needs Triton and a CUDA device.
 """
 from __future__ import annotations
 
@@ -33,14 +32,14 @@ from stage1_profile import compose
 OUTPUTS = ("rgb", "alpha", "depth", "normal", "median_depth", "distortion")
 
 
-def trained(steps: int, overrides: list[str], device: str):
+def trained(steps: int, overrides: list[str]):
     """The demo's stage-1 model after ``steps`` steps (rasterizer=triton) and its training split."""
     from arcsem.app import seed_everything
     from arcsem.data import load_scene
     from arcsem.train.loop import LoopConfig, train
     from arcsem.train.stage1 import act_config, build_model, prepare_scene, stage1_losses, train_config
 
-    cfg = compose(["experiment=demo", f"device={device}", "backbone.rasterizer=triton", *overrides])
+    cfg = compose(["experiment=demo", "device=cuda", "backbone.rasterizer=triton", *overrides])
     seed_everything(int(cfg.seed))
     tc = train_config(cfg)
     scene = prepare_scene(load_scene(cfg.dataset), tc)
@@ -71,8 +70,7 @@ def measure(backbone, cams, cot: dict | None, reps: int) -> tuple[dict, dict]:
         cot = {k: torch.rand(out[k].shape, generator=g, dtype=out[k].dtype).to(out[k].device)
                for k in OUTPUTS if k in out}
     loss = lambda o: sum((o[k] * cot[k]).sum() for k in cot)
-    cuda = cams.device.type == "cuda"
-    sync = torch.cuda.synchronize if cuda else (lambda: None)
+    sync = torch.cuda.synchronize
     fwd, bwd = [], []
     for i in range(reps + 3):
         for p in params:
@@ -89,9 +87,6 @@ def measure(backbone, cams, cot: dict | None, reps: int) -> tuple[dict, dict]:
             fwd.append(1000 * (t1 - t0))
             bwd.append(1000 * (t2 - t1))
     grads = {n: p.grad.detach().clone() for n, p in backbone.named_parameters() if p.grad is not None}
-    if not cuda:
-        return {"fwd_ms": round(statistics.median(fwd), 3), "bwd_ms": round(statistics.median(bwd), 3)}, \
-            {"grads": grads, "cot": cot}
     with profile(activities=[ProfilerActivity.CUDA]) as prof:
         for _ in range(reps):
             loss(backbone.render(cams)).backward()
@@ -108,15 +103,14 @@ def main() -> None:
     ap.add_argument("--reps", type=int, default=10)
     ap.add_argument("--sums", default="tile_acq,tile,warp,row")
     ap.add_argument("--json", default=None)
-    ap.add_argument("--device", default="cuda")
     ap.add_argument("overrides", nargs="*")
     a = ap.parse_args()
-    if a.device == "cuda" and not torch.cuda.is_available():
+    if not torch.cuda.is_available():
         sys.exit("error: no CUDA device")
     from arcsem.backbones.gaussians import triton2d
 
-    backbone, split = trained(a.steps, a.overrides, a.device)
-    cams = split.cameras[[0]].to(device=a.device)
+    backbone, split = trained(a.steps, a.overrides)
+    cams = split.cameras[[0]].to(device="cuda")
     rows, ref, cot = [], None, None
     for name in [*a.sums.split(","), "torch"]:
         if name == "torch":
@@ -128,7 +122,7 @@ def main() -> None:
         ref = ref or res["grads"]
         err = max(((res["grads"][n] - g).abs().max() / g.abs().max().clamp_min(1e-30)).item() for n, g in ref.items())
         row = {"sum": name, **t, "grad_rel_err": float(f"{err:.3g}"), "primitives": int(backbone.num_primitives()),
-               "device": torch.cuda.get_device_name() if a.device == "cuda" else "cpu"}
+               "device": torch.cuda.get_device_name()}
         print(json.dumps(row), flush=True)
         rows.append(row)
     if a.json:

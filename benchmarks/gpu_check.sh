@@ -11,9 +11,9 @@
 #   launch   gsplat's 2DGS backward at 8/16/32-px tiles and its kernels' register counts
 #   tests    pytest -m cuda (with the Triton compositing's kernels against the PyTorch path)
 #   profile  stage 1 of the demo: steps/s, SM utilisation, host syncs, kernels (benchmarks/gpu/stage1_profile.py;
-#            PROFILE_VARIANTS, default gs2d gs2d_torch gs2d_gsplat (gs2d: auto, the Triton kernels on CUDA);
+#            PROFILE_VARIANTS, default gs2d gs2d_gsplat (gs2d: auto, the Triton kernels on CUDA); gs2d_torch,
 #            gs2d_triton, gs3d, gs3d_gsplat when named)
-#   demo     the whole `make demo` job with device=cuda, each of DEMO_RASTERIZERS (default auto torch gsplat),
+#   demo     the whole `make demo` job with device=cuda, each of DEMO_RASTERIZERS (default auto gsplat),
 #            nvidia-smi dmon sampling
 #   stage2ab (only when named) stage 2 of the demo twice on the auto demo's stage 1 (S2AB_STAGE1, default
 #            /tmp/demo_auto): through recorded renders (colorize.frozen_mb default) and compositing every step
@@ -21,7 +21,9 @@
 # then writes $OUT/gpu_check.json (device, cuda_tests_failed, stage1_steps_per_s, sm_util_pct, stage2_complete,
 # demo_wall_s, quality, ...) and $OUT/runs.tar.gz (every demo job's time-stamped log and metrics.json).
 # Parts: GPU_CHECK_PARTS (default all). GSPLAT=0: no gsplat (its wheel not installed, its library not built, its tests
-# deselected), for a call whose device time is too short for gsplat's ~90 s build.
+# deselected, its profile and demo dropped), for a call whose device time is too short for gsplat's ~90 s build.
+# The default call takes about 8 minutes with that build (2026-11-28, H200: setup 50 s + the build, the quality runs
+# beside the tests ~100 s, two profiles ~80 s, the auto and gsplat demos 75 + 95 s).
 #
 #   # on the CPU machine, from the repository root (cp312 wheels for the GPU machine's Python 3.12):
 #   benchmarks/gpu/prepare.sh          # .whl/ and .gpu/scene.tar.xz (both git-ignored; 25 MB together)
@@ -36,6 +38,7 @@ has() { [[ ",$PARTS," == *",$1,"* ]]; }
 T0=$(date +%s)
 stamp() { echo "== $1 ($(( $(date +%s) - T0 )) s)"; }
 BG=()  # jobs run beside the tests (quality, demoprobe)
+nogsplat() { for w in "$@"; do [[ "${GSPLAT:-1}" = 0 && "$w" == *gsplat* ]] || echo "$w"; done; }  # GSPLAT=0: drop
 # demo NAME RASTERIZER SEED [OVERRIDE ...]: one demo job in /tmp/NAME, its output time-stamped in /tmp/NAME.log,
 # its exit status in /tmp/NAME.rc and its wall seconds in /tmp/NAME.wall; a colour cache of its own (no job reuses
 # another's pseudo-colours or matches)
@@ -122,7 +125,7 @@ if has profile; then
   declare -A VARIANT=([gs2d]="backbone.rasterizer=auto" [gs2d_gsplat]="backbone.rasterizer=gsplat"
     [gs2d_triton]="backbone.rasterizer=triton" [gs2d_torch]="backbone.rasterizer=torch"
     [gs3d]="backbone=gs3d backbone.rasterizer=auto" [gs3d_gsplat]="backbone=gs3d backbone.rasterizer=gsplat")
-  for name in ${PROFILE_VARIANTS:-gs2d gs2d_torch gs2d_gsplat}; do
+  for name in $(nogsplat ${PROFILE_VARIANTS:-gs2d gs2d_gsplat}); do
     ov=${VARIANT[$name]}
     echo "=== $name" >> "$OUT/profile.log"
     # shellcheck disable=SC2086
@@ -134,7 +137,7 @@ fi
 
 if has demo; then
   stamp demo
-  for r in ${DEMO_RASTERIZERS:-auto torch gsplat}; do
+  for r in $(nogsplat ${DEMO_RASTERIZERS:-auto gsplat}); do
     nvidia-smi dmon -s u -d 1 -o T > "/tmp/dmon_$r.txt" 2>&1 & DMON=$!
     demo "demo_$r" "$r" 0
     kill $DMON 2>/dev/null

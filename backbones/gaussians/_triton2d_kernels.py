@@ -184,6 +184,8 @@ def _row_add(out, v0, v1, v2, v3, v4, v5, v6, v7, v8, v9, v10, v11, v12, v13, v1
 
 @triton.jit
 def _add(ptr, v, live, REDUCE: tl.constexpr, NW: tl.constexpr):
+    """One column's ``*ptr += sum(v)`` as ``triton2d.BACKWARD_SUM`` says (``REDUCE``: 0 "tile_acq", 1 "tile", 2
+    "warp"; 3, "row", sums by warp where a pair has only its three colour columns)."""
     if REDUCE == 0:
         _tile_add(ptr, v, "acq_rel")
     elif REDUCE == 1:

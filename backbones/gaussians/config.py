@@ -45,7 +45,7 @@ class GaussianConfig:
     # rasteriser
     tile: int = checked(16, ge=1)
     chunk_tiles: int | None = checked(None, ge=1)  # tiles composited at once (None = renderer's default)
-    # auto: fused C++ kernels when they build (CPU); on CUDA the Triton kernels for 2DGS where Triton imports; else
+    # auto: fused C++ kernels when they build (CPU); on CUDA (8.0+) the Triton kernels for 2DGS where Triton imports; else
     # the PyTorch reference (one warning); torch | cpp explicit;
     # gsplat: gsplat's CUDA rasterisers (optional: pip install gsplat, device=cuda; backbones/gaussians/gsplat_bridge.py);
     # triton: 2DGS only, projection, footprints and compositing as Triton kernels (CUDA; backbones/gaussians/triton2d.py)

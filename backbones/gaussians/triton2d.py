@@ -58,8 +58,15 @@ def available(device) -> str | None:
 
 
 def auto_on(device) -> bool:
-    """``rasterizer=auto`` takes these kernels for 2DGS on ``device``: a CUDA device, with Triton importable."""
-    return str(device).split(":")[0] == "cuda" and _importable()
+    """``rasterizer=auto`` takes these kernels for 2DGS on ``device``: a CUDA device of compute capability 8.0 or
+    newer (the GPUs Triton supports; measured on 9.0), with Triton importable."""
+    dev = torch.device(device)
+    return dev.type == "cuda" and _importable() and _capability(dev) >= (8, 0)
+
+
+@functools.cache
+def _capability(dev: torch.device) -> tuple[int, int]:
+    return torch.cuda.get_device_capability(dev)
 
 
 @functools.cache

@@ -40,8 +40,9 @@ def test_torch_rasterizer_on_cuda_matches_cpu(kind, model):
     ("gs2d", ["gray", "color"], []), ("gs3d", ["gray", "color"], []),
     ("plenoxels", ["gray"], []),  # stage 2's losses need image batches
     ("gs2d", ["gray", "color"], ["backbone.rasterizer=gsplat"]), ("gs3d", ["gray", "color"], ["backbone.rasterizer=gsplat"]),
-    ("gs2d", ["gray", "color"], ["backbone.rasterizer=triton"])],
-    ids=["gs2d", "gs3d", "plenoxels", "gs2d-gsplat", "gs3d-gsplat", "gs2d-triton"])
+    ("gs2d", ["gray", "color"], ["backbone.rasterizer=triton"]),
+    ("gs2d", ["gray", "color"], ["backbone.rasterizer=torch"])],  # (auto: triton on GPUs of 8.0 and newer)
+    ids=["gs2d", "gs3d", "plenoxels", "gs2d-gsplat", "gs3d-gsplat", "gs2d-triton", "gs2d-torch"])
 def test_stages_end_to_end_on_cuda(tmp_path, backbone, stages, extra):
     """``device=cuda``: every stage completes (Plenoxels: stage 1), also on gsplat's rasterisers and the Triton
     compositing, and the checkpoint

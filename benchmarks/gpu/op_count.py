@@ -6,7 +6,7 @@ so their number bounds the steps per second whatever the kernels cost. This coun
 autograd (a ``TorchDispatchMode``; the backward pass's too), grouped by the project function that issued it or,
 in the backward pass, by the autograd node::
 
-    python benchmarks/gpu/op_count.py -- backbone.rasterizer=torch     # the PyTorch rasteriser (CUDA's `auto`)
+    python benchmarks/gpu/op_count.py -- backbone.rasterizer=torch     # the PyTorch rasteriser (`auto` on CUDA before the Triton kernels)
     TRITON_INTERPRET=1 python benchmarks/gpu/op_count.py --skip 1 --window 2 -- backbone.rasterizer=triton train.width=48
         # the Triton kernels through Triton's CPU interpreter (a launch counts one; slow: ~20 min for 3 steps)
     python benchmarks/gpu/op_count.py --top 30 -- backbone=gs3d backbone.rasterizer=torch

@@ -134,7 +134,7 @@ def _block(tile: int) -> int:
 
 
 def _warps(tile: int) -> int:
-    """Warps a program: one thread a pixel up to 8 warps (sm_90, 16-px tiles: 48 / 61 registers a thread forward /
+    """Warps a program: one thread a pixel up to 8 warps (sm_90, 16-px tiles: 48 / 79 registers a thread forward /
     backward, no spills; ``benchmarks/gpu/triton_compile.py``)."""
     return max(1, min(8, _block(tile) // 32))
 

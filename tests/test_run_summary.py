@@ -29,3 +29,15 @@ def test_stage_one_alone_without_a_held_out_split_and_missing_figures():
          "stage1": {"test": {"psnr": math.nan}, "train": {"psnr": 25.5}, "steps": 10}}
     assert summary_lines(m, "out") == ["stage 1 (plenoxels): training views PSNR 25.50 dB; 10 steps",
                                        "outputs: out (metrics.json)"]
+
+
+def test_each_stage_says_where_its_time_went():
+    """The phases ``metrics.json`` times (a second or more, in the order they ran) follow each stage's total."""
+    timings = {**METRICS["timings"], "gray.prepare_s": 0.05, "gray.train_s": 108.04, "gray.evaluate_s": 11.3,
+               "gray.export_s": 0.03, "gray.products_s": 5.13, "color.guidance_s": 4.5, "color.train_s": 13.6,
+               "color.outputs_s": 9.23}
+    lines = summary_lines({**METRICS, "timings": timings}, "/runs/demo")
+    assert lines[0].endswith("227 s in all (training 108 s, evaluation 11 s, mesh and viewer 5 s); "
+                             "mesh Chamfer 0.88 % of the specimen"), lines[0]
+    assert lines[1].endswith("115 s in all (features and validation 4 s, training 14 s, renders and videos 9 s)"), \
+        lines[1]

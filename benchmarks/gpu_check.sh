@@ -15,6 +15,8 @@
 #            gs2d_triton, gs3d, gs3d_gsplat when named)
 #   demo     the whole `make demo` job with device=cuda, each of DEMO_RASTERIZERS (default auto gsplat),
 #            nvidia-smi dmon sampling
+#   float32  (only when named) float32 gradients of the PyTorch and Triton paths against float64 on the auto demo's
+#            stage-1 model (benchmarks/gpu/triton_float32.py; after `demo`) into $OUT/float32.txt
 #   stage2ab (only when named) stage 2 of the demo twice on the auto demo's stage 1 (S2AB_STAGE1, default
 #            /tmp/demo_auto): through recorded renders (colorize.frozen_mb default) and compositing every step
 #            (frozen_mb=0); their times and held-out colour into $OUT/stage2ab.txt (S2AB_DEVICE, default cuda)
@@ -31,7 +33,7 @@
 #   benchmarks/gpu_check.sh            # results in ${OUT:-/tmp/gpu_check}
 set -uo pipefail
 OUT=${OUT:-/tmp/gpu_check}
-PARTS=${GPU_CHECK_PARTS:-setup,quality,tests,probe,profile,demo,launch}  # demoprobe, stage2ab: only when named
+PARTS=${GPU_CHECK_PARTS:-setup,quality,tests,probe,profile,demo,launch}  # demoprobe, stage2ab, float32: when named
 mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1 TQDM_DISABLE=1 ARCSEM_CACHE=/tmp/arcsem_cache PYTHONWARNINGS=ignore::DeprecationWarning
 has() { [[ ",$PARTS," == *",$1,"* ]]; }
@@ -160,6 +162,12 @@ if has stage2ab; then
 print('frozen_mb=$mb: training', round(s['time_s'], 1), 's,', round(s['steps_per_s'], 1), 'steps/s, held-out colour',
       round(s['test']['psnr'], 4), 'dB, records', s.get('frozen_renders'))" 2>&1 | tee -a "$OUT/stage2ab.txt"
   done
+fi
+
+if has float32; then
+  stamp "float32 against float64"
+  timeout 120 python3 benchmarks/gpu/triton_float32.py --run "${S2AB_STAGE1:-/tmp/demo_auto}" --device cuda 2>&1 \
+    | grep -v -i warn | tee "$OUT/float32.txt"
 fi
 
 if has launch; then

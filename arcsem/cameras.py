@@ -67,15 +67,21 @@ class Cameras:
     def __getitem__(self, idx) -> Cameras:
         if isinstance(idx, int):
             idx = slice(idx, idx + 1) if idx >= 0 else slice(idx, (idx + 1) or None)
-        return replace(self, world_to_cam=self.world_to_cam[idx], K=self.K[idx], image_ids=self.image_ids[idx])
+        out = replace(self, world_to_cam=self.world_to_cam[idx], K=self.K[idx], image_ids=self.image_ids[idx])
+        if not self.world_to_cam.requires_grad:  # a training batch: one slice of the split's centres, not ten operators
+            out.__dict__["_centers"] = (out.world_to_cam, out.world_to_cam._version, self.centers[idx])
+        return out
 
     def to(self, device=None, dtype=None) -> Cameras:
-        return replace(
+        out = replace(
             self,
             world_to_cam=self.world_to_cam.to(device=device, dtype=dtype),
             K=self.K.to(device=device, dtype=dtype),
             image_ids=self.image_ids.to(device=device),
         )
+        if out.world_to_cam is self.world_to_cam and "_centers" in self.__dict__:
+            out.__dict__["_centers"] = self.__dict__["_centers"]  # nothing moved: the centres still hold
+        return out
 
     @staticmethod
     def cat(batches: list[Cameras]) -> Cameras:
@@ -105,9 +111,19 @@ class Cameras:
 
     @property
     def centers(self) -> Tensor:
-        """``[C, 3]`` camera centres (for orthographic cameras: the origin of the camera plane)."""
-        R, t = self.world_to_cam[:, :3, :3], self.world_to_cam[:, :3, 3]
-        return -(R.transpose(1, 2) @ t[..., None])[..., 0]
+        """``[C, 3]`` camera centres (for orthographic cameras: the origin of the camera plane).
+
+        Kept while ``world_to_cam`` is the same tensor, unchanged in place and not differentiable: a render asks
+        for them several times (SH view directions, projection, normals, densification), each ten operators."""
+        w = self.world_to_cam
+        kept = self.__dict__.get("_centers")
+        if kept is not None and kept[0] is w and kept[1] == w._version:
+            return kept[2]
+        R, t = w[:, :3, :3], w[:, :3, 3]
+        c = -(R.transpose(1, 2) @ t[..., None])[..., 0]
+        if not w.requires_grad:
+            self.__dict__["_centers"] = (w, w._version, c)
+        return c
 
     @property
     def forward(self) -> Tensor:

@@ -3,6 +3,8 @@
 Images are ``[C, H, W, 3]`` (channels last, as renders are)."""
 from __future__ import annotations
 
+import functools
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor
@@ -30,10 +32,17 @@ C1, C2 = 0.01**2, 0.03**2
 
 
 def gaussian_window(size: int = 11, sigma: float = 1.5, dtype=torch.float32, device=None) -> Tensor:
-    """Normalised 1-D Gaussian ``[size]`` centred on the middle tap."""
-    x = torch.arange(size, dtype=dtype, device=device) - (size - 1) / 2
-    g = torch.exp(-(x**2) / (2 * sigma**2))
-    return g / g.sum()
+    """Normalised 1-D Gaussian ``[size]`` centred on the middle tap (read-only: one tensor is shared by every call
+    with the same arguments, made once rather than by eight operators at every D-SSIM loss)."""
+    return _window(int(size), float(sigma), dtype, torch.device(device) if device is not None else None)
+
+
+@functools.lru_cache(maxsize=32)
+def _window(size: int, sigma: float, dtype: torch.dtype, device: torch.device | None) -> Tensor:
+    with torch.inference_mode(False), torch.no_grad():  # an ordinary tensor, even when first asked for in inference
+        x = torch.arange(size, dtype=dtype, device=device) - (size - 1) / 2
+        g = torch.exp(-(x**2) / (2 * sigma**2))
+        return g / g.sum()
 
 
 def _blur(x: Tensor, g: Tensor) -> Tensor:

@@ -19,11 +19,11 @@ from typing import Any
 
 import torch
 from torch import Tensor, nn
-from torch.profiler import record_function as region
 
 from ..errors import ConfigError
 from ..plugins import LOSSES, Batch, Loss, RenderOutput
 from ..registry import plain, validate_config
+from ..timing import region
 
 __all__ = ["LossSet", "build_losses"]
 

@@ -15,11 +15,11 @@ from typing import Any, ClassVar
 
 import torch
 from torch import Tensor, nn
-from torch.profiler import record_function as region
 
 from arcsem.cameras import Cameras
 from arcsem.configs import GroupSchedule
 from arcsem.plugins import Backbone, RenderOutput
+from arcsem.timing import region
 
 from .config import GaussianConfig
 from .densify import DensifyStats, clone_split_prune, reset_opacity, screen_grad_norms

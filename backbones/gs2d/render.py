@@ -23,10 +23,10 @@ from arcsem.backbones.gaussians.raster import (
 )
 from arcsem.backbones.gaussians.raster_camera import camera_facing_normals, pixel_projection
 from torch import Tensor
-from torch.profiler import record_function as region
 
 from arcsem.cameras import Cameras
 from arcsem.rotations import quat_to_rotmat
+from arcsem.timing import region
 
 __all__ = ["DIST_FAR", "DIST_NEAR", "LOWPASS_SIGMA", "distortion_depth", "footprint_2dgs", "render_2dgs",
            "splat_homographies"]

@@ -21,10 +21,10 @@ from arcsem.backbones.gaussians.raster import (
 )
 from arcsem.backbones.gaussians.raster_camera import pixel_projection
 from torch import Tensor
-from torch.profiler import record_function as region
 
 from arcsem.cameras import Cameras
 from arcsem.rotations import quat_to_rotmat
+from arcsem.timing import region
 
 __all__ = ["COV2D_BLUR", "footprint_3dgs", "project_gaussians", "render_3dgs"]
 

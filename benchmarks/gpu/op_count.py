@@ -10,6 +10,7 @@ in the backward pass, by the autograd node::
     TRITON_INTERPRET=1 python benchmarks/gpu/op_count.py --skip 1 --window 2 -- backbone.rasterizer=triton train.width=48
         # the Triton kernels through Triton's CPU interpreter (a launch counts one; slow: ~20 min for 3 steps)
     python benchmarks/gpu/op_count.py --top 30 -- backbone=gs3d backbone.rasterizer=torch
+    python benchmarks/gpu/op_count.py --ops loop.py --ops cameras.py      # which operators those sites issue
 
 The profiler on a GPU counts more (``aten_calls_per_step`` in gpu_check.json includes the operators an operator
 calls); this count is the dispatcher's below autograd, comparable between commits on the same machine.
@@ -48,11 +49,14 @@ class OpCount(TorchDispatchMode):
     def __init__(self):
         super().__init__()
         self.sites: Counter = Counter()
+        self.ops: Counter = Counter()  # (site, operator) -> count
         self.paused = False
 
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
         if not self.paused:
-            self.sites[_site()] += 1
+            site = _site()
+            self.sites[site] += 1
+            self.ops[site, str(func.overloadpacket.__name__)] += 1
         return func(*args, **(kwargs or {}))
 
 
@@ -79,9 +83,9 @@ def _launches(mode: OpCount):
     return lambda: setattr(interpreter.GridExecutor, "__call__", call)
 
 
-def count(overrides: list[str], skip: int, window: int) -> tuple[Counter, int]:
+def count(overrides: list[str], skip: int, window: int) -> tuple[Counter, Counter, int]:
     """Operators of steps ``skip``..``skip + window`` of stage 1 (the demo job with ``overrides``, on the CPU) by
-    site, and the model's primitives at the end."""
+    site and by ``(site, operator)``, and the model's primitives at the end."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from stage1_profile import compose
 
@@ -117,7 +121,7 @@ def count(overrides: list[str], skip: int, window: int) -> tuple[Counter, int]:
     finally:
         loop_module._periodic = periodic
         undo()
-    return mode.sites, int(backbone.num_primitives())
+    return mode.sites, mode.ops, int(backbone.num_primitives())
 
 
 def main() -> None:
@@ -125,13 +129,20 @@ def main() -> None:
     ap.add_argument("--skip", type=int, default=60, help="steps before the counted window")
     ap.add_argument("--window", type=int, default=10, help="steps counted")
     ap.add_argument("--top", type=int, default=20, help="sites listed")
+    ap.add_argument("--ops", action="append", default=[], metavar="SITE",
+                    help="also list the operators of the sites containing SITE (repeatable)")
     ap.add_argument("overrides", nargs="*")
     a = ap.parse_args()
-    sites, prims = count(a.overrides, a.skip, a.window)
+    sites, ops, prims = count(a.overrides, a.skip, a.window)
     total = sum(sites.values())
     print(f"{total / a.window:.1f} operators a step (steps {a.skip + 1}-{a.skip + a.window}, {prims} primitives)")
     for site, n in sites.most_common(a.top):
         print(f"{n / a.window:8.1f}  {site}")
+    for want in a.ops:
+        print(f"operators of the sites containing '{want}':")
+        for (site, op), n in sorted(ops.items(), key=lambda kv: -kv[1]):
+            if want in site:
+                print(f"{n / a.window:8.1f}  {site}  {op}")
 
 
 if __name__ == "__main__":

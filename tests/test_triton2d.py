@@ -210,19 +210,19 @@ def test_triton_on_cuda_matches_torch_on_cpu(model):
 def test_auto_takes_the_triton_kernels_for_2dgs_on_cuda_only(monkeypatch):
     """``rasterizer=auto``: 2DGS on a CUDA device of compute capability 8.0 or newer resolves to ``triton`` where
     Triton imports, else the PyTorch path; 3DGS on CUDA and every backbone on the CPU keep their paths."""
-    from arcsem.backbones.gaussians import triton2d
     from trainer_util import tiny_scene
 
+    from arcsem import tritonsupport
     from arcsem.plugins import BACKBONES
 
     scene = tiny_scene(n=2)
     gs2d, gs3d = (BACKBONES.build({"name": n, "random_init_points": 50}, scene=scene) for n in ("gs2d", "gs3d"))
-    monkeypatch.setattr(triton2d, "_capability", lambda dev: (9, 0))  # an H100 / H200
+    monkeypatch.setattr(tritonsupport, "_capability", lambda dev: (9, 0))  # an H100 / H200
     assert gs2d._impl("cuda") == "triton" and gs2d._impl("cuda:1") == "triton"
     assert gs3d._impl("cuda") == "torch"
     assert gs2d._impl("cpu") in ("cpp", "torch")
-    monkeypatch.setattr(triton2d, "_capability", lambda dev: (7, 0))  # a V100: not a GPU Triton supports
+    monkeypatch.setattr(tritonsupport, "_capability", lambda dev: (7, 0))  # a V100: not a GPU Triton supports
     assert gs2d._impl("cuda") == "torch"
-    monkeypatch.setattr(triton2d, "_capability", lambda dev: (8, 0))
-    monkeypatch.setattr(triton2d, "_importable", lambda: False)
+    monkeypatch.setattr(tritonsupport, "_capability", lambda dev: (8, 0))
+    monkeypatch.setattr(tritonsupport, "_importable", lambda: False)
     assert gs2d._impl("cuda") == "torch"

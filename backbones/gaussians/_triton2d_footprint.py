@@ -15,8 +15,9 @@ import triton
 import triton.language as tl
 from torch import Tensor
 
+from arcsem.tritonsupport import constants
+
 from .raster import Binning, bin_tiles
-from .triton2d import _constants
 
 __all__ = ["footprint_bin_2dgs_triton"]
 
@@ -139,7 +140,7 @@ def footprint_2dgs_triton(Hm: Tensor, opacities: Tensor, W: int, H: int, tile: i
     eff = torch.empty(M, 4, dtype=torch.long, device=dev)
     depth = torch.empty(M, dtype=torch.float64, device=dev)
     block = 256
-    prm = _constants(depth, (near, lowpass_sigma))
+    prm = constants(depth, (near, lowpass_sigma))
     footprint_kernel[(triton.cdiv(M, block),)](Hm.detach().contiguous(), opacities.detach().contiguous(), prm, radius,
                                                rects, eff, depth, M, N, W, H, -(-W // tile), -(-H // tile), TILE=tile,
                                                BLOCK=block, enable_fp_fusion=False)

@@ -14,7 +14,9 @@ import triton
 import triton.language as tl
 from torch import Tensor
 
-from .triton2d import TABLE, _dtype
+from arcsem.tritonsupport import tl_dtype
+
+from .triton2d import TABLE
 
 __all__ = ["project_2dgs_triton"]
 
@@ -232,7 +234,7 @@ class _Project2DTriton(torch.autograd.Function):
         gsh = means.new_empty(C * N, 2)
         project_backward[(triton.cdiv(N, BLOCK),)](means, quats, scales, P, view, g_table.contiguous(), gm, gq, gs, gop,
                                                    gcol, gsh, N, C, ORTHO=ctx.ortho, NCOL=TABLE, BLOCK=BLOCK,
-                                                   DT=_dtype(means))
+                                                   DT=tl_dtype(means))
         return gm, gq, gs, gop, gcol, gsh.reshape(ctx.leaf_shape), None, None, None
 
 

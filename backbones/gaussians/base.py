@@ -78,8 +78,7 @@ class GaussianBackbone(Backbone):
     @classmethod
     def _require_triton(cls, device) -> None:
         from arcsem.errors import ConfigError
-
-        from .triton2d import available
+        from arcsem.tritonsupport import available
 
         if cls.num_scales != 2:
             raise ConfigError("backbone.rasterizer=triton composites 2-D splats only (backbone=gs2d); use auto")
@@ -167,7 +166,7 @@ class GaussianBackbone(Backbone):
             self._require_triton(device)
             return "triton"
         if self.cfg.rasterizer == "auto" and self.num_scales == 2:
-            from .triton2d import auto_on
+            from arcsem.tritonsupport import auto_on
 
             if auto_on(device):  # 2DGS on CUDA with Triton (benchmarks/results/gpu/README.md)
                 return "triton"

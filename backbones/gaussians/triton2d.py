@@ -17,65 +17,25 @@ PyTorch path's frame (absolute pixel centres, the adjugate of ``[Tu; Tv; Tw]``),
   restored (``T_i = T_{i+1} / (1 - alpha_i)``); each pair's gradient row (21 values: the splat table's columns) is
   summed over the tile's pixels and added atomically into the entry's row.
 
-Triton compiles the kernels for the GPU at first use (cached under ``~/.triton``). With ``TRITON_INTERPRET=1`` in the
-environment when they are first imported they run on CPU tensors through Triton's interpreter (slowly: the tests'
-path on a machine without a GPU); benchmarks/gpu/triton_compile.py compiles them for a given GPU architecture without
+Triton compiles the kernels for the GPU at first use; under ``TRITON_INTERPRET=1`` they run on CPU tensors
+(:mod:`arcsem.tritonsupport`); benchmarks/gpu/triton_compile.py compiles them for a given GPU architecture without
 one.
 """
 from __future__ import annotations
 
-import functools
-import os
-
 import torch
 from torch import Tensor
+
+from arcsem.tritonsupport import available, constants, tl_dtype
 
 from .config import LOWPASS_SIGMA
 from .raster import MAX_ALPHA, MIN_ALPHA, MIN_T
 
-__all__ = ["TABLE", "available", "composite2d_triton", "interpreted"]
+__all__ = ["TABLE", "composite2d_triton"]
 
 TABLE = 21
 """Columns of the splat table (``render._splat_table`` transposed): adjugate a, b, c (9), centre (2), opacity,
 depth row ``Tz`` (3), colour (3), normal (3)."""
-
-
-def interpreted() -> bool:
-    """Whether Triton runs the kernels through its CPU interpreter (``TRITON_INTERPRET=1``)."""
-    return os.environ.get("TRITON_INTERPRET", "0") not in ("", "0")
-
-
-def available(device) -> str | None:
-    """None when ``rasterizer=triton`` can run on ``device``, else why not (one line)."""
-    try:
-        import triton  # noqa: F401
-    except ImportError:
-        return "needs the triton package (installed with PyTorch's CUDA wheels; pip install triton)"
-    dev = str(device).split(":")[0]
-    if dev == "cuda" or (dev == "cpu" and interpreted()):
-        return None
-    return f"runs on CUDA tensors (the device is {device}; on the CPU only under TRITON_INTERPRET=1, for tests)"
-
-
-def auto_on(device) -> bool:
-    """``rasterizer=auto`` takes these kernels for 2DGS on ``device``: a CUDA device of compute capability 8.0 or
-    newer (the GPUs Triton supports; measured on 9.0), with Triton importable."""
-    dev = torch.device(device)
-    return dev.type == "cuda" and _importable() and _capability(dev) >= (8, 0)
-
-
-@functools.cache
-def _capability(dev: torch.device) -> tuple[int, int]:
-    return torch.cuda.get_device_capability(dev)
-
-
-@functools.cache
-def _importable() -> bool:
-    try:
-        import triton  # noqa: F401
-    except ImportError:
-        return False
-    return True
 
 
 _KERNELS = None
@@ -89,28 +49,6 @@ def _kernels():
 
         _KERNELS = (k.forward_kernel, k.backward_kernel)
     return _KERNELS
-
-
-_CONSTANTS: dict = {}
-
-
-def _constants(like: Tensor, values: tuple[float, ...]) -> Tensor:
-    """``values`` as a tensor on ``like``'s device and dtype, made once per (device, dtype, values): the kernels read
-    them in the run's precision (Python floats reach Triton as float32) without a transfer to the device a step."""
-    key = (like.device, like.dtype, tuple(float(v) for v in values))
-    if key not in _CONSTANTS:
-        _CONSTANTS[key] = torch.tensor(key[2], dtype=like.dtype).to(like.device)
-    return _CONSTANTS[key]
-
-
-def _dtype(t: Tensor):
-    import triton.language as tl
-
-    if t.dtype == torch.float32:
-        return tl.float32
-    if t.dtype == torch.float64:
-        return tl.float64
-    raise TypeError(f"triton rasteriser: float32 or float64 tensors, got {t.dtype}")
 
 
 # How the compositing backward sums a pair's 21 gradient columns over a tile's pixels. Its kernel on one view of
@@ -153,7 +91,7 @@ class _Composite2DTriton(torch.autograd.Function):
         has_bg = bg.numel() == 3
         fwd[(C * TX * TY,)](table, box, offsets, ids, prm, bg if has_bg else table, rgb, nrm, tf, alpha, wz, depth,
                             med, dist, m1, m2, mref, last, medi, H, W, TX, TY, float(near),
-                            HAS_BG=has_bg, TILE=tile, BLOCK=_block(tile), DT=_dtype(table), NCOL=TABLE,
+                            HAS_BG=has_bg, TILE=tile, BLOCK=_block(tile), DT=tl_dtype(table), NCOL=TABLE,
                             MIN_ALPHA_=MIN_ALPHA, MAX_ALPHA_=MAX_ALPHA, MIN_T_=MIN_T, num_warps=_warps(tile))
         ctx.save_for_backward(table, box, offsets, ids, prm, bg, tf, alpha, wz, m1, m2, mref, last, medi)
         ctx.sizes = (M, C, H, W, tile, float(near), bool(geo))
@@ -177,7 +115,7 @@ class _Composite2DTriton(torch.autograd.Function):
         bwd[(C * TX * TY,)](table, box, offsets, ids, prm, bg if has_bg else table, tf, alpha, wz, m1, m2, mref,
                             last, medi, *gs, grad, H, W, TX, TY, near,
                             HAS_BG=has_bg, G_RGB=has[0], G_NRM=has[1], G_ALPHA=has[2], G_DEPTH=has[3], G_MED=has[4],
-                            G_DIST=has[5], GEO=geo, TILE=tile, BLOCK=_block(tile), DT=_dtype(table), NCOL=TABLE,
+                            G_DIST=has[5], GEO=geo, TILE=tile, BLOCK=_block(tile), DT=tl_dtype(table), NCOL=TABLE,
                             MAX_ALPHA_=MAX_ALPHA, MIN_ALPHA_=MIN_ALPHA, REDUCE=reduce, NW=nw, num_warps=_warps(tile))
         return grad, None, None, None, None, None, None, None, None, None, None, None
 
@@ -210,6 +148,6 @@ def composite2d_triton(table: Tensor, box: Tensor, offsets: Tensor, ids: Tensor,
         raise RuntimeError(f"rasterizer=triton {why}")
     box32 = box.detach().clamp(-1, 1 << 30).to(torch.int32).contiguous()
     bg = table.new_empty(0) if background is None else background.detach().to(table).contiguous()
-    prm = _constants(table, (*mcoef, 1.0 / float(lowpass_sigma) ** 2))
+    prm = constants(table, (*mcoef, 1.0 / float(lowpass_sigma) ** 2))
     return _Composite2DTriton.apply(table.contiguous(), box32, offsets.contiguous(), ids.contiguous(), prm, bg,
                                     bool(geometry), int(C), int(H), int(W), int(tile), float(near))

@@ -9,7 +9,7 @@
 #            tests
 #   probe    where a non-finite value first appears, if the gsplat 2DGS run of the tests failed (nan_probe.py)
 #   launch   gsplat's 2DGS backward at 8/16/32-px tiles and its kernels' register counts
-#   tests    pytest -m cuda (with the Triton compositing's kernels against the PyTorch path)
+#   tests    pytest -m cuda (with the Triton kernels, the rasteriser's and the losses', against the PyTorch paths)
 #   profile  stage 1 of the demo: steps/s, SM utilisation, host syncs, kernels (benchmarks/gpu/stage1_profile.py;
 #            PROFILE_VARIANTS, default gs2d gs2d_gsplat (gs2d: auto, the Triton kernels on CUDA); gs2d_torch,
 #            gs2d_triton, gs3d, gs3d_gsplat when named)
@@ -92,8 +92,8 @@ fi
 
 if has tests; then
   stamp tests
-  if [ "${GSPLAT:-1}" = 0 ]; then SEL=(tests/test_cuda.py tests/test_triton2d.py -k "not gsplat")
-  else SEL=(tests/test_cuda.py tests/test_gsplat_bridge.py tests/test_triton2d.py); fi
+  if [ "${GSPLAT:-1}" = 0 ]; then SEL=(tests/test_cuda.py tests/test_triton2d.py tests/test_triton_losses.py -k "not gsplat")
+  else SEL=(tests/test_cuda.py tests/test_gsplat_bridge.py tests/test_triton2d.py tests/test_triton_losses.py); fi
   timeout "${TESTS_TIMEOUT:-420}" python3 -m pytest -q -m cuda "${SEL[@]}" -p no:cacheprovider \
     -o addopts="" -W ignore::DeprecationWarning 2>&1 | tee "$OUT/cuda_tests.log" | tail -25
 fi

@@ -7,15 +7,15 @@ specimen mask count (falls back to every pixel when the batch has no mask).
 
 :func:`arcsem.imageops.ssim_map` is the pure, differentiable SSIM used by the ``dssim`` loss and by the
 SSIM metric (Wang et al. 2004, constants ``C1 = 0.01^2``, ``C2 = 0.03^2`` for data range 1, zero padding as
-in 3DGS/2DGS); the loss computes the same map with one fused C++ kernel on the CPU (``impl``,
-:mod:`arcsem.losses.fused`).
+in 3DGS/2DGS); the loss computes the same map with one fused C++ kernel on the CPU and four Triton kernels on CUDA
+(``impl``, :mod:`arcsem.losses.fused`, :mod:`arcsem.losses.triton_ssim`).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import ClassVar
 
-from arcsem.losses.fused import fused_ssim_map, usable
+from arcsem.losses.fused import fused_ssim_map, ssim_path
 from torch import Tensor
 
 from arcsem.imageops import gaussian_window, ssim_map
@@ -80,12 +80,17 @@ class DSSIM(Loss):
         window: int = 11  # Gaussian window size (pixels)
         sigma: float = 1.5  # Gaussian window standard deviation (pixels)
         masked: bool = False  # average the SSIM map inside the specimen mask only
-        # the fused C++ kernel (losses/fused.py) for CPU images: auto (it where it builds), torch, cpp
-        impl: str = checked("auto", choices=("auto", "torch", "cpp"))
+        # the SSIM map's path (losses/fused.py ssim_path): auto (the fused C++ kernel on the CPU where it builds,
+        # the Triton kernels on CUDA where the rasteriser's run), torch, cpp, triton
+        impl: str = checked("auto", choices=("auto", "torch", "cpp", "triton"))
 
     def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
         if batch.images.ndim != 4:
             raise ValueError("dssim needs image batches [C,H,W,3]; ray batches cannot compute SSIM")
-        fused = not batch.images.requires_grad and usable(self.cfg.impl, "dssim.impl", out["rgb"], batch.images)
-        s = (fused_ssim_map if fused else ssim_map)(out["rgb"], batch.images, self.cfg.window, self.cfg.sigma)
+        path = ssim_path(self.cfg.impl, out["rgb"], batch.images)
+        if path == "triton":
+            from arcsem.losses.triton_ssim import triton_ssim_map as fn  # imports triton: on first use only
+        else:
+            fn = fused_ssim_map if path == "cpp" else ssim_map
+        s = fn(out["rgb"], batch.images, self.cfg.window, self.cfg.sigma)
         return 1.0 - masked_mean(s, batch.masks if self.cfg.masked else None)

@@ -1,4 +1,5 @@
-"""Compile the Triton 2DGS kernels (``rasterizer=triton``) for a GPU architecture, on a machine without a GPU.
+"""Compile the Triton kernels (the 2DGS rasteriser's, ``rasterizer=triton``, and the D-SSIM loss's) for a GPU
+architecture, on a machine without a GPU.
 
 Triton compiles ahead of time for a named target (its own LLVM and ptxas, no driver): this checks that the kernels
 are ones Triton compiles (its interpreter, which the CPU tests run, accepts more) and reports what the GPU would get:
@@ -43,7 +44,17 @@ def signatures(tile: int) -> dict[str, tuple[dict, dict]]:
     pb = {**{k: f for k in ("means", "quats", "scales", "P", "view", "gtab", "g_means", "g_quats", "g_scales", "g_opac",
                             "g_colors", "g_shift")}, "N": "i32", "C": "i32"}
     proj = {"ORTHO": False, "NCOL": TABLE, "BLOCK": 128}
-    return {"project_forward": (pf, proj), "project_backward": (pb, {**proj, "DT": "float32"}),
+    from arcsem.losses.triton_ssim import BLOCK as SSIM_BLOCK
+
+    ssim = {"K": 11, "BLOCK": SSIM_BLOCK}  # the D-SSIM loss's kernels (losses/triton_ssim.py): 11-tap window, RGB
+    ssim_sig = {
+        "_row_pass_forward": ({"x": f, "y": f, "g": f, "h": f, "L": "i32", "n": "i32"}, {**ssim, "CH": 3}),
+        "_column_pass_forward": ({"h": f, "g": f, "prm": f, "smap": f, "stats": f, "H": "i32", "L": "i32", "n": "i32"},
+                                 ssim),
+        "_row_pass_backward": ({"gmap": f, "stats": f, "g": f, "prm": f, "h": f, "L": "i32", "n": "i32"},
+                               {**ssim, "CH": 3}),
+        "_column_pass_backward": ({"h": f, "g": f, "x": f, "y": f, "gx": f, "H": "i32", "L": "i32", "n": "i32"}, ssim)}
+    return {**ssim_sig, "project_forward": (pf, proj), "project_backward": (pb, {**proj, "DT": "float32"}),
             "footprint_kernel": (foot, {"TILE": tile, "BLOCK": 256}),
             "forward_kernel": (fwd, {**fwd_c, "DT": "float32"}), "backward_kernel": (bwd, {**bwd_c, "DT": "float32"})}
 
@@ -87,6 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     import triton.language as tl
     from arcsem.backbones.gaussians import _triton2d_footprint, _triton2d_kernels, _triton2d_project, triton2d
     from arcsem.backbones.gaussians.triton2d import _warps
+    from arcsem.losses import triton_ssim
     from triton.backends.compiler import GPUTarget
     from triton.compiler import ASTSource
 
@@ -98,9 +110,10 @@ def main(argv: list[str] | None = None) -> int:
         consts = {k: getattr(tl, v) if k == "DT" else v for k, v in consts.items()}
         sig = {**sig, **{k: "constexpr" for k in consts}}
         module = {"footprint_kernel": _triton2d_footprint, "project_forward": _triton2d_project,
-                  "project_backward": _triton2d_project}.get(name, _triton2d_kernels)
+                  "project_backward": _triton2d_project}.get(name, triton_ssim if "pass" in name else _triton2d_kernels)
         options = ({"num_warps": 4, "enable_fp_fusion": False} if name == "footprint_kernel"
-                   else {"num_warps": 4} if name.startswith("project") else {"num_warps": args.warps})
+                   else {"num_warps": 4} if name.startswith("project")
+                   else {"num_warps": 8} if "pass" in name else {"num_warps": args.warps})
         try:
             k = triton.compile(ASTSource(fn=getattr(module, name), signature=sig, constexprs=consts),
                                target=GPUTarget("cuda", args.arch, 32), options=options)

@@ -68,8 +68,9 @@ class Cameras:
         if isinstance(idx, int):
             idx = slice(idx, idx + 1) if idx >= 0 else slice(idx, (idx + 1) or None)
         out = replace(self, world_to_cam=self.world_to_cam[idx], K=self.K[idx], image_ids=self.image_ids[idx])
-        if not self.world_to_cam.requires_grad:  # a training batch: one slice of the split's centres, not ten operators
-            out.__dict__["_centers"] = (out.world_to_cam, out.world_to_cam._version, self.centers[idx])
+        if self._stamp() is not None:  # a training batch: slices of the split's derived values, not their operators
+            self.centers  # noqa: B018 - kept on self, sliced below
+            out.__dict__["_derived"] = (out._stamp(), {k: _slice(v, idx) for k, v in self._derived_now().items()})
         return out
 
     def to(self, device=None, dtype=None) -> Cameras:
@@ -79,9 +80,42 @@ class Cameras:
             K=self.K.to(device=device, dtype=dtype),
             image_ids=self.image_ids.to(device=device),
         )
-        if out.world_to_cam is self.world_to_cam and "_centers" in self.__dict__:
-            out.__dict__["_centers"] = self.__dict__["_centers"]  # nothing moved: the centres still hold
+        if out.world_to_cam is self.world_to_cam and out.K is self.K and "_derived" in self.__dict__:
+            out.__dict__["_derived"] = self.__dict__["_derived"]  # nothing moved: the derived values still hold
         return out
+
+    # ---------------------------------------------------------------- values derived from poses and intrinsics
+    def _stamp(self) -> tuple | None:
+        """What derived values depend on: the pose and intrinsics tensors and their in-place versions (None: they
+        need gradients, so nothing is kept: a graph would outlive its step)."""
+        w, K = self.world_to_cam, self.K
+        if w.requires_grad or K.requires_grad:
+            return None
+        return (w, w._version, K, K._version)
+
+    def _derived_now(self) -> dict:
+        """What is kept and still holds (``{}``: nothing)."""
+        kept, stamp = self.__dict__.get("_derived"), self._stamp()
+        if kept is None or stamp is None:
+            return {}
+        (w, w_version, K, K_version), values = kept
+        same = w is stamp[0] and w_version == stamp[1] and K is stamp[2] and K_version == stamp[3]
+        return values if same else {}
+
+    def derived(self, key, make):
+        """``make()``, a tensor (or tuple of tensors) with a leading camera axis that depends only on the poses and
+        intrinsics, kept on this batch under ``key`` while they stay the same tensors, unchanged in place and not
+        differentiable; a batch indexed from this one (``cams[idx]``) starts with the slices of what is kept. A
+        training step asks for the centres, rays and the like several times, each tens of operators a GPU's host
+        would issue (benchmarks/gpu/op_count.py)."""
+        values = self._derived_now()
+        if key in values:
+            return values[key]
+        value = make()
+        stamp = self._stamp()
+        if stamp is not None:
+            self.__dict__["_derived"] = (stamp, {**values, key: value})
+        return value
 
     @staticmethod
     def cat(batches: list[Cameras]) -> Cameras:
@@ -113,17 +147,13 @@ class Cameras:
     def centers(self) -> Tensor:
         """``[C, 3]`` camera centres (for orthographic cameras: the origin of the camera plane).
 
-        Kept while ``world_to_cam`` is the same tensor, unchanged in place and not differentiable: a render asks
-        for them several times (SH view directions, projection, normals, densification), each ten operators."""
-        w = self.world_to_cam
-        kept = self.__dict__.get("_centers")
-        if kept is not None and kept[0] is w and kept[1] == w._version:
-            return kept[2]
-        R, t = w[:, :3, :3], w[:, :3, 3]
-        c = -(R.transpose(1, 2) @ t[..., None])[..., 0]
-        if not w.requires_grad:
-            self.__dict__["_centers"] = (w, w._version, c)
-        return c
+        Kept (:meth:`derived`): a render asks for them several times (SH view directions, projection, normals,
+        densification), each ten operators."""
+        def make():
+            R, t = self.world_to_cam[:, :3, :3], self.world_to_cam[:, :3, 3]
+            return -(R.transpose(1, 2) @ t[..., None])[..., 0]
+
+        return self.derived("centers", make)
 
     @property
     def forward(self) -> Tensor:
@@ -225,6 +255,10 @@ def opengl_to_opencv(c2w: Tensor) -> Tensor:
     """Camera-to-world ``[..., 4, 4]`` in OpenGL axes (x right, y up, z back) -> OpenCV axes."""
     flip = torch.diag(torch.tensor([1.0, -1.0, -1.0, 1.0], dtype=c2w.dtype, device=c2w.device))
     return c2w @ flip
+
+
+def _slice(value, idx):
+    return tuple(v[idx] for v in value) if isinstance(value, tuple) else value[idx]
 
 
 def look_at(eye: Tensor, target: Tensor, up: Tensor) -> Tensor:

@@ -107,3 +107,26 @@ def test_the_ssim_window_is_made_once_and_is_an_ordinary_tensor():
     x = torch.arange(11, dtype=torch.float64) - 5
     ref = torch.exp(-x**2 / (2 * 1.5**2))
     torch.testing.assert_close(gaussian_window(11, 1.5, torch.float64), ref / ref.sum())
+
+
+def test_derived_values_follow_the_batch_and_its_intrinsics():
+    """Values kept on a batch (the normal-consistency loss's affine rays here) are sliced into an indexed batch,
+    equal to what it would compute itself, and made again when the intrinsics change in place."""
+    from arcsem.losses.fused import _affine_rays, _affine_rays_of
+    from test_fused_losses import _nc_inputs
+
+    _, _, _, cams = _nc_inputs(False)
+    whole = _affine_rays(cams, torch.float64)
+    assert _affine_rays(cams, torch.float64) is whole
+    one = cams[1]
+    with Ops() as ops:
+        kept = _affine_rays(one, torch.float64)
+    assert not ops.names, ops.names
+    for a, b in zip(kept, _affine_rays_of(one, torch.float64)):
+        torch.testing.assert_close(a, b, rtol=0, atol=1e-15)
+    with torch.no_grad():
+        one.K[0, 0, 0] *= 2  # a view's own intrinsics changed in place: nothing kept holds
+    fresh = _affine_rays(one, torch.float64)
+    assert not torch.equal(fresh[1], kept[1])
+    for a, b in zip(fresh, _affine_rays_of(one, torch.float64)):
+        torch.testing.assert_close(a, b, rtol=0, atol=1e-15)

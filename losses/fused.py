@@ -17,7 +17,7 @@ from arcsem import cext
 from arcsem.imageops import gaussian_window
 from arcsem.tritonsupport import auto_on
 
-__all__ = ["EXTENSION", "fused_normal_consistency", "fused_ssim_map", "ssim_path", "usable"]
+__all__ = ["EXTENSION", "fused_normal_consistency", "fused_ssim_map", "kernel_path", "usable"]
 
 CPP_DIR = Path(__file__).parent / "cpp"
 EXTENSION = cext.Extension(prefix="arcsem_losses", sources=tuple(CPP_DIR / n for n in ("ssim.cpp", "normals.cpp",
@@ -34,15 +34,16 @@ def usable(impl: str, key: str, *inputs: Tensor) -> bool:
     return cext.resolve_impl(impl, EXTENSION, inputs[0].device.type, key=key) == "cpp"
 
 
-def ssim_path(impl: str, x: Tensor, y: Tensor) -> str:
-    """The path of the D-SSIM loss's SSIM map for ``impl`` (``auto|torch|cpp|triton``, ``dssim.impl``) and these
-    images: ``cpp`` (this module's kernel, CPU), ``triton`` (:mod:`arcsem.losses.triton_ssim`, CUDA; ``auto``'s
-    choice where the rasteriser's Triton kernels run) or ``torch``. The fused paths need a target without gradient."""
-    if y.requires_grad or x.dtype not in (torch.float32, torch.float64):
+def kernel_path(impl: str, key: str, *inputs: Tensor) -> str:
+    """The path a fused loss takes for ``impl`` (``auto|torch|cpp|triton``, the config value ``key``) and its
+    ``inputs``: ``cpp`` (this module's kernels, CPU tensors), ``triton`` (:mod:`arcsem.losses.triton_ssim`,
+    :mod:`arcsem.losses.triton_normals`; CUDA, ``auto``'s choice where the rasteriser's Triton kernels run) or
+    ``torch`` (any other dtype or device)."""
+    if any(t.dtype not in (torch.float32, torch.float64) for t in inputs):
         return "torch"
-    if impl == "triton" or (impl == "auto" and auto_on(x.device)):
+    if impl == "triton" or (impl == "auto" and auto_on(inputs[0].device)):
         return "triton"
-    return "cpp" if usable(impl, "dssim.impl", x, y) else "torch"
+    return "cpp" if usable(impl, key, *inputs) else "torch"
 
 
 def _ext():

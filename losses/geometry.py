@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
-from arcsem.losses.fused import fused_normal_consistency, usable
+from arcsem.losses.fused import fused_normal_consistency, kernel_path
 from torch import Tensor
 
 from arcsem.cameras import Cameras
@@ -54,8 +54,9 @@ class NormalConsistency(Loss):
         start_step: int = 7000
         official: bool = True
         depth: str = "expected"
-        # the fused C++ kernel (losses/fused.py, official form) for CPU tensors: auto (it where it builds), torch, cpp
-        impl: str = checked("auto", choices=("auto", "torch", "cpp"))
+        # the official form's path (losses/fused.py kernel_path): auto (the fused C++ kernel on the CPU where it
+        # builds, the Triton kernels on CUDA where the rasteriser's run), torch, cpp, triton
+        impl: str = checked("auto", choices=("auto", "torch", "cpp", "triton"))
 
     def __init__(self, cfg: Config, **runtime):
         super().__init__(cfg)
@@ -67,7 +68,15 @@ class NormalConsistency(Loss):
 
     def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
         depth = out["median_depth"] if self.cfg.depth == "median" else out["depth"]
-        if self.cfg.official and usable(self.cfg.impl, "normal_consistency.impl", depth, out["normal"]):
+        path = kernel_path(self.cfg.impl, "normal_consistency.impl", depth, out["normal"]) if self.cfg.official \
+            else "torch"
+        if path == "triton":
+            from arcsem.losses.triton_normals import (
+                triton_normal_consistency,  # imports triton: on first use only
+            )
+
+            return triton_normal_consistency(depth, out["normal"], out["alpha"], batch.cameras)
+        if path == "cpp":
             return fused_normal_consistency(depth, out["normal"], out["alpha"], batch.cameras)
         surf = depth_normals(depth, batch.cameras)
         alpha = out["alpha"].detach()

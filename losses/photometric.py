@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
-from arcsem.losses.fused import fused_ssim_map, ssim_path
+from arcsem.losses.fused import fused_ssim_map, kernel_path
 from torch import Tensor
 
 from arcsem.imageops import gaussian_window, ssim_map
@@ -80,14 +80,16 @@ class DSSIM(Loss):
         window: int = 11  # Gaussian window size (pixels)
         sigma: float = 1.5  # Gaussian window standard deviation (pixels)
         masked: bool = False  # average the SSIM map inside the specimen mask only
-        # the SSIM map's path (losses/fused.py ssim_path): auto (the fused C++ kernel on the CPU where it builds,
+        # the SSIM map's path (losses/fused.py kernel_path): auto (the fused C++ kernel on the CPU where it builds,
         # the Triton kernels on CUDA where the rasteriser's run), torch, cpp, triton
         impl: str = checked("auto", choices=("auto", "torch", "cpp", "triton"))
 
     def forward(self, out: RenderOutput, batch: Batch, step: int) -> Tensor:
         if batch.images.ndim != 4:
             raise ValueError("dssim needs image batches [C,H,W,3]; ray batches cannot compute SSIM")
-        path = ssim_path(self.cfg.impl, out["rgb"], batch.images)
+        # the fused paths take a target without gradient
+        path = "torch" if batch.images.requires_grad else kernel_path(self.cfg.impl, "dssim.impl", out["rgb"],
+                                                                      batch.images)
         if path == "triton":
             from arcsem.losses.triton_ssim import triton_ssim_map as fn  # imports triton: on first use only
         else:

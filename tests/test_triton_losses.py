@@ -13,7 +13,7 @@ if not torch.cuda.is_available():
 
 pytest.importorskip("triton")
 
-from test_fused_losses import _pair
+from test_fused_losses import _nc_inputs, _pair
 
 from arcsem.imageops import ssim_map
 from arcsem.plugins import Batch
@@ -55,33 +55,46 @@ def _compare_ssim(shape, size, sigma, dtype, tol):
     assert float((g1 - g0).abs().max() / g0.abs().max()) < tol
 
 
-def test_dssim_auto_takes_triton_where_the_rasteriser_does(monkeypatch):
-    """``dssim.impl=auto``: the Triton kernels on a CUDA device Triton supports (capability faked here), the C++ or
-    PyTorch path on the CPU, PyTorch on older GPUs and for a target that needs its gradient; ``impl=triton`` on a
-    device it cannot run on is a config error naming the key."""
-    from arcsem.losses.fused import ssim_path
+def test_auto_takes_the_losses_triton_kernels_where_the_rasteriser_does(monkeypatch):
+    """``dssim.impl`` and ``normal_consistency.impl`` ``auto``: the Triton kernels on a CUDA device Triton supports
+    (capability faked here), the C++ or PyTorch path on the CPU, PyTorch on older GPUs, for half precision and for a
+    D-SSIM target that needs its gradient; ``impl=triton`` on a device it cannot run on is a config error naming the
+    key."""
+    import arcsem.losses.triton_normals
+    import arcsem.losses.triton_ssim  # noqa: F401 - imported (interpreted) before TRITON_INTERPRET=0 below
+    from arcsem.losses.fused import kernel_path
 
     from arcsem import tritonsupport
     from arcsem.errors import ConfigError
 
-    class Cuda:  # what ssim_path reads of a tensor
+    class Cuda:  # what kernel_path reads of a tensor
         device, dtype, requires_grad = torch.device("cuda"), torch.float32, False
 
-    x, y = Cuda(), Cuda()
+    x = Cuda()
     monkeypatch.setattr(tritonsupport, "_capability", lambda dev: (9, 0))
-    assert ssim_path("auto", x, y) == "triton" and ssim_path("torch", x, y) == "torch"
+    assert kernel_path("auto", "dssim.impl", x, x) == "triton" and kernel_path("torch", "dssim.impl", x, x) == "torch"
+    half = Cuda()
+    half.dtype = torch.float16
+    assert kernel_path("auto", "dssim.impl", half, half) == "torch"
     monkeypatch.setattr(tritonsupport, "_capability", lambda dev: (7, 5))
-    assert ssim_path("auto", x, y) == "torch"
+    assert kernel_path("auto", "normal_consistency.impl", x, x) == "torch"
     cpu = torch.zeros(1, 4, 4, 3)
-    assert ssim_path("auto", cpu, cpu) in ("cpp", "torch")
-    assert ssim_path("auto", cpu, cpu.clone().requires_grad_()) == "torch"
+    assert kernel_path("auto", "dssim.impl", cpu, cpu) in ("cpp", "torch")
 
+    from arcsem.losses.geometry import NormalConsistency
     from arcsem.losses.photometric import DSSIM
 
+    target = cpu.clone().requires_grad_()  # a target with a gradient: the PyTorch SSIM, even when triton is asked for
+    DSSIM(DSSIM.Config(impl="triton"))({"rgb": cpu}, Batch(cameras=None, images=target, indices=None), 0).backward()
+    assert target.grad is not None
     monkeypatch.setenv("TRITON_INTERPRET", "0")
     batch = Batch(cameras=None, images=cpu, indices=torch.arange(1))
     with pytest.raises(ConfigError, match="dssim.impl=triton runs on CUDA tensors"):
         DSSIM(DSSIM.Config(impl="triton"))({"rgb": cpu}, batch, 0)
+    depth, normal, alpha, cams = _nc_inputs(False, torch.float32)
+    with pytest.raises(ConfigError, match="normal_consistency.impl=triton runs on CUDA tensors"):
+        NormalConsistency(NormalConsistency.Config(impl="triton"))(
+            {"depth": depth, "normal": normal, "alpha": alpha}, Batch(cameras=cams, images=None, indices=None), 0)
 
 
 @pytest.mark.parametrize("masked", [False, True])
@@ -99,3 +112,36 @@ def test_dssim_loss_on_triton_equals_torch(masked):
         res[impl] = (loss.detach().cpu(), torch.autograd.grad(loss, xi)[0].cpu())
     assert abs(float(res["triton"][0] - res["torch"][0])) < 1e-6
     assert float((res["triton"][1] - res["torch"][1]).abs().max() / res["torch"][1].abs().max()) < 1e-4
+
+
+@pytest.mark.parametrize("ortho,dtype,tol", [(False, torch.float64, 1e-10), (True, torch.float64, 1e-10),
+                                             (False, torch.float32, 2e-5)], ids=["pinhole-f64", "ortho-f64", "f32"])
+def test_triton_normal_consistency_equals_torch(ortho, dtype, tol):
+    """The official normal consistency (a bumpy depth map with a flat patch, an alpha with zeros, two views): the
+    loss and its gradients in the depth and the rendered normals."""
+    _compare_normals(ortho, dtype, tol, DEVICE)
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_triton_normal_consistency_on_cuda_equals_torch_on_cpu():
+    _compare_normals(False, torch.float32, 2e-5, "cuda")
+    _compare_normals(True, torch.float64, 1e-10, "cuda")
+
+
+def _compare_normals(ortho, dtype, tol, device):
+    from arcsem.losses.geometry import NormalConsistency
+
+    depth, normal, alpha, cams = _nc_inputs(ortho, dtype)
+    res = []
+    for impl, dev in (("torch", "cpu"), ("triton", device)):
+        d, n = depth.clone().to(dev).requires_grad_(), normal.clone().to(dev).requires_grad_()
+        loss = NormalConsistency(NormalConsistency.Config(impl=impl))(
+            {"depth": d, "normal": n, "alpha": alpha.to(dev)},
+            Batch(cameras=cams.to(device=dev), images=None, indices=None), 0)
+        res.append([t.detach().cpu() for t in (loss, *torch.autograd.grad(1.7 * loss, (d, n)))])
+    (l0, gd0, gn0), (l1, gd1, gn1) = res
+    assert 0.5 < float(l0) < 1.5 and float(gd0.abs().max()) > 0
+    assert abs(float(l1 - l0)) < tol
+    assert float((gd1 - gd0).abs().max() / gd0.abs().max()) < tol
+    assert float((gn1 - gn0).abs().max() / gn0.abs().max()) < tol

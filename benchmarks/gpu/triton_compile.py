@@ -1,5 +1,5 @@
-"""Compile the Triton kernels (the 2DGS rasteriser's, ``rasterizer=triton``, and the D-SSIM loss's) for a GPU
-architecture, on a machine without a GPU.
+"""Compile the Triton kernels (the 2DGS rasteriser's, ``rasterizer=triton``, and the D-SSIM and normal-consistency
+losses') for a GPU architecture, on a machine without a GPU.
 
 Triton compiles ahead of time for a named target (its own LLVM and ptxas, no driver): this checks that the kernels
 are ones Triton compiles (its interpreter, which the CPU tests run, accepts more) and reports what the GPU would get:
@@ -54,7 +54,14 @@ def signatures(tile: int) -> dict[str, tuple[dict, dict]]:
         "_row_pass_backward": ({"gmap": f, "stats": f, "g": f, "prm": f, "h": f, "L": "i32", "n": "i32"},
                                {**ssim, "CH": 3}),
         "_column_pass_backward": ({"h": f, "g": f, "x": f, "y": f, "gx": f, "H": "i32", "L": "i32", "n": "i32"}, ssim)}
-    return {**ssim_sig, "project_forward": (pf, proj), "project_backward": (pb, {**proj, "DT": "float32"}),
+    from arcsem.losses.triton_normals import BLOCK as NC_BLOCK
+
+    px = {"n_pix": "i32", "H": "i32", "W": "i32"}  # the normal-consistency loss's (losses/triton_normals.py)
+    nc_sig = {"normals._forward": ({**{k: f for k in ("D", "o", "d", "N", "A", "part")}, **px}, {"BLOCK": NC_BLOCK}),
+              "normals._backward_normals": ({**{k: f for k in ("D", "o", "d", "N", "A", "scale", "gN", "gd")}, **px},
+                                            {"BLOCK": NC_BLOCK}),
+              "normals._backward_depth": ({"d": f, "gd": f, "gD": f, **px}, {"BLOCK": NC_BLOCK})}
+    return {**ssim_sig, **nc_sig, "project_forward": (pf, proj), "project_backward": (pb, {**proj, "DT": "float32"}),
             "footprint_kernel": (foot, {"TILE": tile, "BLOCK": 256}),
             "forward_kernel": (fwd, {**fwd_c, "DT": "float32"}), "backward_kernel": (bwd, {**bwd_c, "DT": "float32"})}
 
@@ -98,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     import triton.language as tl
     from arcsem.backbones.gaussians import _triton2d_footprint, _triton2d_kernels, _triton2d_project, triton2d
     from arcsem.backbones.gaussians.triton2d import _warps
-    from arcsem.losses import triton_ssim
+    from arcsem.losses import triton_normals, triton_ssim
     from triton.backends.compiler import GPUTarget
     from triton.compiler import ASTSource
 
@@ -110,12 +117,14 @@ def main(argv: list[str] | None = None) -> int:
         consts = {k: getattr(tl, v) if k == "DT" else v for k, v in consts.items()}
         sig = {**sig, **{k: "constexpr" for k in consts}}
         module = {"footprint_kernel": _triton2d_footprint, "project_forward": _triton2d_project,
-                  "project_backward": _triton2d_project}.get(name, triton_ssim if "pass" in name else _triton2d_kernels)
+                  "project_backward": _triton2d_project}.get(name, triton_ssim if "pass" in name else
+                                                             triton_normals if name.startswith("normals.")
+                                                             else _triton2d_kernels)
         options = ({"num_warps": 4, "enable_fp_fusion": False} if name == "footprint_kernel"
-                   else {"num_warps": 4} if name.startswith("project")
+                   else {"num_warps": 4} if name.startswith(("project", "normals."))
                    else {"num_warps": 8} if "pass" in name else {"num_warps": args.warps})
         try:
-            k = triton.compile(ASTSource(fn=getattr(module, name), signature=sig, constexprs=consts),
+            k = triton.compile(ASTSource(fn=getattr(module, name.split(".")[-1]), signature=sig, constexprs=consts),
                                target=GPUTarget("cuda", args.arch, 32), options=options)
         except Exception as e:  # noqa: BLE001 - report any compiler failure as one line
             failed += 1

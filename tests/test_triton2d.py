@@ -164,14 +164,15 @@ def test_triton_training_step_reads_back_only_the_binning():
 
 
 def test_triton_kernels_compile_for_a_gpu_here():
-    """Triton compiles the five kernels for sm_90 without a GPU (its interpreter, which the tests above use, accepts
-    constructs the compiler rejects), with no register spills."""
+    """Triton compiles the kernels for sm_90 without a GPU (its interpreter, which the tests use, accepts constructs
+    the compiler rejects), with no register spills: the rasteriser's five, the SH colours' two and the losses' seven
+    (tests/test_triton_losses.py)."""
     env = {k: v for k, v in os.environ.items() if k != "TRITON_INTERPRET"}
     r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "gpu" / "triton_compile.py"), "--arch", "90"],
                        capture_output=True, text=True, env=env, cwd=ROOT, timeout=600, check=False)
     assert r.returncode == 0, r.stdout + r.stderr
     lines = [ln for ln in r.stdout.splitlines() if "compiled for sm_90" in ln]
-    assert len(lines) == 5 and all("0 bytes of spill" in ln for ln in lines), r.stdout
+    assert len(lines) == 14 and all("0 bytes of spill" in ln for ln in lines), r.stdout
 
 
 def test_triton_choice_says_where_it_cannot_run(monkeypatch):
@@ -226,3 +227,45 @@ def test_auto_takes_the_triton_kernels_for_2dgs_on_cuda_only(monkeypatch):
     monkeypatch.setattr(tritonsupport, "_capability", lambda dev: (8, 0))
     monkeypatch.setattr(tritonsupport, "_importable", lambda: False)
     assert gs2d._impl("cuda") == "torch"
+
+
+@pytest.mark.parametrize("degree,ortho,act,dtype,tol", [
+    (3, False, True, torch.float64, 1e-10), (3, True, True, torch.float64, 1e-10), (1, False, False, torch.float64, 1e-10),
+    (0, False, True, torch.float64, 1e-10), (3, False, True, torch.float32, 2e-5)],
+    ids=["deg3-act", "deg3-ortho", "deg1", "deg0", "deg3-f32"])
+def test_triton_sh_colours_equal_torch(degree, ortho, act, dtype, tol):
+    """The SH colours' kernels (``rasterizer=triton``) against :meth:`GaussianModel.colors`' PyTorch path (backbones/
+    sh.py and ACT.apply): colours, and the gradients of the means, the coefficients and the ACT parameters; colours
+    that clamp at 0 and ACT outputs that clamp at 0 and 1 among them."""
+    from arcsem.backbones.gaussians.model import GaussianModel
+
+    from arcsem.act import ACT
+    from arcsem.cameras import Cameras, look_at
+
+    g = torch.Generator().manual_seed(3)
+    N, C = 70, 2
+    r = lambda *shape: torch.randn(*shape, generator=g, dtype=dtype)
+    model = GaussianModel({"means": r(N, 3), "quats": r(N, 4), "log_scales": r(N, 2), "opacity_logits": r(N),
+                           "sh_dc": 0.8 * r(N, 1, 3), "sh_rest": 0.3 * r(N, 15, 3)}, sh_degree=3).to(dtype)
+    eye = torch.tensor([[0.3, -0.2, -4.0], [-2.5, 0.1, -3.5]], dtype=dtype)
+    w2c = look_at(eye, torch.zeros_like(eye), torch.tensor([[0.0, -1.0, 0.0]] * 2, dtype=dtype))
+    K = torch.tensor([[40.0, 0, 8], [0, 40.0, 6], [0, 0, 1]], dtype=dtype).expand(C, 3, 3)
+    cams = Cameras(w2c, K, 16, 12, "orthographic" if ortho else "pinhole", image_ids=torch.tensor([1, 0]))
+    a = None
+    if act:
+        a = ACT(2).to(dtype)
+        with torch.no_grad():
+            a.weight.add_(0.3 * r(*a.weight.shape))
+            a.bias.add_(0.2 * r(*a.bias.shape))
+    cot = torch.randn(C, N, 3, generator=g, dtype=dtype)
+    res = {}
+    for impl in ("torch", "triton"):
+        out = model.colors(cams, degree=degree, impl=impl, act=a)
+        wrt = [model.means, model.sh_dc, model.sh_rest] + ([a.weight, a.bias] if act else [])
+        grads = torch.autograd.grad((out * cot).sum(), wrt, allow_unused=True)
+        res[impl] = (out.detach(), [torch.zeros_like(w) if gr is None else gr for w, gr in zip(wrt, grads)])
+    (o0, g0), (o1, g1) = res["torch"], res["triton"]
+    assert float((o0 == 0).float().mean()) > 0.01 or act, "some colours should clamp at 0"
+    assert_rel(o1, o0, tol, "colours")
+    for name, x, y in zip(("means", "sh_dc", "sh_rest", "act.weight", "act.bias"), g1, g0):
+        assert_rel(x, y, tol, f"d/d{name}")

@@ -111,7 +111,7 @@ class GaussianBackbone(Backbone):
         cams = cams.to(device=m.means.device, dtype=m.means.dtype)
         impl = self._impl(m.means.device)
         with region("arcsem::render/sh"):  # SH colours and ACT; profiler regions: benchmarks/profile_step.py
-            colors = m.colors(cams, impl="cpp" if impl == "cpp" else "torch", act=self.act)  # [C, N, 3]
+            colors = m.colors(cams, impl=_sh_impl(impl), act=self.act)  # [C, N, 3]
         if background is None:
             background = self._default_background(m.means)
         means, quats, scales, opacities = self.splat_params()
@@ -135,7 +135,7 @@ class GaussianBackbone(Backbone):
         bg = self._default_background(m.means)
         with torch.no_grad():
             means, quats, scales, opacities = self.splat_params()
-            sh = "cpp" if impl == "cpp" else "torch"
+            sh = _sh_impl(impl)
             out = self._rasterize(means, quats, scales, opacities, m.colors(cams, impl=sh), cams, background=bg,
                                   tile=self.cfg.tile, chunk_tiles=self.cfg.chunk_tiles, impl=impl, colour_weights=True)
         weights = out.pop("colour_weights")
@@ -308,3 +308,9 @@ class GaussianBackbone(Backbone):
         if len(self.stats) != len(self.model):  # the model was edited outside densification: start afresh
             self.stats = DensifyStats.zeros(len(self.model), device=self.model.means.device)
         return result
+
+
+def _sh_impl(impl: str) -> str:
+    """The SH colours' path for the rasteriser's ``impl``: the fused C++ kernel with ``cpp``, the Triton kernels with
+    ``triton``, else PyTorch's (gsplat's rasteriser takes PyTorch colours)."""
+    return impl if impl in ("cpp", "triton") else "torch"

@@ -105,12 +105,16 @@ class GaussianModel(nn.Module):
         image ids if given (:meth:`ACT.apply`).
 
         ``degree`` defaults to :attr:`active_sh_degree`; ``impl``: ``torch`` (:func:`eval_sh` and :meth:`ACT.apply`,
-        the reference) or ``cpp`` (one fused kernel, :func:`arcsem.backbones.gaussians.fused.sh_colors`; CPU tensors).
+        the reference), ``cpp`` (one fused kernel, :func:`arcsem.backbones.gaussians.fused.sh_colors`; CPU tensors)
+        or ``triton`` (two Triton kernels, :mod:`._triton_sh`; CUDA tensors).
         """
         deg = self._sh_active if degree is None else degree
         deg = min(deg, self.sh_degree)
-        if impl == "cpp":
-            from .fused import sh_colors
+        if impl in ("cpp", "triton"):
+            if impl == "cpp":
+                from .fused import sh_colors
+            else:
+                from ._triton_sh import sh_colors_triton as sh_colors
 
             origins = cams.forward if cams.is_ortho else cams.centers
             affine = None if act is None else act.transforms(torch.as_tensor(cams.image_ids))

@@ -1,5 +1,5 @@
-"""Compile the Triton kernels (the 2DGS rasteriser's, ``rasterizer=triton``, and the D-SSIM and normal-consistency
-losses') for a GPU architecture, on a machine without a GPU.
+"""Compile the Triton kernels (the 2DGS rasteriser's and SH colours', ``rasterizer=triton``, and the D-SSIM and
+normal-consistency losses') for a GPU architecture, on a machine without a GPU.
 
 Triton compiles ahead of time for a named target (its own LLVM and ptxas, no driver): this checks that the kernels
 are ones Triton compiles (its interpreter, which the CPU tests run, accepts more) and reports what the GPU would get:
@@ -61,7 +61,14 @@ def signatures(tile: int) -> dict[str, tuple[dict, dict]]:
               "normals._backward_normals": ({**{k: f for k in ("D", "o", "d", "N", "A", "scale", "gN", "gd")}, **px},
                                             {"BLOCK": NC_BLOCK}),
               "normals._backward_depth": ({"d": f, "gd": f, "gD": f, **px}, {"BLOCK": NC_BLOCK})}
-    return {**ssim_sig, **nc_sig, "project_forward": (pf, proj), "project_backward": (pb, {**proj, "DT": "float32"}),
+    from arcsem.backbones.gaussians._triton_sh import BLOCK as SH_BLOCK
+
+    shc = {"DEG": 3, "ORTHO": False, "ACT": True, "BLOCK": SH_BLOCK}  # the SH colours' (gaussians/_triton_sh.py)
+    sh_in = {k: f for k in ("means", "dc", "rest", "origins", "aw", "ab")}
+    sh_sig = {"sh._forward": ({**sh_in, "rgb": f, "N": "i32", "C": "i32", "R": "i32"}, shc),
+              "sh._backward": ({**sh_in, **{k: f for k in ("g", "g_means", "g_dc", "g_rest", "g_act")}, "N": "i32",
+                                "C": "i32", "R": "i32"}, shc)}
+    return {**ssim_sig, **nc_sig, **sh_sig, "project_forward": (pf, proj), "project_backward": (pb, {**proj, "DT": "float32"}),
             "footprint_kernel": (foot, {"TILE": tile, "BLOCK": 256}),
             "forward_kernel": (fwd, {**fwd_c, "DT": "float32"}), "backward_kernel": (bwd, {**bwd_c, "DT": "float32"})}
 
@@ -103,7 +110,13 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     import triton
     import triton.language as tl
-    from arcsem.backbones.gaussians import _triton2d_footprint, _triton2d_kernels, _triton2d_project, triton2d
+    from arcsem.backbones.gaussians import (
+        _triton2d_footprint,
+        _triton2d_kernels,
+        _triton2d_project,
+        _triton_sh,
+        triton2d,
+    )
     from arcsem.backbones.gaussians.triton2d import _warps
     from arcsem.losses import triton_normals, triton_ssim
     from triton.backends.compiler import GPUTarget
@@ -119,9 +132,10 @@ def main(argv: list[str] | None = None) -> int:
         module = {"footprint_kernel": _triton2d_footprint, "project_forward": _triton2d_project,
                   "project_backward": _triton2d_project}.get(name, triton_ssim if "pass" in name else
                                                              triton_normals if name.startswith("normals.")
+                                                             else _triton_sh if name.startswith("sh.")
                                                              else _triton2d_kernels)
         options = ({"num_warps": 4, "enable_fp_fusion": False} if name == "footprint_kernel"
-                   else {"num_warps": 4} if name.startswith(("project", "normals."))
+                   else {"num_warps": 4} if name.startswith(("project", "normals.", "sh."))
                    else {"num_warps": 8} if "pass" in name else {"num_warps": args.warps})
         try:
             k = triton.compile(ASTSource(fn=getattr(module, name.split(".")[-1]), signature=sig, constexprs=consts),

@@ -165,14 +165,14 @@ def test_triton_training_step_reads_back_only_the_binning():
 
 def test_triton_kernels_compile_for_a_gpu_here():
     """Triton compiles the kernels for sm_90 without a GPU (its interpreter, which the tests use, accepts constructs
-    the compiler rejects), with no register spills: the rasteriser's five, the SH colours' two and the losses' seven
-    (tests/test_triton_losses.py)."""
+    the compiler rejects), with no register spills: the rasteriser's five, the SH colours' two, the densification
+    statistics' one and the losses' seven (tests/test_triton_losses.py)."""
     env = {k: v for k, v in os.environ.items() if k != "TRITON_INTERPRET"}
     r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "gpu" / "triton_compile.py"), "--arch", "90"],
                        capture_output=True, text=True, env=env, cwd=ROOT, timeout=600, check=False)
     assert r.returncode == 0, r.stdout + r.stderr
     lines = [ln for ln in r.stdout.splitlines() if "compiled for sm_90" in ln]
-    assert len(lines) == 14 and all("0 bytes of spill" in ln for ln in lines), r.stdout
+    assert len(lines) == 15 and all("0 bytes of spill" in ln for ln in lines), r.stdout
 
 
 def test_triton_choice_says_where_it_cannot_run(monkeypatch):
@@ -269,3 +269,31 @@ def test_triton_sh_colours_equal_torch(degree, ortho, act, dtype, tol):
     assert_rel(o1, o0, tol, "colours")
     for name, x, y in zip(("means", "sh_dc", "sh_rest", "act.weight", "act.bias"), g1, g0):
         assert_rel(x, y, tol, f"d/d{name}")
+
+
+@pytest.mark.parametrize("ortho", [False, True], ids=["pinhole", "orthographic"])
+def test_triton_densification_statistics_equal_torch(ortho):
+    """One step's densification statistics added by the Triton kernel equal ``screen_grad_norms`` + ``accumulate``
+    (densify.py): gradient sums, counts and the largest radii, over two cameras that see different splats."""
+    from arcsem.backbones.gaussians._triton_densify import densify_stats_triton
+    from arcsem.backbones.gaussians.densify import DensifyStats, screen_grad_norms
+
+    from arcsem.cameras import Cameras, look_at
+
+    g = torch.Generator().manual_seed(4)
+    N, C = 300, 2
+    means, grad = torch.randn(N, 3, generator=g), 1e-3 * torch.randn(N, 3, generator=g)
+    eye = torch.tensor([[0.3, -0.2, -4.0], [-2.5, 0.1, -3.5]])
+    w2c = look_at(eye, torch.zeros_like(eye), torch.tensor([[0.0, -1.0, 0.0]] * 2))
+    K = torch.tensor([[[40.0, 0, 8], [0, 40.0, 6], [0, 0, 1]], [[55.0, 0, 8], [0, 50.0, 6], [0, 0, 1]]])
+    cams = Cameras(w2c, K, 16, 12, "orthographic" if ortho else "pinhole")
+    visible = torch.rand(C, N, generator=g) > 0.3
+    radii = torch.randint(0, 9, (C, N), generator=g)
+    start = DensifyStats(torch.rand(N, generator=g), torch.randint(0, 4, (N,), generator=g).float(),
+                         torch.randint(0, 6, (N,), generator=g).float())
+    ref, out = (DensifyStats(*(t.clone() for t in (start.grad_sum, start.count, start.max_radii))) for _ in range(2))
+    ref.accumulate(screen_grad_norms(grad, means, cams), visible, radii)
+    densify_stats_triton(out, grad, means, cams, visible, radii)
+    assert torch.equal(out.count, ref.count) and torch.equal(out.max_radii, ref.max_radii)
+    assert not torch.equal(ref.grad_sum, start.grad_sum)
+    assert_rel(out.grad_sum - start.grad_sum, ref.grad_sum - start.grad_sum, 1e-5, "gradient sums")

@@ -241,10 +241,14 @@ class GaussianBackbone(Backbone):
         if visible.shape[1] != len(self.stats):  # the model changed since this render
             return
         fusable = self.stats.grad_sum.device == grad.device and self.stats.grad_sum.dtype == torch.float32
-        if fusable and self._impl(grad.device) == "cpp":
-            from .fused import densify_stats
+        impl = self._impl(grad.device) if fusable else "torch"
+        if impl in ("cpp", "triton"):  # the same, in one fused pass (C++) or one kernel launch (Triton)
+            if impl == "cpp":
+                from .fused import densify_stats
+            else:
+                from ._triton_densify import densify_stats_triton as densify_stats
 
-            densify_stats(self.stats, grad, self.model.means, cams, visible, radii)  # the same, in one fused pass
+            densify_stats(self.stats, grad, self.model.means, cams, visible, radii)
         else:
             self.stats.accumulate(screen_grad_norms(grad, self.model.means, cams), visible, radii)
 

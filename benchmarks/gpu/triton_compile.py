@@ -1,5 +1,5 @@
-"""Compile the Triton kernels (the 2DGS rasteriser's and SH colours', ``rasterizer=triton``, and the D-SSIM and
-normal-consistency losses') for a GPU architecture, on a machine without a GPU.
+"""Compile the Triton kernels (the 2DGS rasteriser's, SH colours' and densification statistics', ``rasterizer=triton``,
+and the D-SSIM and normal-consistency losses') for a GPU architecture, on a machine without a GPU.
 
 Triton compiles ahead of time for a named target (its own LLVM and ptxas, no driver): this checks that the kernels
 are ones Triton compiles (its interpreter, which the CPU tests run, accepts more) and reports what the GPU would get:
@@ -68,7 +68,12 @@ def signatures(tile: int) -> dict[str, tuple[dict, dict]]:
     sh_sig = {"sh._forward": ({**sh_in, "rgb": f, "N": "i32", "C": "i32", "R": "i32"}, shc),
               "sh._backward": ({**sh_in, **{k: f for k in ("g", "g_means", "g_dc", "g_rest", "g_act")}, "N": "i32",
                                 "C": "i32", "R": "i32"}, shc)}
-    return {**ssim_sig, **nc_sig, **sh_sig, "project_forward": (pf, proj), "project_backward": (pb, {**proj, "DT": "float32"}),
+    from arcsem.backbones.gaussians._triton_densify import BLOCK as DENSIFY_BLOCK
+
+    dens = {"densify._accumulate": ({**{k: f for k in ("g", "means", "Rt", "K")}, "visible": "*i1", "radii": i64,
+                                     **{k: f for k in ("grad_sum", "count", "max_radii")}, "N": "i32", "C": "i32",
+                                     "half_w": "fp32", "half_h": "fp32"}, {"ORTHO": False, "BLOCK": DENSIFY_BLOCK})}
+    return {**ssim_sig, **nc_sig, **sh_sig, **dens, "project_forward": (pf, proj), "project_backward": (pb, {**proj, "DT": "float32"}),
             "footprint_kernel": (foot, {"TILE": tile, "BLOCK": 256}),
             "forward_kernel": (fwd, {**fwd_c, "DT": "float32"}), "backward_kernel": (bwd, {**bwd_c, "DT": "float32"})}
 
@@ -114,6 +119,7 @@ def main(argv: list[str] | None = None) -> int:
         _triton2d_footprint,
         _triton2d_kernels,
         _triton2d_project,
+        _triton_densify,
         _triton_sh,
         triton2d,
     )
@@ -133,9 +139,10 @@ def main(argv: list[str] | None = None) -> int:
                   "project_backward": _triton2d_project}.get(name, triton_ssim if "pass" in name else
                                                              triton_normals if name.startswith("normals.")
                                                              else _triton_sh if name.startswith("sh.")
+                                                             else _triton_densify if name.startswith("densify.")
                                                              else _triton2d_kernels)
         options = ({"num_warps": 4, "enable_fp_fusion": False} if name == "footprint_kernel"
-                   else {"num_warps": 4} if name.startswith(("project", "normals.", "sh."))
+                   else {"num_warps": 4} if name.startswith(("project", "normals.", "sh.", "densify."))
                    else {"num_warps": 8} if "pass" in name else {"num_warps": args.warps})
         try:
             k = triton.compile(ASTSource(fn=getattr(module, name.split(".")[-1]), signature=sig, constexprs=consts),

@@ -68,9 +68,9 @@ class Cameras:
         if isinstance(idx, int):
             idx = slice(idx, idx + 1) if idx >= 0 else slice(idx, (idx + 1) or None)
         out = replace(self, world_to_cam=self.world_to_cam[idx], K=self.K[idx], image_ids=self.image_ids[idx])
-        if self._stamp() is not None:  # a training batch: slices of the split's derived values, not their operators
-            self.centers  # noqa: B018 - kept on self, sliced below
-            out.__dict__["_derived"] = (out._stamp(), {k: _slice(v, idx) for k, v in self._derived_now().items()})
+        stamp = self._stamp()
+        if stamp is not None:  # a training batch: its derived values are slices of this batch's (:meth:`derived`)
+            out.__dict__["_parent"] = (self, stamp, idx)
         return out
 
     def to(self, device=None, dtype=None) -> Cameras:
@@ -80,8 +80,10 @@ class Cameras:
             K=self.K.to(device=device, dtype=dtype),
             image_ids=self.image_ids.to(device=device),
         )
-        if out.world_to_cam is self.world_to_cam and out.K is self.K and "_derived" in self.__dict__:
-            out.__dict__["_derived"] = self.__dict__["_derived"]  # nothing moved: the derived values still hold
+        if out.world_to_cam is self.world_to_cam and out.K is self.K:  # nothing moved: the derived values hold
+            for k in ("_derived", "_parent"):
+                if k in self.__dict__:
+                    out.__dict__[k] = self.__dict__[k]
         return out
 
     # ---------------------------------------------------------------- values derived from poses and intrinsics
@@ -95,24 +97,25 @@ class Cameras:
 
     def _derived_now(self) -> dict:
         """What is kept and still holds (``{}``: nothing)."""
-        kept, stamp = self.__dict__.get("_derived"), self._stamp()
-        if kept is None or stamp is None:
+        kept = self.__dict__.get("_derived")
+        if kept is None or not _same(kept[0], self._stamp()):
             return {}
-        (w, w_version, K, K_version), values = kept
-        same = w is stamp[0] and w_version == stamp[1] and K is stamp[2] and K_version == stamp[3]
-        return values if same else {}
+        return kept[1]
 
     def derived(self, key, make):
-        """``make()``, a tensor (or tuple of tensors) with a leading camera axis that depends only on the poses and
-        intrinsics, kept on this batch under ``key`` while they stay the same tensors, unchanged in place and not
-        differentiable; a batch indexed from this one (``cams[idx]``) starts with the slices of what is kept. A
-        training step asks for the centres, rays and the like several times, each tens of operators a GPU's host
-        would issue (benchmarks/gpu/op_count.py)."""
+        """``make(self)``: a tensor (or tuple of tensors) with a leading camera axis that depends only on the poses
+        and intrinsics, kept on this batch under ``key`` while they stay the same tensors, unchanged in place and not
+        differentiable. A batch indexed from this one (``cams[idx]``, a training step's) takes the slice of this
+        batch's value, made once for the whole batch. A training step asks for the centres, the projection matrices
+        and the like several times, each tens of operators a GPU's host would issue (benchmarks/gpu/op_count.py)."""
         values = self._derived_now()
         if key in values:
             return values[key]
-        value = make()
-        stamp = self._stamp()
+        stamp, parent = self._stamp(), self.__dict__.get("_parent")
+        if stamp is not None and parent is not None and _same(parent[1], parent[0]._stamp()):
+            value = _slice(parent[0].derived(key, make), parent[2])
+        else:
+            value = make(self)
         if stamp is not None:
             self.__dict__["_derived"] = (stamp, {**values, key: value})
         return value
@@ -149,11 +152,7 @@ class Cameras:
 
         Kept (:meth:`derived`): a render asks for them several times (SH view directions, projection, normals,
         densification), each ten operators."""
-        def make():
-            R, t = self.world_to_cam[:, :3, :3], self.world_to_cam[:, :3, 3]
-            return -(R.transpose(1, 2) @ t[..., None])[..., 0]
-
-        return self.derived("centers", make)
+        return self.derived("centers", _centers)
 
     @property
     def forward(self) -> Tensor:
@@ -255,6 +254,16 @@ def opengl_to_opencv(c2w: Tensor) -> Tensor:
     """Camera-to-world ``[..., 4, 4]`` in OpenGL axes (x right, y up, z back) -> OpenCV axes."""
     flip = torch.diag(torch.tensor([1.0, -1.0, -1.0, 1.0], dtype=c2w.dtype, device=c2w.device))
     return c2w @ flip
+
+
+def _centers(cams: Cameras) -> Tensor:
+    R, t = cams.world_to_cam[:, :3, :3], cams.world_to_cam[:, :3, 3]
+    return -(R.transpose(1, 2) @ t[..., None])[..., 0]
+
+
+def _same(a: tuple | None, b: tuple | None) -> bool:
+    """Whether two :meth:`Cameras._stamp` name the same tensors at the same versions."""
+    return a is not None and b is not None and all((x is y) if i % 2 == 0 else x == y for i, (x, y) in enumerate(zip(a, b)))
 
 
 def _slice(value, idx):

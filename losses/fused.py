@@ -92,7 +92,7 @@ def _affine_rays(cams, dtype: torch.dtype) -> tuple[Tensor, Tensor]:
     """Ray origins and directions of ``cams`` as affine functions of the pixel centre ``(u, v)``: ``[C, 3, 3]`` rows
     ``(r_u, r_v, r_1)`` with ``r(u, v) = u r_u + v r_v + r_1``, from :meth:`Cameras.rays` at three points (float64).
     Both camera models are affine in ``(u, v)`` (pinhole: directions; orthographic: origins)."""
-    return cams.derived(("affine_rays", dtype), lambda: _affine_rays_of(cams, dtype))  # kept: the poses' alone
+    return cams.derived(("affine_rays", dtype), lambda c: _affine_rays_of(c, dtype))  # kept: the poses' alone
 
 
 def _affine_rays_of(cams, dtype: torch.dtype) -> tuple[Tensor, Tensor]:

@@ -121,6 +121,9 @@ def test_derived_values_follow_the_batch_and_its_intrinsics():
     one = cams[1]
     with Ops() as ops:
         kept = _affine_rays(one, torch.float64)
+    assert set(ops.names) == {"slice"}, ops.names  # the whole batch's value, sliced
+    with Ops() as ops:
+        assert _affine_rays(one, torch.float64) is kept
     assert not ops.names, ops.names
     for a, b in zip(kept, _affine_rays_of(one, torch.float64)):
         torch.testing.assert_close(a, b, rtol=0, atol=1e-15)

@@ -53,8 +53,8 @@ def densify_stats_triton(stats, grad_means: Tensor, means: Tensor, cams, visible
     """:func:`.fused.densify_stats` on the Triton kernel: add one step to ``stats`` (float32 ``[N]`` accumulators on
     the gradient's device). visible ``[C, N]`` bool, radii ``[C, N]``."""
     dt = grad_means.dtype
-    Rt, K = cams.derived(("densify_cameras", dt), lambda: (cams.world_to_cam.to(dt).reshape(-1, 16).contiguous(),
-                                                           cams.K.to(dt).reshape(-1, 9).contiguous()))
+    Rt, K = cams.derived(("densify_cameras", dt), lambda c: (c.world_to_cam.to(dt).reshape(-1, 16).contiguous(),
+                                                             c.K.to(dt).reshape(-1, 9).contiguous()))
     N, C = grad_means.shape[0], len(cams)
     _accumulate[(triton.cdiv(N, BLOCK),)](
         grad_means.contiguous(), means.detach().to(dt).contiguous(), Rt, K, visible.contiguous(),

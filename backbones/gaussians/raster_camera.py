@@ -15,7 +15,12 @@ __all__ = ["camera_facing_normals", "pixel_projection"]
 
 
 def pixel_projection(cams: Cameras) -> Tensor:
-    """``[C, 4, 4]`` world -> ``(x w, y w, w, z)`` for pinhole and orthographic cameras."""
+    """``[C, 4, 4]`` world -> ``(x w, y w, w, z)`` for pinhole and orthographic cameras (kept on the batch:
+    :meth:`Cameras.derived`)."""
+    return cams.derived("pixel_projection", _pixel_projection)
+
+
+def _pixel_projection(cams: Cameras) -> Tensor:
     C = len(cams)
     w2c, K = cams.world_to_cam, cams.K
     A = torch.zeros(C, 4, 4, dtype=w2c.dtype, device=w2c.device)

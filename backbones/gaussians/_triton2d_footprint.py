@@ -73,7 +73,7 @@ def _pixel_range(lo, hi, m, lim):
     return tl.maximum(_to_long(tl.ceil(a)), 0), tl.minimum(_to_long(tl.floor(b)), lim)
 
 
-@triton.jit
+@triton.jit(do_not_specialize=["M", "N"])  # the splat counts change at each densification
 def footprint_kernel(Hm, op, prm, radius_, rects_, eff_, depth_, M, N, W, H, TX, TY, TILE: tl.constexpr,
                      BLOCK: tl.constexpr):
     s = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)

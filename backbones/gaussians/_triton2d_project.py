@@ -67,7 +67,7 @@ def _cross(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
-@triton.jit
+@triton.jit(do_not_specialize=["N"])  # N changes at each densification: one compilation, not one a size class
 def project_forward(means, quats, scales, opac, colors, P, view, table, hm, N, C, ORTHO: tl.constexpr,
                     NCOL: tl.constexpr, BLOCK: tl.constexpr):
     n = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
@@ -125,7 +125,7 @@ def project_forward(means, quats, scales, opac, colors, P, view, table, hm, N, C
         tl.store(row + 20, sg * r22, mask=m)
 
 
-@triton.jit
+@triton.jit(do_not_specialize=["N"])
 def project_backward(means, quats, scales, P, view, gtab, g_means, g_quats, g_scales, g_opac, g_colors, g_shift, N, C,
                      ORTHO: tl.constexpr, NCOL: tl.constexpr, BLOCK: tl.constexpr, DT: tl.constexpr):
     n = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)

@@ -18,7 +18,7 @@ __all__ = ["densify_stats_triton"]
 BLOCK = 256  # splats a program
 
 
-@triton.jit
+@triton.jit(do_not_specialize=["N"])  # N changes at each densification
 def _accumulate(g, means, Rt, K, visible, radii, grad_sum, count, max_radii, N, C, half_w, half_h,
                 ORTHO: tl.constexpr, BLOCK: tl.constexpr):
     n = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)

@@ -109,7 +109,7 @@ def _coefficients(dc, rest, n, k, m, R, ch: tl.constexpr, K: tl.constexpr):
     return first + more
 
 
-@triton.jit
+@triton.jit(do_not_specialize=["N"])  # N changes at each densification: one compilation, not one a size class
 def _forward(means, dc, rest, origins, aw, ab, rgb, N, C, R, DEG: tl.constexpr, ORTHO: tl.constexpr,
              ACT: tl.constexpr, BLOCK: tl.constexpr):
     n = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
@@ -130,7 +130,7 @@ def _forward(means, dc, rest, origins, aw, ab, rgb, N, C, R, DEG: tl.constexpr, 
             tl.store(rgb + (c * N + n) * 3 + ch, v, mask=m)
 
 
-@triton.jit
+@triton.jit(do_not_specialize=["N"])
 def _backward(means, dc, rest, origins, aw, ab, g, g_means, g_dc, g_rest, g_act, N, C, R, DEG: tl.constexpr,
               ORTHO: tl.constexpr, ACT: tl.constexpr, BLOCK: tl.constexpr):
     """Gradients of the splats of the block, summed over the cameras in registers; with ACT, the block's sums for the

@@ -25,57 +25,55 @@ BLOCK = 32  # splats a program (64: register spills in the backward, sm_90, Trit
 
 
 @triton.jit
-def _basis(k, x, y, z, DEG: tl.constexpr):
-    """``Y_k(x, y, z)`` and its partial derivatives, ``[BLOCK, 16]`` (``k`` the column, 0 above the degree)."""
+def _basis(k, x, y, z):
+    """``Y_k(x, y, z)`` and its partial derivatives, ``[BLOCK, 16]`` (``k`` the column), every degree up to 3: the
+    coefficients above the active degree are 0 (:func:`_coefficients`), so one compiled kernel serves every degree."""
     x, y, z = x[:, None], y[:, None], z[:, None]
     zero = x * 0.0
     Y = tl.where(k == 0, zero + C0, zero)
     dx, dy, dz = zero, zero, zero
-    if DEG >= 1:
-        Y = tl.where(k == 1, -C1 * y, tl.where(k == 2, C1 * z, tl.where(k == 3, -C1 * x, Y)))
-        dx = tl.where(k == 3, zero - C1, dx)
-        dy = tl.where(k == 1, zero - C1, dy)
-        dz = tl.where(k == 2, zero + C1, dz)
-    if DEG >= 2:
-        xx, yy, zz = x * x, y * y, z * z
-        Y = tl.where(k == 4, C2_0 * x * y, Y)
-        Y = tl.where(k == 5, C2_1 * y * z, Y)
-        Y = tl.where(k == 6, C2_2 * (2 * zz - xx - yy), Y)
-        Y = tl.where(k == 7, C2_3 * x * z, Y)
-        Y = tl.where(k == 8, C2_4 * (xx - yy), Y)
-        dx = tl.where(k == 4, C2_0 * y, tl.where(k == 6, C2_2 * -2 * x, tl.where(k == 7, C2_3 * z,
-                                                                                     tl.where(k == 8, C2_4 * 2 * x, dx))))
-        dy = tl.where(k == 4, C2_0 * x, tl.where(k == 5, C2_1 * z, tl.where(k == 6, C2_2 * -2 * y,
-                                                                               tl.where(k == 8, C2_4 * -2 * y, dy))))
-        dz = tl.where(k == 5, C2_1 * y, tl.where(k == 6, C2_2 * 4 * z, tl.where(k == 7, C2_3 * x, dz)))
-        if DEG >= 3:
-            xy, yz, xz = x * y, y * z, x * z
-            Y = tl.where(k == 9, C3_0 * y * (3 * xx - yy), Y)
-            Y = tl.where(k == 10, C3_1 * xy * z, Y)
-            Y = tl.where(k == 11, C3_2 * y * (4 * zz - xx - yy), Y)
-            Y = tl.where(k == 12, C3_3 * z * (2 * zz - 3 * xx - 3 * yy), Y)
-            Y = tl.where(k == 13, C3_4 * x * (4 * zz - xx - yy), Y)
-            Y = tl.where(k == 14, C3_5 * z * (xx - yy), Y)
-            Y = tl.where(k == 15, C3_6 * x * (xx - 3 * yy), Y)
-            dx = tl.where(k == 9, C3_0 * 6 * xy, dx)
-            dy = tl.where(k == 9, C3_0 * (3 * xx - 3 * yy), dy)
-            dx = tl.where(k == 10, C3_1 * yz, dx)
-            dy = tl.where(k == 10, C3_1 * xz, dy)
-            dz = tl.where(k == 10, C3_1 * xy, dz)
-            dx = tl.where(k == 11, C3_2 * -2 * xy, dx)
-            dy = tl.where(k == 11, C3_2 * (4 * zz - xx - 3 * yy), dy)
-            dz = tl.where(k == 11, C3_2 * 8 * yz, dz)
-            dx = tl.where(k == 12, C3_3 * -6 * xz, dx)
-            dy = tl.where(k == 12, C3_3 * -6 * yz, dy)
-            dz = tl.where(k == 12, C3_3 * (6 * zz - 3 * xx - 3 * yy), dz)
-            dx = tl.where(k == 13, C3_4 * (4 * zz - 3 * xx - yy), dx)
-            dy = tl.where(k == 13, C3_4 * -2 * xy, dy)
-            dz = tl.where(k == 13, C3_4 * 8 * xz, dz)
-            dx = tl.where(k == 14, C3_5 * 2 * xz, dx)
-            dy = tl.where(k == 14, C3_5 * -2 * yz, dy)
-            dz = tl.where(k == 14, C3_5 * (xx - yy), dz)
-            dx = tl.where(k == 15, C3_6 * (3 * xx - 3 * yy), dx)
-            dy = tl.where(k == 15, C3_6 * -6 * xy, dy)
+    Y = tl.where(k == 1, -C1 * y, tl.where(k == 2, C1 * z, tl.where(k == 3, -C1 * x, Y)))
+    dx = tl.where(k == 3, zero - C1, dx)
+    dy = tl.where(k == 1, zero - C1, dy)
+    dz = tl.where(k == 2, zero + C1, dz)
+    xx, yy, zz = x * x, y * y, z * z
+    Y = tl.where(k == 4, C2_0 * x * y, Y)
+    Y = tl.where(k == 5, C2_1 * y * z, Y)
+    Y = tl.where(k == 6, C2_2 * (2 * zz - xx - yy), Y)
+    Y = tl.where(k == 7, C2_3 * x * z, Y)
+    Y = tl.where(k == 8, C2_4 * (xx - yy), Y)
+    dx = tl.where(k == 4, C2_0 * y, tl.where(k == 6, C2_2 * -2 * x, tl.where(k == 7, C2_3 * z,
+                                                                                 tl.where(k == 8, C2_4 * 2 * x, dx))))
+    dy = tl.where(k == 4, C2_0 * x, tl.where(k == 5, C2_1 * z, tl.where(k == 6, C2_2 * -2 * y,
+                                                                           tl.where(k == 8, C2_4 * -2 * y, dy))))
+    dz = tl.where(k == 5, C2_1 * y, tl.where(k == 6, C2_2 * 4 * z, tl.where(k == 7, C2_3 * x, dz)))
+    xy, yz, xz = x * y, y * z, x * z
+    Y = tl.where(k == 9, C3_0 * y * (3 * xx - yy), Y)
+    Y = tl.where(k == 10, C3_1 * xy * z, Y)
+    Y = tl.where(k == 11, C3_2 * y * (4 * zz - xx - yy), Y)
+    Y = tl.where(k == 12, C3_3 * z * (2 * zz - 3 * xx - 3 * yy), Y)
+    Y = tl.where(k == 13, C3_4 * x * (4 * zz - xx - yy), Y)
+    Y = tl.where(k == 14, C3_5 * z * (xx - yy), Y)
+    Y = tl.where(k == 15, C3_6 * x * (xx - 3 * yy), Y)
+    dx = tl.where(k == 9, C3_0 * 6 * xy, dx)
+    dy = tl.where(k == 9, C3_0 * (3 * xx - 3 * yy), dy)
+    dx = tl.where(k == 10, C3_1 * yz, dx)
+    dy = tl.where(k == 10, C3_1 * xz, dy)
+    dz = tl.where(k == 10, C3_1 * xy, dz)
+    dx = tl.where(k == 11, C3_2 * -2 * xy, dx)
+    dy = tl.where(k == 11, C3_2 * (4 * zz - xx - 3 * yy), dy)
+    dz = tl.where(k == 11, C3_2 * 8 * yz, dz)
+    dx = tl.where(k == 12, C3_3 * -6 * xz, dx)
+    dy = tl.where(k == 12, C3_3 * -6 * yz, dy)
+    dz = tl.where(k == 12, C3_3 * (6 * zz - 3 * xx - 3 * yy), dz)
+    dx = tl.where(k == 13, C3_4 * (4 * zz - 3 * xx - yy), dx)
+    dy = tl.where(k == 13, C3_4 * -2 * xy, dy)
+    dz = tl.where(k == 13, C3_4 * 8 * xz, dz)
+    dx = tl.where(k == 14, C3_5 * 2 * xz, dx)
+    dy = tl.where(k == 14, C3_5 * -2 * yz, dy)
+    dz = tl.where(k == 14, C3_5 * (xx - yy), dz)
+    dx = tl.where(k == 15, C3_6 * (3 * xx - 3 * yy), dx)
+    dy = tl.where(k == 15, C3_6 * -6 * xy, dy)
     return Y, dx, dy, dz
 
 
@@ -109,19 +107,18 @@ def _coefficients(dc, rest, n, k, m, R, ch: tl.constexpr, K: tl.constexpr):
     return first + more
 
 
-@triton.jit(do_not_specialize=["N"])  # N changes at each densification: one compilation, not one a size class
-def _forward(means, dc, rest, origins, aw, ab, rgb, N, C, R, DEG: tl.constexpr, ORTHO: tl.constexpr,
-             ACT: tl.constexpr, BLOCK: tl.constexpr):
+@triton.jit(do_not_specialize=["N", "K"])  # N changes at each densification, K with the degree: one compilation
+def _forward(means, dc, rest, origins, aw, ab, rgb, N, C, R, K, ORTHO: tl.constexpr, ACT: tl.constexpr,
+             BLOCK: tl.constexpr):
     n = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
     m = n < N
     k = tl.arange(0, 16)[None, :]
-    K: tl.constexpr = (DEG + 1) * (DEG + 1)
     s0 = _coefficients(dc, rest, n, k, m, R, 0, K)
     s1 = _coefficients(dc, rest, n, k, m, R, 1, K)
     s2 = _coefficients(dc, rest, n, k, m, R, 2, K)
     for c in range(C):
         x, y, z, _ = _direction(means, origins, n, m, c, ORTHO)
-        Y, _, _, _ = _basis(k, x, y, z, DEG)
+        Y, _, _, _ = _basis(k, x, y, z)
         for ch in tl.static_range(3):
             s = s0 if ch == 0 else (s1 if ch == 1 else s2)
             v = tl.maximum(tl.sum(Y * s, axis=1) + 0.5, 0.0)
@@ -130,16 +127,15 @@ def _forward(means, dc, rest, origins, aw, ab, rgb, N, C, R, DEG: tl.constexpr, 
             tl.store(rgb + (c * N + n) * 3 + ch, v, mask=m)
 
 
-@triton.jit(do_not_specialize=["N"])
-def _backward(means, dc, rest, origins, aw, ab, g, g_means, g_dc, g_rest, g_act, N, C, R, DEG: tl.constexpr,
-              ORTHO: tl.constexpr, ACT: tl.constexpr, BLOCK: tl.constexpr):
+@triton.jit(do_not_specialize=["N", "K"])
+def _backward(means, dc, rest, origins, aw, ab, g, g_means, g_dc, g_rest, g_act, N, C, R, K, ORTHO: tl.constexpr,
+              ACT: tl.constexpr, BLOCK: tl.constexpr):
     """Gradients of the splats of the block, summed over the cameras in registers; with ACT, the block's sums for the
     cameras' ``w, b`` into ``g_act[program, c, 0:6]``."""
     pid = tl.program_id(0)
     n = pid * BLOCK + tl.arange(0, BLOCK)
     m = n < N
     k = tl.arange(0, 16)[None, :]
-    K: tl.constexpr = (DEG + 1) * (DEG + 1)
     s0 = _coefficients(dc, rest, n, k, m, R, 0, K)
     s1 = _coefficients(dc, rest, n, k, m, R, 1, K)
     s2 = _coefficients(dc, rest, n, k, m, R, 2, K)
@@ -148,7 +144,7 @@ def _backward(means, dc, rest, origins, aw, ab, g, g_means, g_dc, g_rest, g_act,
     gv1, gv2 = gv0, gv0
     for c in range(C):
         x, y, z, length = _direction(means, origins, n, m, c, ORTHO)
-        Y, dX, dY, dZ = _basis(k, x, y, z, DEG)
+        Y, dX, dY, dZ = _basis(k, x, y, z)
         gb = Y * 0.0  # sum over the channels of the coefficient times the colour's gradient, per column
         for ch in tl.static_range(3):
             s = s0 if ch == 0 else (s1 if ch == 1 else s2)
@@ -170,7 +166,7 @@ def _backward(means, dc, rest, origins, aw, ab, g, g_means, g_dc, g_rest, g_act,
             else:
                 gs2 += Y * gc
             gb += s * gc
-        if DEG > 0 and not ORTHO:
+        if not ORTHO:  # (degree 0: every coefficient after the first is 0, so is this)
             gd0 = tl.sum(gb * dX, axis=1)
             gd1 = tl.sum(gb * dY, axis=1)
             gd2 = tl.sum(gb * dZ, axis=1)
@@ -184,7 +180,7 @@ def _backward(means, dc, rest, origins, aw, ab, g, g_means, g_dc, g_rest, g_act,
     tl.store(g_means + 3 * n + 1, gv1, mask=m)
     tl.store(g_means + 3 * n + 2, gv2, mask=m)
     for ch in tl.static_range(3):
-        gs = gs0 if ch == 0 else (gs1 if ch == 1 else gs2)
+        gs = tl.where(k < K, gs0 if ch == 0 else (gs1 if ch == 1 else gs2), 0.0)  # 0 above the degree
         tl.store(g_dc + 3 * n[:, None] + ch + k * 0, gs, mask=m[:, None] & (k == 0))
         tl.store(g_rest + (n[:, None] * R + k - 1) * 3 + ch, gs, mask=m[:, None] & (k >= 1) & (k <= R))
 
@@ -196,7 +192,7 @@ class _ShColorsTriton(torch.autograd.Function):
         has_act = act_w.numel() > 0
         rgb = means.new_empty(C, N, 3)
         _forward[(triton.cdiv(N, BLOCK),)](means, sh_dc, sh_rest, origins, act_w if has_act else means,
-                                           act_b if has_act else means, rgb, N, C, R, DEG=degree, ORTHO=ortho,
+                                           act_b if has_act else means, rgb, N, C, R, (degree + 1) ** 2, ORTHO=ortho,
                                            ACT=has_act, BLOCK=BLOCK, num_warps=4)
         ctx.save_for_backward(means, sh_dc, sh_rest, origins, act_w, act_b)
         ctx.ortho, ctx.degree = ortho, degree
@@ -211,7 +207,7 @@ class _ShColorsTriton(torch.autograd.Function):
         g_means, g_dc, g_rest = torch.empty_like(means), torch.empty_like(sh_dc), torch.empty_like(sh_rest)
         g_act = means.new_empty(grid[0], C, 6) if has_act else means
         _backward[grid](means, sh_dc, sh_rest, origins, act_w if has_act else means, act_b if has_act else means,
-                        g.contiguous(), g_means, g_dc, g_rest, g_act, N, C, R, DEG=ctx.degree, ORTHO=ctx.ortho,
+                        g.contiguous(), g_means, g_dc, g_rest, g_act, N, C, R, (ctx.degree + 1) ** 2, ORTHO=ctx.ortho,
                         ACT=has_act, BLOCK=BLOCK, num_warps=4)
         gw = gb = None
         if has_act:

@@ -7,6 +7,7 @@ registers a thread, spilled bytes, shared memory::
 
     python benchmarks/gpu/triton_compile.py                 # sm_90 (H100/H200), float32, 16-px tiles, 8 warps
     python benchmarks/gpu/triton_compile.py --arch 80 --tile 8
+    TRITON_CACHE_DIR=$(mktemp -d) python benchmarks/gpu/triton_compile.py   # the compile times of a bare machine
 
 Prints one line per kernel; exit status 1 when a kernel does not compile.
 """
@@ -15,6 +16,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
@@ -63,11 +65,11 @@ def signatures(tile: int) -> dict[str, tuple[dict, dict]]:
               "normals._backward_depth": ({"d": f, "gd": f, "gD": f, **px}, {"BLOCK": NC_BLOCK})}
     from arcsem.backbones.gaussians._triton_sh import BLOCK as SH_BLOCK
 
-    shc = {"DEG": 3, "ORTHO": False, "ACT": True, "BLOCK": SH_BLOCK}  # the SH colours' (gaussians/_triton_sh.py)
+    shc = {"ORTHO": False, "ACT": True, "BLOCK": SH_BLOCK}  # the SH colours' (gaussians/_triton_sh.py)
     sh_in = {k: f for k in ("means", "dc", "rest", "origins", "aw", "ab")}
-    sh_sig = {"sh._forward": ({**sh_in, "rgb": f, "N": "i32", "C": "i32", "R": "i32"}, shc),
+    sh_sig = {"sh._forward": ({**sh_in, "rgb": f, "N": "i32", "C": "i32", "R": "i32", "K": "i32"}, shc),
               "sh._backward": ({**sh_in, **{k: f for k in ("g", "g_means", "g_dc", "g_rest", "g_act")}, "N": "i32",
-                                "C": "i32", "R": "i32"}, shc)}
+                                "C": "i32", "R": "i32", "K": "i32"}, shc)}
     from arcsem.backbones.gaussians._triton_densify import BLOCK as DENSIFY_BLOCK
 
     dens = {"densify._accumulate": ({**{k: f for k in ("g", "means", "Rt", "K")}, "visible": "*i1", "radii": i64,
@@ -144,6 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         options = ({"num_warps": 4, "enable_fp_fusion": False} if name == "footprint_kernel"
                    else {"num_warps": 4} if name.startswith(("project", "normals.", "sh.", "densify."))
                    else {"num_warps": 8} if "pass" in name else {"num_warps": args.warps})
+        t0 = time.perf_counter()
         try:
             k = triton.compile(ASTSource(fn=getattr(module, name.split(".")[-1]), signature=sig, constexprs=consts),
                                target=GPUTarget("cuda", args.arch, 32), options=options)
@@ -151,7 +154,8 @@ def main(argv: list[str] | None = None) -> int:
             failed += 1
             print(f"{name}: does not compile for sm_{args.arch}: {type(e).__name__}: {str(e).splitlines()[0]}")
             continue
-        print(f"{name}: compiled for sm_{args.arch}, {options['num_warps']} warps, {args.tile}-px tiles: "
+        took = time.perf_counter() - t0  # what a bare GPU machine's first run pays (its CPU's speed)
+        print(f"{name}: compiled for sm_{args.arch} in {took:.1f} s, {options['num_warps']} warps, {args.tile}-px tiles: "
               f"cubin {len(k.asm['cubin'])} bytes, shared {k.metadata.shared} bytes; {ptxas_usage(k.asm['ptx'], args.arch)}"
               f"; {k.asm['ptx'].count('bar.sync') + k.asm['ptx'].count('barrier.sync')} barriers in its PTX")
     return 1 if failed else 0

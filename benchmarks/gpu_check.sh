@@ -12,7 +12,8 @@
 #   tests    pytest -m cuda (with the Triton kernels, the rasteriser's and the losses', against the PyTorch paths)
 #   profile  stage 1 of the demo: steps/s, SM utilisation, host syncs, kernels (benchmarks/gpu/stage1_profile.py;
 #            PROFILE_VARIANTS, default gs2d gs2d_gsplat (gs2d: auto, the Triton kernels on CUDA); gs2d_torch,
-#            gs2d_triton, gs3d, gs3d_gsplat when named)
+#            gs2d_triton, gs3d, gs3d_gsplat, gs2d_torchloss (auto with the PyTorch D-SSIM and normal consistency)
+#            when named)
 #   demo     the whole `make demo` job with device=cuda, each of DEMO_RASTERIZERS (default auto gsplat),
 #            nvidia-smi dmon sampling
 #   float32  (only when named) float32 gradients of the PyTorch and Triton paths against float64 on the auto demo's
@@ -126,7 +127,8 @@ if has profile; then
   stamp profile
   declare -A VARIANT=([gs2d]="backbone.rasterizer=auto" [gs2d_gsplat]="backbone.rasterizer=gsplat"
     [gs2d_triton]="backbone.rasterizer=triton" [gs2d_torch]="backbone.rasterizer=torch"
-    [gs3d]="backbone=gs3d backbone.rasterizer=auto" [gs3d_gsplat]="backbone=gs3d backbone.rasterizer=gsplat")
+    [gs3d]="backbone=gs3d backbone.rasterizer=auto" [gs3d_gsplat]="backbone=gs3d backbone.rasterizer=gsplat"
+    [gs2d_torchloss]="backbone.rasterizer=auto +train.losses.dssim.impl=torch +train.losses.normal_consistency.impl=torch")
   for name in $(nogsplat ${PROFILE_VARIANTS:-gs2d gs2d_gsplat}); do
     ov=${VARIANT[$name]}
     echo "=== $name" >> "$OUT/profile.log"

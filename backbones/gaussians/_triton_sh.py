@@ -225,11 +225,9 @@ def sh_colors_triton(means: Tensor, sh_dc: Tensor, sh_rest: Tensor, origins: Ten
     tl_dtype(means)  # float32 / float64 only
     if not 0 <= degree <= 3 or sh_rest.shape[1] + 1 > 16:
         raise ValueError(f"sh_colors_triton: degree {degree} with {sh_rest.shape[1] + 1} coefficients (at most 3, 16)")
+    from .fused import act_rows
+
     c = lambda t: t.contiguous()
-    if act is None:
-        w = b = means.new_empty(0)
-    else:
-        C = origins.shape[0]
-        w, b = (c(t.to(means.dtype).expand(C, 3)) for t in act)
+    w, b = act_rows(means, origins, act)
     return _ShColorsTriton.apply(c(means), c(sh_dc), c(sh_rest), c(origins.to(means.dtype)), w, b, bool(ortho),
                                  int(degree))

@@ -26,6 +26,7 @@ from .config import LOWPASS_SIGMA
 
 __all__ = [
     "EXTENSION",
+    "act_rows",
     "composite2d",
     "composite3d",
     "composite_weights",
@@ -307,12 +308,16 @@ def sh_colors(means: Tensor, sh_dc: Tensor, sh_rest: Tensor, origins: Tensor, or
     Returns: ``[C, N, 3]``.
     """
     c = lambda t: t.contiguous()
-    if act is None:
-        w = b = means.new_empty(0)
-    else:
-        C = origins.shape[0]
-        w, b = (c(t.to(means.dtype).expand(C, 3)) for t in act)
+    w, b = act_rows(means, origins, act)
     return _ShColors.apply(c(means), c(sh_dc), c(sh_rest), c(origins.to(means.dtype)), w, b, bool(ortho), int(degree))
+
+
+def act_rows(means: Tensor, origins: Tensor, act: tuple[Tensor, Tensor] | None) -> tuple[Tensor, Tensor]:
+    """ACT's ``w, b`` as the SH colour kernels read them: ``[C, 3]`` contiguous in the means' dtype (empty: no ACT)."""
+    if act is None:
+        return means.new_empty(0), means.new_empty(0)
+    C = origins.shape[0]
+    return tuple(t.to(means.dtype).expand(C, 3).contiguous() for t in act)
 
 
 @torch.no_grad()

@@ -158,21 +158,22 @@ def test_triton_training_step_reads_back_only_the_binning():
         with mode:
             loop_module._step(run, losses, hook, 2, record=False)
         reads[impl] = mode.sites
-    stray = {k: n for k, n in reads["triton"].items() if not k[1].startswith(ALLOWED)}
+    binning = (*ALLOWED, "backbones/gaussians/_triton2d_bin.py")  # its pair count: the list's length
+    stray = {k: n for k, n in reads["triton"].items() if not k[1].startswith(binning)}
     assert not stray, f"host reads in a triton training step (op, source line: count): {stray}"
     assert 0 < sum(reads["triton"].values()) < sum(reads["torch"].values()), reads
 
 
 def test_triton_kernels_compile_for_a_gpu_here():
     """Triton compiles the kernels for sm_90 without a GPU (its interpreter, which the tests use, accepts constructs
-    the compiler rejects), with no register spills: the rasteriser's five, the SH colours' two, the densification
-    statistics' one and the losses' seven (tests/test_triton_losses.py)."""
+    the compiler rejects), with no register spills: the rasteriser's five, the tile binning's one, the SH colours' two,
+    the densification statistics' one and the losses' seven (tests/test_triton_losses.py)."""
     env = {k: v for k, v in os.environ.items() if k != "TRITON_INTERPRET"}
     r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "gpu" / "triton_compile.py"), "--arch", "90"],
                        capture_output=True, text=True, env=env, cwd=ROOT, timeout=600, check=False)
     assert r.returncode == 0, r.stdout + r.stderr
     lines = [ln for ln in r.stdout.splitlines() if "compiled for sm_90" in ln]
-    assert len(lines) == 15 and all("0 bytes of spill" in ln for ln in lines), r.stdout
+    assert len(lines) == 16 and all("0 bytes of spill" in ln for ln in lines), r.stdout
 
 
 def test_triton_choice_says_where_it_cannot_run(monkeypatch):

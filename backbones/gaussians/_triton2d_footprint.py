@@ -17,7 +17,7 @@ from torch import Tensor
 
 from arcsem.tritonsupport import constants
 
-from .raster import Binning, bin_tiles
+from .raster import Binning
 
 __all__ = ["footprint_bin_2dgs_triton"]
 
@@ -149,6 +149,9 @@ def footprint_2dgs_triton(Hm: Tensor, opacities: Tensor, W: int, H: int, tile: i
 
 def footprint_bin_2dgs_triton(Hm: Tensor, opacities: Tensor, W: int, H: int, tile: int, near: float,
                               lowpass_sigma: float) -> tuple[Tensor, Tensor, Tensor, Binning]:
-    """The footprints and the tile lists (:func:`raster.bin_tiles`): radius, rects, eff ``[C, N, 4]``, binning."""
+    """The footprints and the tile lists (:func:`raster.bin_tiles`'s, the expansion on a Triton kernel:
+    :mod:`._triton2d_bin`): radius, rects, eff ``[C, N, 4]``, binning."""
+    from ._triton2d_bin import bin_tiles_triton
+
     radius, rects, eff, depth = footprint_2dgs_triton(Hm, opacities, W, H, tile, near, lowpass_sigma)
-    return radius, rects, eff, bin_tiles(rects, depth, W, H, tile)
+    return radius, rects, eff, bin_tiles_triton(rects, depth, W, H, tile)

@@ -3,8 +3,8 @@
 On a GPU the PyTorch rasteriser issues ~1,400 operators a step; the host cannot issue them as fast as the GPU runs
 them (benchmarks/results/gpu/README.md). ``gs2d.render.render_2dgs(impl="triton")`` runs its steps as five kernels
 instead: the projection to a splat table, forward and backward (:mod:`._triton2d_project`), the footprints
-(:mod:`._triton2d_footprint`) and the compositing below (kernels: :mod:`._triton2d_kernels`); the tile binning (a
-sort and its offsets) stays PyTorch's (:func:`.raster.bin_tiles`).
+(:mod:`._triton2d_footprint`, with the tile binning's expansion to pairs: :mod:`._triton2d_bin`; the depth ranks,
+sort and offsets stay PyTorch's) and the compositing below (kernels: :mod:`._triton2d_kernels`).
 
 The compositing's arithmetic and rules are those of the fused C++ kernels (cpp/composite2d.h: official 2DGS
 ray-splat intersection, low-pass filter, skip / clamp / early stop, median depth, shifted distortion sums) in the

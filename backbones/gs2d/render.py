@@ -277,8 +277,8 @@ def _render_2dgs_triton(means: Tensor, quats: Tensor, scales: Tensor, opacities:
                         mcoef: tuple[float, float, float], lowpass_sigma: float, chunk_tiles: int | None,
                         colour_weights: bool = False) -> dict[str, Tensor]:
     """:func:`render_2dgs` on Triton kernels (CUDA; :mod:`..gaussians.triton2d`): the projection to the splat table
-    (forward and backward), the footprints and the compositing (forward and backward) are a launch each; the tile
-    binning is this module's (:func:`bin_tiles`)."""
+    (forward and backward), the footprints and the compositing (forward and backward) are a launch each, the tile
+    binning's expansion to pairs too (its depth ranks, sort and offsets PyTorch's: ``gaussians/_triton2d_bin.py``)."""
     from arcsem.backbones.gaussians._triton2d_footprint import footprint_bin_2dgs_triton
     from arcsem.backbones.gaussians._triton2d_project import project_2dgs_triton
     from arcsem.backbones.gaussians.triton2d import composite2d_triton

@@ -1,5 +1,6 @@
-"""Compile the Triton kernels (the 2DGS rasteriser's, SH colours' and densification statistics', ``rasterizer=triton``,
-and the D-SSIM and normal-consistency losses') for a GPU architecture, on a machine without a GPU.
+"""Compile the Triton kernels (the 2DGS rasteriser's, tile binning's, SH colours' and densification statistics',
+``rasterizer=triton``, and the D-SSIM and normal-consistency losses') for a GPU architecture, on a machine without a
+GPU.
 
 Triton compiles ahead of time for a named target (its own LLVM and ptxas, no driver): this checks that the kernels
 are ones Triton compiles (its interpreter, which the CPU tests run, accepts more) and reports what the GPU would get:
@@ -75,6 +76,10 @@ def signatures(tile: int) -> dict[str, tuple[dict, dict]]:
     dens = {"densify._accumulate": ({**{k: f for k in ("g", "means", "Rt", "K")}, "visible": "*i1", "radii": i64,
                                      **{k: f for k in ("grad_sum", "count", "max_radii")}, "N": "i32", "C": "i32",
                                      "half_w": "fp32", "half_h": "fp32"}, {"ORTHO": False, "BLOCK": DENSIFY_BLOCK})}
+    from arcsem.backbones.gaussians._triton2d_bin import BLOCK as BIN_BLOCK
+
+    dens["bin._expand"] = ({**{k: i64 for k in ("rects", "rank", "ends", "key", "splat")},
+                            **{k: "i32" for k in ("M", "N", "TX", "TY")}}, {"BLOCK": BIN_BLOCK})
     return {**ssim_sig, **nc_sig, **sh_sig, **dens, "project_forward": (pf, proj), "project_backward": (pb, {**proj, "DT": "float32"}),
             "footprint_kernel": (foot, {"TILE": tile, "BLOCK": 256}),
             "forward_kernel": (fwd, {**fwd_c, "DT": "float32"}), "backward_kernel": (bwd, {**bwd_c, "DT": "float32"})}
@@ -118,6 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     import triton
     import triton.language as tl
     from arcsem.backbones.gaussians import (
+        _triton2d_bin,
         _triton2d_footprint,
         _triton2d_kernels,
         _triton2d_project,
@@ -142,9 +148,10 @@ def main(argv: list[str] | None = None) -> int:
                                                              triton_normals if name.startswith("normals.")
                                                              else _triton_sh if name.startswith("sh.")
                                                              else _triton_densify if name.startswith("densify.")
+                                                             else _triton2d_bin if name.startswith("bin.")
                                                              else _triton2d_kernels)
         options = ({"num_warps": 4, "enable_fp_fusion": False} if name == "footprint_kernel"
-                   else {"num_warps": 4} if name.startswith(("project", "normals.", "sh.", "densify."))
+                   else {"num_warps": 4} if name.startswith(("project", "normals.", "sh.", "densify.", "bin."))
                    else {"num_warps": 8} if "pass" in name else {"num_warps": args.warps})
         t0 = time.perf_counter()
         try:

@@ -1,7 +1,8 @@
 """A tiny two-stage run on ``rasterizer=triton`` against ``rasterizer=torch``: both stages end in the same place.
 
 The configuration of tests/test_cuda.py's end-to-end test (4 views of 32x24, 2DGS + ACT, 20 stage-1 steps, 5 stage-2
-steps, one reference), 300 random splats; on a GPU with ``device=cuda``, on a machine without one through Triton's
+steps, one reference), 300 random splats, the D-SSIM and normal-consistency losses on each rasteriser's own kernels
+(the Triton ones with ``triton``, as ``auto`` on CUDA); on a GPU with ``device=cuda``, on a machine without one through Triton's
 CPU interpreter (about 10 minutes)::
 
     TRITON_INTERPRET=1 python benchmarks/gpu/triton_parity.py            # device=cpu
@@ -37,7 +38,9 @@ def run(rasterizer: str, device: str, tmp: Path) -> dict:
                        "train.progress=false", "colorize.steps=5", "colorize.progress=false", "colorize.eval.lpips=false",
                        "colorize.losses.tcm.weight=0", "colorize.losses.ccm.weight=0",
                        f"colorize.references={work / 'view_01.png'}", f"cache_dir={work / 'cache'}", "mesh.enabled=false",
-                       "backbone.random_init_points=300", f"backbone.rasterizer={rasterizer}")
+                       "backbone.random_init_points=300", f"backbone.rasterizer={rasterizer}",
+                       # the losses' paths as `auto` takes them on CUDA with each rasteriser
+                       f"+train.losses.dssim.impl={rasterizer}", f"+train.losses.normal_consistency.impl={rasterizer}")
     t0 = time.perf_counter()
     m = app.run(cfg, run_dir=work / "run")
     return {"status": m["status"], "psnr": m["stage1"]["train"]["psnr"], "loss2": m["stage2"]["final_loss"],

@@ -2,8 +2,8 @@
 
 Several stage-2 jobs of a sweep (the ablations, the reference counts) need the same stage-1 model.
 Each asks :func:`stage1_dir` for the folder keyed by a hash of the stage-1-relevant config
-(``dataset``, ``backbone``, ``act``, ``train``, ``seed``, the package version and, for the built-in
-scene, its generator version), takes
+(``dataset``, ``backbone``, ``act``, ``train``, ``seed``, the package version, a digest of the installed
+source code (:func:`source_digest`) and, for the built-in scene, its generator version), takes
 :func:`stage1_lock` on it, trains only if the folder holds no finished model, and marks it done.
 Parallel jobs (joblib, submitit) block on the lock instead of training twice::
 
@@ -18,12 +18,15 @@ or, in one call, ``path, trained = ensure_stage1(cfg, lambda p: run_stage1(cfg, 
 that reused the model gets the trainer's returned metrics from ``stage1_result(path)``.
 
 Cache root: ``cfg.cache_dir`` if set, else ``$ARCSEM_CACHE``, else ``~/.cache/arcsem``. Delete
-``<root>/stage1`` to force retraining (the key does not contain the source code, only the version).
+``<root>/stage1`` to reclaim space; a model trained by other code (an edit, another commit, the same version) is
+never reused, because the key holds the source digest.
 """
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
+import importlib.util
 import json
 import os
 from collections.abc import Callable, Iterator, Mapping
@@ -40,10 +43,12 @@ __all__ = [
     "ensure_stage1",
     "is_done",
     "mark_done",
+    "source_digest",
     "stage1_dir",
     "stage1_key",
     "stage1_lock",
     "stage1_result",
+    "tree_digest",
 ]
 
 STAGE1_KEYS = ("dataset", "backbone", "act", "train", "seed")
@@ -55,6 +60,32 @@ RESULT_FILE = "result.json"
 
 DONE_FILE = "DONE"
 
+SOURCE_PACKAGES = ("arcsem", "backbones", "losses")
+"""The packages whose code trains a model (arcsem's core and the built-in plugins)."""
+SOURCE_SUFFIXES = (".py", ".cpp", ".h", ".cu")
+
+
+def tree_digest(roots: list[Path]) -> str:
+    """sha256 (16 hex) of every ``SOURCE_SUFFIXES`` file under ``roots``, by its path below its root and content."""
+    h = hashlib.sha256()
+    for i, root in enumerate(roots):
+        files = sorted(p for p in Path(root).rglob("*") if p.suffix in SOURCE_SUFFIXES and p.is_file())
+        for p in files:
+            h.update(f"{i}:{p.relative_to(root).as_posix()}\0".encode())
+            h.update(hashlib.sha256(p.read_bytes()).digest())
+    return h.hexdigest()[:16]
+
+
+@functools.lru_cache(maxsize=1)
+def source_digest() -> str:
+    """:func:`tree_digest` of the installed :data:`SOURCE_PACKAGES` (once a process; ~300 files, milliseconds)."""
+    roots = []
+    for name in SOURCE_PACKAGES:
+        spec = importlib.util.find_spec(name)
+        if spec is not None and spec.submodule_search_locations:
+            roots.append(Path(next(iter(spec.submodule_search_locations))))
+    return tree_digest(roots)
+
 
 def stage1_key(cfg: Mapping) -> str:
     """Hex digest (16 chars) of the stage-1-relevant part of ``cfg`` (order of keys irrelevant)."""
@@ -65,6 +96,7 @@ def stage1_key(cfg: Mapping) -> str:
     if isinstance(part["train"], dict):
         part["train"] = {k: v for k, v in part["train"].items() if k not in TRAIN_IGNORED}
     part["arcsem_version"] = __version__
+    part["source"] = source_digest()  # code changes do not reuse a model trained before them
     if isinstance(part["dataset"], dict) and part["dataset"].get("kind") == "synthetic":
         from arcsem.synthetic.write import GENERATOR_VERSION  # a regenerated scene needs a new model
 
@@ -81,7 +113,7 @@ def stage1_dir(cfg: Mapping, create: bool = True) -> Path:
         desc = path / "key.json"
         if not desc.exists():
             values = plain(cfg)
-            write_json_atomic(desc, {k: values.get(k) for k in STAGE1_KEYS})
+            write_json_atomic(desc, {**{k: values.get(k) for k in STAGE1_KEYS}, "source": source_digest()})
     return path
 
 

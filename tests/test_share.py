@@ -54,6 +54,28 @@ def test_key_of_the_builtin_scene_follows_its_generator_version(monkeypatch):
     assert stage1_key(other) == before[1]
 
 
+def test_key_follows_the_source_code(monkeypatch, tmp_path):
+    """A model trained by other code (an edit, another commit with the same version) is not reused."""
+    from arcsem import share
+
+    k = stage1_key(_cfg())
+    monkeypatch.setattr(share, "source_digest", lambda: "0" * 16)
+    assert stage1_key(_cfg()) != k
+    # the digest: every source file by path and content; other files do not count
+    (tmp_path / "pkg" / "sub").mkdir(parents=True)
+    (tmp_path / "pkg" / "a.py").write_text("x = 1\n")
+    (tmp_path / "pkg" / "sub" / "k.cpp").write_text("int f();\n")
+    d = share.tree_digest([tmp_path / "pkg"])
+    (tmp_path / "pkg" / "README.md").write_text("notes")
+    assert share.tree_digest([tmp_path / "pkg"]) == d
+    (tmp_path / "pkg" / "sub" / "k.cpp").write_text("int f(int);\n")
+    assert share.tree_digest([tmp_path / "pkg"]) != d
+    (tmp_path / "pkg" / "sub" / "k.cpp").write_text("int f();\n")
+    (tmp_path / "pkg" / "sub" / "k.cpp").rename(tmp_path / "pkg" / "k.cpp")  # same content, moved
+    assert share.tree_digest([tmp_path / "pkg"]) != d
+    assert len(share.source_digest()) == 16
+
+
 def test_dir_root_and_description(tmp_path, monkeypatch):
     monkeypatch.setenv("ARCSEM_CACHE", str(tmp_path / "env"))
     assert cache_root(_cfg()) == tmp_path / "env"

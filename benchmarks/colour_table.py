@@ -8,26 +8,33 @@ validation chose and the guided losses that trained.
                                                                    # a later DIR's run replaces an earlier one's)
     .venv/bin/python benchmarks/colour_table.py --ablations DIR [DIR ...]  # the default against every other variant
                                                                    # per seed, outside the coverage, and its spread
+    .venv/bin/python benchmarks/colour_table.py --outside DIR [DIR ...]  # issue 38's second line: the outside-coverage
+                                                                   # gain by scene and reference count, averaged
+                                                                   # and pooled over the pixels
+
+A DIR may also be a Hydra multirun folder (``arcsem experiment=colorization_benchmark``): its numbered runs are named
+``<dataset>_<references>_<variant>[_s<seed>]`` from their overrides (``ablation=full`` is the ``default``).
 """
 from __future__ import annotations
 
 import json
+import math
 import re
 import sys
 from pathlib import Path
 
 
-def row(run: Path) -> str | None:
+def row(run: Path, name: str | None = None) -> str | None:
     m = json.loads((run / "metrics.json").read_text())
     s2 = m.get("stage2")
     if not s2:
-        return f"| {run.name} | failed: {m.get('error')} |"
+        return f"| {name or run.name} | failed: {m.get('error')} |"
     t, v = s2["test"], s2.get("validation") or {}
     trained = s2.get("losses") or []  # the guided losses that trained: kept by the validation and the match check
     chose = (f"{v['surface']}/{v['shading']}" + (f"/{v['prior']}" if "prior" in v else "") + ", " if v else "") + \
         f"TCM {'on' if 'tcm' in trained else 'off'}, CCM {'on' if 'ccm' in trained else 'off'}"
     f = lambda d, k: f"{d[k]:.2f}" if d.get(k) is not None else "-"  # no masks: no masked PSNR
-    return (f"| {run.name} | {f(t, 'psnr')} | {f(t, 'psnr_masked')} | {f(t, 'psnr_covered')} | "
+    return (f"| {name or run.name} | {f(t, 'psnr')} | {f(t, 'psnr_masked')} | {f(t, 'psnr_covered')} | "
             f"{f(t, 'psnr_uncovered')} | {t.get('uncovered_px', '-')} | {f(s2.get('train_ref', {}), 'psnr')} | "
             f"{chose} | {m.get('git_revision', '')[:7]} |")
 
@@ -54,11 +61,27 @@ def pairs(d: str) -> None:
               f"{f(k(a, 'psnr_uncovered'))} / {f(k(b, 'psnr_uncovered'))} |")
 
 
+HELD_OUT = ("public_chair",)  # kept out of every tuning decision: listed on its own
+
+
+def _name(run: Path) -> str:
+    """The folder's name, or for a multirun job ``<dataset>_<references>_<variant>[_s<seed>]`` from its overrides."""
+    ov = run / ".hydra" / "overrides.yaml"
+    if not (run.name.isdigit() and ov.is_file()):
+        return run.name
+    kv = dict(line.strip().removeprefix("- ").lstrip("+").split("=", 1) for line in ov.read_text().splitlines()
+              if "=" in line)
+    variant = kv.get("ablation", "full")
+    seed = int(kv.get("seed", 0))
+    return (f"{kv.get('dataset', 'synthetic')}_{kv.get('colorize.references', 'five')}_"
+            f"{'default' if variant == 'full' else variant}" + (f"_s{seed}" if seed else ""))
+
+
 def _runs(dirs: list[str]) -> dict[str, Path]:
     """Run folders by name; a later DIR's run replaces an earlier one's."""
     runs: dict[str, Path] = {}
     for d in dirs:
-        runs.update({p.parent.name: p.parent for p in Path(d).glob("*/metrics.json")})
+        runs.update({_name(p.parent): p.parent for p in Path(d).glob("*/metrics.json")})
     return runs
 
 
@@ -106,6 +129,40 @@ def seeded(dirs: list[str]) -> None:
               f"{', '.join(f(o) for o in out)} |")
 
 
+def outside(dirs: list[str]) -> None:
+    """Issue 38's second line: per reference count, each scene's mean outside-coverage gain of the default over
+    pseudo-colours alone (over its seeds), their mean over the tuned scenes, the held-out scene(s) on their own, the
+    mean over all, and the gain pooled over every outside pixel of every scene and seed (``10 log10`` of the
+    pixel-weighted mean squared errors' ratio)."""
+    runs = _runs(dirs)
+    groups = _paired(runs, "pseudo_only")
+    by_refs: dict[str, dict[str, list[tuple[dict, dict]]]] = {}
+    for stem, seeds in groups.items():
+        scene, _, refs = stem.rpartition("_")
+        pairs_ = [(_test(runs[a]), _test(runs[b])) for a, b in seeds.values()]
+        if all(x.get("psnr_uncovered") is not None and y.get("psnr_uncovered") is not None for x, y in pairs_):
+            by_refs.setdefault(refs, {})[scene] = pairs_
+    scenes = sorted({s for v in by_refs.values() for s in v}, key=lambda s: (s in HELD_OUT, s))
+    tuned = [s for s in scenes if s not in HELD_OUT]
+    print("| references | " + " | ".join(f"{s} (px)" + (" **held out**" if s in HELD_OUT else "") for s in scenes) +
+          " | mean of the tuned | mean of all | pooled over the pixels |")
+    print("|---|" + "---:|" * (len(scenes) + 3))
+    for refs in ("one", "three", "five"):
+        got = by_refs.get(refs, {})
+        gain = {s: sum(_outside(x, y) for x, y in p) / len(p) for s, p in got.items()}
+        px = {s: sum(x.get("uncovered_px") or 0 for x, _ in p) / len(p) for s, p in got.items()}
+        mse = lambda t: 10 ** (-t["psnr_uncovered"] / 10) * (t.get("uncovered_px") or 0)
+        pd = sum(mse(x) for p in got.values() for x, _ in p)
+        pp = sum(mse(y) for p in got.values() for _, y in p)
+        cells = [f"{gain[s]:+.2f} ({px[s]:.0f})" if s in gain else "-" for s in scenes]
+        pooled = f"{10 * math.log10(pp / pd):+.2f}" if pd > 0 and pp > 0 else "-"
+        print(f"| {refs} | " + " | ".join(cells) + f" | {_mean(gain, tuned)} | {_mean(gain, scenes)} | {pooled} |")
+
+
+def _mean(gain: dict[str, float], names: list[str]) -> str:
+    return f"{sum(gain[s] for s in names) / len(names):+.2f}" if names and all(s in gain for s in names) else "-"
+
+
 def ablations(dirs: list[str]) -> None:
     """One row per ``<scene>_<refs>`` and variant other than the default and pseudo_only: the default's gain over it
     per seed, whole and outside the coverage, and the seed spread (max - min over the seeds) of the default's own
@@ -136,6 +193,9 @@ def main(dirs: list[str]) -> None:
     if dirs and dirs[0] == "--seeds":
         seeded(dirs[1:])
         return
+    if dirs and dirs[0] == "--outside":
+        outside(dirs[1:])
+        return
     if dirs and dirs[0] == "--ablations":
         ablations(dirs[1:])
         return
@@ -147,8 +207,8 @@ def main(dirs: list[str]) -> None:
           "| commit |")
     print("|---|---:|---:|---:|---:|---:|---:|---|---|")
     for d in dirs:
-        for run in sorted(p.parent for p in Path(d).glob("*/metrics.json")):
-            print(row(run))
+        for name, run in sorted(_runs([d]).items()):
+            print(row(run, name))
 
 
 if __name__ == "__main__":

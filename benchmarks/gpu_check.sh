@@ -29,7 +29,7 @@
 # beside the tests ~100 s, two profiles ~80 s, the auto and gsplat demos 75 + 95 s).
 #
 #   # on the CPU machine, from the repository root (cp312 wheels for the GPU machine's Python 3.12):
-#   benchmarks/gpu/prepare.sh          # .whl/ and .gpu/scene.tar.xz (both git-ignored; 25 MB together)
+#   benchmarks/gpu/prepare.sh          # .whl/ and .gpu/scene.tar.xz (both git-ignored; 46 MB together)
 #   # on the GPU machine, from the repository root:
 #   benchmarks/gpu_check.sh            # results in ${OUT:-/tmp/gpu_check}
 set -uo pipefail
@@ -72,6 +72,7 @@ if has setup; then
   python3 -c "import torch; print('torch', torch.__version__, 'CUDA', torch.version.cuda, torch.cuda.get_device_name())"
   python3 -c "import gsplat; print('gsplat', gsplat.__version__)" || echo "no gsplat: rasterizer=gsplat cannot run here"
   python3 -c "import triton; print('triton', triton.__version__, '(rasterizer=triton)')" || echo "no triton: rasterizer=triton cannot run here"
+  python3 -c "import imageio_ffmpeg as f; print('ffmpeg', f.get_ffmpeg_version(), '(MP4 orbits)')" || echo "no ffmpeg: the orbits are GIFs"
   python3 -c "import torch; print(torch.cuda.get_device_name())" > "$OUT/device.txt"
 fi
 

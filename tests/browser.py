@@ -41,7 +41,10 @@ class Browser:
                 f"--window-size={self.width},{self.height}", "about:blank"]
         # its own process group: the renderer, GPU and crash-handler children end with it, before its profile folder
         # is removed (one of them still writing there made the removal fail: "Directory not empty: 'Default'")
-        self.proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+        # TMPDIR inside the profile folder: Chromium's singleton folders (/tmp/org.chromium.Chromium.*, left behind by
+        # a signalled browser) go where the folder's removal takes them
+        self.proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+                                     env={**os.environ, "TMPDIR": self._dir.name})
         port_file = Path(self._dir.name) / "DevToolsActivePort"
         deadline = time.monotonic() + self.timeout
         while not (port_file.is_file() and port_file.read_text().strip()):

@@ -44,6 +44,7 @@ __all__ = [
     "is_done",
     "mark_done",
     "source_digest",
+    "source_roots",
     "stage1_dir",
     "stage1_key",
     "stage1_lock",
@@ -60,8 +61,9 @@ RESULT_FILE = "result.json"
 
 DONE_FILE = "DONE"
 
-SOURCE_PACKAGES = ("arcsem", "backbones", "losses")
-"""The packages whose code trains a model (arcsem's core and the built-in plugins)."""
+SOURCE_PACKAGES = ("arcsem", "arcsem.backbones", "arcsem.losses")
+"""The packages whose code trains a model: arcsem's core and the built-in plugins (folders of their own in a
+checkout, installed as ``arcsem.backbones`` and ``arcsem.losses``)."""
 SOURCE_SUFFIXES = (".py", ".cpp", ".h", ".cu")
 
 
@@ -76,15 +78,15 @@ def tree_digest(roots: list[Path]) -> str:
     return h.hexdigest()[:16]
 
 
+def source_roots() -> list[Path]:
+    """The installed folders of :data:`SOURCE_PACKAGES`."""
+    return [Path(next(iter(importlib.util.find_spec(name).submodule_search_locations))) for name in SOURCE_PACKAGES]
+
+
 @functools.lru_cache(maxsize=1)
 def source_digest() -> str:
-    """:func:`tree_digest` of the installed :data:`SOURCE_PACKAGES` (once a process; ~300 files, milliseconds)."""
-    roots = []
-    for name in SOURCE_PACKAGES:
-        spec = importlib.util.find_spec(name)
-        if spec is not None and spec.submodule_search_locations:
-            roots.append(Path(next(iter(spec.submodule_search_locations))))
-    return tree_digest(roots)
+    """:func:`tree_digest` of :func:`source_roots` (once a process; ~400 files, milliseconds)."""
+    return tree_digest(source_roots())
 
 
 def stage1_key(cfg: Mapping) -> str:

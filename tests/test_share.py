@@ -74,6 +74,9 @@ def test_key_follows_the_source_code(monkeypatch, tmp_path):
     (tmp_path / "pkg" / "sub" / "k.cpp").rename(tmp_path / "pkg" / "k.cpp")  # same content, moved
     assert share.tree_digest([tmp_path / "pkg"]) != d
     assert len(share.source_digest()) == 16
+    roots = share.source_roots()  # the core and both plugin folders, wherever they are installed
+    assert len({r.resolve() for r in roots}) == 3 and all((r / "__init__.py").is_file() for r in roots)
+    assert any((r / "gaussians" / "cpp").is_dir() for r in roots)  # the backbones' C++ sources count
 
 
 def test_dir_root_and_description(tmp_path, monkeypatch):

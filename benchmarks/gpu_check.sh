@@ -15,7 +15,8 @@
 #            gs2d_triton, gs3d, gs3d_gsplat, gs2d_torchloss (auto with the PyTorch D-SSIM and normal consistency)
 #            when named)
 #   demo     the whole `make demo` job with device=cuda, each of DEMO_RASTERIZERS (default auto gsplat),
-#            nvidia-smi dmon sampling
+#            nvidia-smi dmon sampling; DEMO_PYSPY=1: under py-spy (carried wheel; --nonblocking, 50 Hz), its host time
+#            by function into $OUT/demo_<r>.host.md (benchmarks/host_profile.py) and the raw profile (gzip)
 #   float32  (only when named) float32 gradients of the PyTorch and Triton paths against float64 on the auto demo's
 #            stage-1 model (benchmarks/gpu/triton_float32.py; after `demo`) into $OUT/float32.txt
 #   stage2ab (only when named) stage 2 of the demo twice on the auto demo's stage 1 (S2AB_STAGE1, default
@@ -46,12 +47,17 @@ nogsplat() { for w in "$@"; do [[ "${GSPLAT:-1}" = 0 && "$w" == *gsplat* ]] || e
 # its exit status in /tmp/NAME.rc and its wall seconds in /tmp/NAME.wall; a colour cache of its own (no job reuses
 # another's pseudo-colours or matches)
 demo() {
-  local name=$1 r=$2 seed=$3 s; shift 3
+  local name=$1 r=$2 seed=$3 s spy=(); shift 3
+  if [ "${DEMO_PYSPY:-0}" = 1 ] && [ -f /tmp/pyspy_ok ]; then spy=(py-spy record --nonblocking -r 50 -f raw -o "/tmp/$name.pyspy" --); fi
   s=$(date +%s.%N)
-  env -u TQDM_DISABLE TQDM_MININTERVAL=5 timeout "${DEMO_TIMEOUT:-300}" arcsem experiment=demo device=cuda backbone.rasterizer="$r" seed="$seed" "$@" \
+  env -u TQDM_DISABLE TQDM_MININTERVAL=5 timeout "${DEMO_TIMEOUT:-300}" ${spy[@]+"${spy[@]}"} arcsem experiment=demo device=cuda backbone.rasterizer="$r" seed="$seed" "$@" \
     colorize.cache_dir="/tmp/$name.cc" hydra.run.dir="/tmp/$name" 2>&1 | python3 benchmarks/gpu/summary.py --stamp > "/tmp/$name.log"
   echo "${PIPESTATUS[0]}" > "/tmp/$name.rc"
   python3 -c "print(round($(date +%s.%N) - $s, 1))" > "/tmp/$name.wall"
+  if [ -s "/tmp/$name.pyspy" ]; then
+    python3 benchmarks/host_profile.py "/tmp/$name.pyspy" --top 60 > "$OUT/$name.host.md" 2>&1
+    gzip -c "/tmp/$name.pyspy" > "$OUT/$name.pyspy.gz"
+  fi
 }
 
 if has setup; then
@@ -73,6 +79,10 @@ if has setup; then
   python3 -c "import gsplat; print('gsplat', gsplat.__version__)" || echo "no gsplat: rasterizer=gsplat cannot run here"
   python3 -c "import triton; print('triton', triton.__version__, '(rasterizer=triton)')" || echo "no triton: rasterizer=triton cannot run here"
   python3 -c "import imageio_ffmpeg as f; print('ffmpeg', f.get_ffmpeg_version(), '(MP4 orbits)')" || echo "no ffmpeg: the orbits are GIFs"
+  if command -v py-spy > /dev/null && py-spy record --nonblocking -d 2 -f raw -o /tmp/pyspy_probe -- \
+      python3 -c "import time; time.sleep(1)" > /dev/null 2>&1 && [ -s /tmp/pyspy_probe ]; then
+    touch /tmp/pyspy_ok; echo "py-spy: samples here (DEMO_PYSPY=1 profiles the demos' host side)"
+  else echo "py-spy: cannot sample here"; fi
   python3 -c "import torch; print(torch.cuda.get_device_name())" > "$OUT/device.txt"
 fi
 

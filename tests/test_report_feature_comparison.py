@@ -43,8 +43,10 @@ def test_one_row_per_references_and_extractor(tmp_path):
             if ln.startswith("| ") and "References" not in ln}
     head = [c.label for c in t.columns]
     at = {k: head.index(k) for k in ("PSNR in cov.", "PSNR out cov.", "coverage", "features")}
-    assert rows["1, daisy"][at["PSNR out cov."]] == "12.10" and rows["1, learned"][at["PSNR in cov."]] == "20.60"
+    # bold: the best extractor at each reference count (not the best reference count)
+    assert rows["1, daisy"][at["PSNR out cov."]] == "**12.10**" and rows["1, learned"][at["PSNR in cov."]] == "**20.60**"
     assert rows["3, daisy"][at["PSNR out cov."]] == "**15.20**" and rows["1, vgg16"][at["coverage"]] == "0.850"
+    assert rows["1, vgg16"][at["PSNR out cov."]] == "11.50" and rows["3, vgg16"][at["PSNR out cov."]] == "14.00"
     assert rows["1, vgg16"][at["features"]] == "vgg16-random" and rows["3, learned"][at["features"]] == "missing"
     assert head.index("PSNR") < at["PSNR in cov."]  # the whole-image held-out PSNR is there too
     assert sum(n.startswith("missing job: ") for n in t.notes) == 1

@@ -2,7 +2,7 @@
 
 Rows follow the study's order; several runs of one row (seeds) are averaged and shown as
 ``mean ± std``. The best value of each column is bold (max for PSNR/SSIM, min for LPIPS and depth
-error). NaN metrics print ``n/a`` and a note says why (e.g. LPIPS weights missing); rows whose
+error; among the rows of one scene and reference count where a study's rows join several keys). NaN metrics print ``n/a`` and a note says why (e.g. LPIPS weights missing); rows whose
 jobs did not finish print ``missing`` and the notes list those jobs.
 """
 from __future__ import annotations
@@ -317,6 +317,13 @@ def _paired_note(df: pd.DataFrame, spec, key: str, label: str) -> list[str]:
             + "; ".join(parts) + "."]
 
 
+def _group(study: str, row: str) -> str:
+    """The rows a row's values are bolded among: in a study whose rows join several keys (``also``: a scene and a
+    reference count, then the stage-2 variant or extractor) the rows that differ only in the last key, so that the
+    bold says which variant is best for that scene and count, not which scene is easiest; else every row."""
+    return str(row).rsplit("/", 1)[0] if STUDIES[study].also and "/" in str(row) else ""
+
+
 def build_table(coll: Collection, study: str) -> Table:
     """The table of ``study`` from a :class:`Collection` (rows with neither runs nor missing jobs omitted)."""
     df = coll.runs[coll.runs["study"] == study] if len(coll.runs) else coll.runs
@@ -329,13 +336,15 @@ def build_table(coll: Collection, study: str) -> Table:
         if key is not None:
             columns.append(replace(c, key=key))
     nums = _summary(df, study, columns, missing)
+    groups = nums["row"].map(lambda row: _group(study, row)) if len(nums) else pd.Series(dtype=str)
     best = {}
     for c in [c for c in columns if not c.text]:
-        vals = nums[c.key].dropna() if len(nums) else pd.Series(dtype=float)
-        if c.best and len(vals) > 1:  # a lone value is not "best" of anything
-            best[c.key] = round(vals.max() if c.best == "max" else vals.min(), c.digits)
+        for g in set(groups):
+            vals = nums.loc[groups == g, c.key].dropna() if len(nums) else pd.Series(dtype=float)
+            if c.best and len(vals) > 1:  # a lone value is not "best" of anything
+                best[g, c.key] = round(vals.max() if c.best == "max" else vals.min(), c.digits)
     cells = []
-    for _, r in nums.iterrows():
+    for i, r in nums.iterrows():
         row = []
         for c in columns:
             if r["status"] == "missing" and not c.key.startswith("paper."):
@@ -346,7 +355,8 @@ def build_table(coll: Collection, study: str) -> Table:
                 continue
             mean, std = r[c.key], r.get(f"{c.key}.std", math.nan)
             n = 1 if c.key.startswith("paper.") else int(r["n"])
-            bold = c.key in best and not math.isnan(mean) and round(mean, c.digits) == best[c.key]
+            top = best.get((groups[i], c.key))
+            bold = top is not None and not math.isnan(mean) and round(mean, c.digits) == top
             row.append((_fmt(mean, std, n, c.digits), bold))
         cells.append(row)
     notes = _notes(study, df, nums, columns, missing)

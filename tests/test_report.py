@@ -381,3 +381,31 @@ def test_colour_grid_shows_held_out_views_and_marks_references(tmp_path):
     tile_h = marked.shape[0] // 2  # v0, v1: the reference's row label has a second line, "(reference)"
     row_label = lambda r: int((marked[r * tile_h: (r + 1) * tile_h, :90] < 128).any(-1).any(-1).sum())
     assert row_label(1) > 1.5 * row_label(0)
+
+
+def test_runs_on_several_datasets_get_a_grid_each_with_their_own_views(tmp_path):
+    """colorization_benchmark's scenes have views of their own names: one grid per dataset (config.yaml), each with
+    its views and ground truth, its labels without the scene they share; no tile is "missing"."""
+    import cv2
+
+    from arcsem.report.grids import study_grids
+
+    runs = {}
+    for scene, views, level in (("grain", ["h_01", "v_09"], 60), ("chair", ["r_0", "r_88"], 120)):
+        for variant in ("default", "pseudo-colours"):
+            run = tmp_path / f"{scene}_{variant}"
+            (run / "config.yaml").parent.mkdir(parents=True)
+            (run / "config.yaml").write_text(f"dataset:\n  kind: transforms\n  path: /data/{scene}\n")
+            for v in views:
+                _png(run / f"colorize/renders/test/{v}.png", level)
+                _png(run / f"colorize/renders/test/{v}_gt.png", level + 1)
+            runs[f"{scene}, 1, {variant}"] = run
+    grids = study_grids("colorization_benchmark", runs, tmp_path / "g")
+    assert [t for t, _ in grids] == ["colorization_benchmark: coloured views (held-out views), grain",
+                                     "colorization_benchmark: coloured views (held-out views), chair"]
+    for (_, path), level in zip(grids, (60, 120)):
+        img = cv2.imread(str(path))
+        tiles = img[22:22 + 160 - 1, 90:, 0]  # the first view's row: the ground truth, then the two runs
+        assert set(np.unique(tiles[80])) <= {level, level + 1, 255}  # no grey "missing" tile (200, its border 120)
+    one = study_grids("colorization_benchmark", dict(list(runs.items())[:2]), tmp_path / "g1")
+    assert [t for t, _ in one] == ["colorization_benchmark: coloured views (held-out views)"]  # one dataset: as before

@@ -211,15 +211,52 @@ def _marked(names: list[str], run: Path) -> list[str]:
     return [f"{n} (reference)" if n in refs else n for n in names]
 
 
+def _dataset(run: Path) -> tuple[str, str]:
+    """``(key, name)`` of the run's dataset (``config.yaml``): runs with equal keys show the same views."""
+    import json
+
+    try:
+        ds = (yaml.safe_load((run / "config.yaml").read_text()) or {}).get("dataset") or {}
+    except (FileNotFoundError, yaml.YAMLError):
+        ds = {}
+    if not isinstance(ds, dict):
+        ds = {"name": str(ds)}
+    where = next((ds.get(k) for k in ("path", "root", "dir") if isinstance(ds.get(k), str)), None)
+    name = ds.get("specimen") or (Path(where).name if where else None) or ds.get("name") or ds.get("kind") or "dataset"
+    return json.dumps(ds, sort_keys=True, default=str), str(name)
+
+
 def study_grids(study: str, runs: Mapping[str, Path], out: Path,
                 gt: GroundTruth | None = None) -> list[tuple[str, Path]]:
     """Grids of one study: ``runs`` maps row label -> one run folder. Returns ``[(title, png)]``.
 
     Held-out renders are shown where the runs have them, else training-view renders. Ground truth
-    missing from the runs is rendered from the dataset by ``gt`` (default: tiles in ``out/gt``).
+    missing from the runs is rendered from the dataset by ``gt`` (default: tiles in ``out/gt``). Runs on
+    several datasets (``colorization_benchmark``'s scenes) get a grid per dataset, each with its own views.
     """
-    labels, dirs = list(runs), [Path(d) for d in runs.values()]
     gt = gt if gt is not None else GroundTruth(out / "gt")
+    groups: dict[str, tuple[str, dict[str, Path]]] = {}
+    for label, d in runs.items():
+        key, name = _dataset(Path(d))
+        groups.setdefault(key, (name, {}))[1][label] = Path(d)
+    if len(groups) == 1:
+        return _grids(study, next(iter(groups.values()))[1], out, gt, "", "")
+    return [g for k, (name, sub) in enumerate(groups.values())
+            for g in _grids(study, _short(sub), out, gt, f", {name}", f"_{k}")]
+
+
+def _short(runs: Mapping[str, Path]) -> dict[str, Path]:
+    """The labels without the part all of them share first ("chair (held out), 1, default" -> "1, default")."""
+    heads = {label.split(", ", 1)[0] for label in runs}
+    if len(heads) != 1 or not all(", " in label for label in runs):
+        return dict(runs)
+    return {label.split(", ", 1)[1]: d for label, d in runs.items()}
+
+
+def _grids(study: str, runs: Mapping[str, Path], out: Path, gt: GroundTruth, title_end: str,
+           file_end: str) -> list[tuple[str, Path]]:
+    """:func:`study_grids` of runs on one dataset (``title_end``, ``file_end``: what tells its grids apart)."""
+    labels, dirs = list(runs), [Path(d) for d in runs.values()]
     grids = []
     for kind in KINDS.get(study, ("gray", "depth", "color")):
         folders, suffix, gt_kind, gt_label, title = GRID[kind]
@@ -231,8 +268,8 @@ def study_grids(study: str, runs: Mapping[str, Path], out: Path,
         img = make_grid(paths, [gt_label, *labels], _marked(names, dirs[0]) if folder == "colored" else names)
         where = " (held-out views)" if folder.endswith("renders/test") else (
             " (training views)" if folder.endswith("renders/train") else "")
-        grids.append((f"{study}: {title}{where}", _write(img, out / f"{study}_{kind}.png")))
-        bar = _depth_bar(dirs, out, study) if kind == "depth" else None
+        grids.append((f"{study}: {title}{where}{title_end}", _write(img, out / f"{study}_{kind}{file_end}.png")))
+        bar = _depth_bar(dirs, out, f"{study}{file_end}") if kind == "depth" else None
         if bar is not None:
             grids.append((f"{study}: depth colour scale (both columns show the ground truth's pixels)", bar))
     return grids

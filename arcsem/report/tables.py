@@ -2,8 +2,9 @@
 
 Rows follow the study's order; several runs of one row (seeds) are averaged and shown as
 ``mean ± std``. The best value of each column is bold (max for PSNR/SSIM, min for LPIPS and depth
-error; among the rows of one scene and reference count where a study's rows join several keys). NaN metrics print ``n/a`` and a note says why (e.g. LPIPS weights missing); rows whose
-jobs did not finish print ``missing`` and the notes list those jobs.
+error; among the rows of one scene and reference count where a study's rows join several keys). NaN
+metrics print ``n/a`` and a note says why (e.g. LPIPS weights missing); rows whose jobs did not finish
+print ``missing`` and the notes list those jobs.
 """
 from __future__ import annotations
 

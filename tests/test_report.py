@@ -409,3 +409,27 @@ def test_runs_on_several_datasets_get_a_grid_each_with_their_own_views(tmp_path)
         assert set(np.unique(tiles[80])) <= {level, level + 1, 255}  # no grey "missing" tile (200, its border 120)
     one = study_grids("colorization_benchmark", dict(list(runs.items())[:2]), tmp_path / "g1")
     assert [t for t, _ in one] == ["colorization_benchmark: coloured views (held-out views)"]  # one dataset: as before
+
+
+def test_rows_sharing_a_stage1_model_draw_one_curve(tmp_path):
+    """share_stage1: the default and pseudo-colour rows of one scene and seed link one stage-1 folder; the training
+    curves draw it once, named by the first row and how many more share it; a model of its own stays its own."""
+    from arcsem.report.curves import histories, training_curves
+
+    shared = tmp_path / "cache" / "stage1" / "abc"
+    shared.mkdir(parents=True)
+    (shared / "train_history.csv").write_text("step,loss,psnr\n1,0.5,10\n2,0.4,12\n")
+    runs = {}
+    for label in ("grain, 1, default", "grain, 1, pseudo-colours", "grain, 3, default"):
+        run = tmp_path / label.replace(", ", "_")
+        run.mkdir()
+        (run / "stage1").symlink_to(shared)
+        runs[label] = run
+    own = tmp_path / "own"
+    own.mkdir()
+    (own / "train_history.csv").write_text("step,loss,psnr\n1,0.6,9\n2,0.3,14\n")
+    runs["diatom, 1, default"] = own
+    got = histories(runs)
+    assert list(got) == ["grain, 1, default (+2 rows)", "diatom, 1, default"]
+    assert got["diatom, 1, default"]["psnr"].tolist() == [9, 14]
+    assert training_curves(runs, tmp_path / "c.png").is_file()

@@ -2,7 +2,8 @@
 one line per run, drawn with OpenCV (no plotting library needed).
 
 ``training_curves(runs, path)`` reads ``<run>/train_history.csv`` (or ``<run>/stage1/...``, the shared
-stage-1 model) of every run and writes one PNG with two panels; runs without a history are skipped.
+stage-1 model) of every run and writes one PNG with two panels, one curve a stage-1 model (rows sharing one are
+named together); runs without a history are skipped.
 """
 from __future__ import annotations
 
@@ -12,21 +13,28 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-__all__ = ["read_history", "training_curves"]
+__all__ = ["histories", "history_path", "read_history", "training_curves"]
 
 COLOURS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189), (140, 86, 75),
            (227, 119, 194), (127, 127, 127)]  # RGB, one per run (drawn as BGR)
 W, H, M = 420, 260, (52, 14, 22, 40)  # panel size; margins left, right, top, bottom
 
 
+def history_path(run: Path) -> Path | None:
+    """The run's stage-1 history file (its own, or the shared stage-1 model's), or None."""
+    return next((c for c in (Path(run) / "train_history.csv", Path(run) / "stage1" / "train_history.csv")
+                 if c.is_file()), None)
+
+
 def read_history(run: Path) -> pd.DataFrame | None:
     """The run's stage-1 history (``step``, ``loss``, ``psnr``, ...), or None."""
-    for cand in (Path(run) / "train_history.csv", Path(run) / "stage1" / "train_history.csv"):
-        if cand.is_file():
-            df = pd.read_csv(cand)
-            if {"step", "loss"} <= set(df.columns) and len(df):
-                return df
-    return None
+    cand = history_path(run)
+    return None if cand is None else _read(cand)
+
+
+def _read(path: Path) -> pd.DataFrame | None:
+    df = pd.read_csv(path)
+    return df if {"step", "loss"} <= set(df.columns) and len(df) else None
 
 
 def _ticks(lo: float, hi: float, n: int = 4) -> list[float]:
@@ -80,11 +88,22 @@ def _legend(labels: list[str], width: int) -> np.ndarray:
     return img
 
 
+def histories(runs: Mapping[str, Path]) -> dict[str, pd.DataFrame]:
+    """Curve label -> history, one a stage-1 model: rows that share one (``share_stage1``: the default and the
+    pseudo-colours of one scene and seed) give one curve, named by the first and how many more ("(+5 rows)")."""
+    shared: dict[Path, list[str]] = {}
+    for label, run in runs.items():
+        if (p := history_path(Path(run))) is not None:
+            shared.setdefault(p.resolve(), []).append(label)
+    return {(labels[0] if len(labels) == 1 else f"{labels[0]} (+{len(labels) - 1} rows)"): h
+            for p, labels in shared.items() if (h := _read(p)) is not None}
+
+
 def training_curves(runs: Mapping[str, Path], path: Path) -> Path | None:
     """Write the loss and PSNR panels of every run with a history to ``path``; None if none has one."""
     import cv2
 
-    hist = {label: h for label, run in runs.items() if (h := read_history(Path(run))) is not None}
+    hist = histories(runs)
     if not hist:
         return None
     loss = [(h["step"].to_numpy(float), h["loss"].to_numpy(float)) for h in hist.values()]

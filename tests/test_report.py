@@ -144,7 +144,10 @@ class _Refs(HTMLParser):
 
 def test_html_page_links_exist_and_grids(gray_sweep, ref_sweep, tmp_path):
     out = tmp_path / "report"
+    (out / "grids").mkdir(parents=True)
+    (out / "grids" / "reference_count_color_3.png").write_bytes(b"an earlier report's grid")
     page = build_report([gray_sweep, ref_sweep], out)
+    assert not (out / "grids" / "reference_count_color_3.png").exists()  # not left beside this report's
     parser = _Refs()
     parser.feed(page.read_text())
     parser.close()

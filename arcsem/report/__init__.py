@@ -42,6 +42,9 @@ def build_report(paths: list[str | Path], out: str | Path | None = None) -> Path
             raise DataError(f"{p}: no such run or multirun folder")
     out = Path(out) if out is not None else paths[0] / "report"
     out.mkdir(parents=True, exist_ok=True)
+    for sub in ("grids", "curves"):  # this report's images replace an earlier report's (ground-truth tiles kept)
+        for stale in (out / sub).glob("*.png"):
+            stale.unlink()
     coll = collect(paths, exclude=out)
     tables = write_tables(coll, out)
     grids, videos, curves, files = {}, {}, {}, {}

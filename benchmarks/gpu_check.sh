@@ -48,11 +48,15 @@ nogsplat() { for w in "$@"; do [[ "${GSPLAT:-1}" = 0 && "$w" == *gsplat* ]] || e
 # another's pseudo-colours or matches)
 demo() {
   local name=$1 r=$2 seed=$3 s spy=(); shift 3
-  if [ "${DEMO_PYSPY:-0}" = 1 ] && [ -f /tmp/pyspy_ok ]; then spy=(py-spy record --nonblocking -r 50 -f raw -o "/tmp/$name.pyspy" --); fi
+  if [ "${DEMO_PYSPY:-0}" = 1 ] && [ -f /tmp/pyspy_ok ]; then  # the job's own exit status through exit_code.py
+    spy=(py-spy record --subprocesses --nonblocking -r 50 -f raw -o "/tmp/$name.pyspy" -- python3 benchmarks/gpu/exit_code.py)
+  fi
+  rm -f "/tmp/$name.rc_job" "/tmp/$name.pyspy"
   s=$(date +%s.%N)
-  env -u TQDM_DISABLE TQDM_MININTERVAL=5 timeout "${DEMO_TIMEOUT:-300}" ${spy[@]+"${spy[@]}"} arcsem experiment=demo device=cuda backbone.rasterizer="$r" seed="$seed" "$@" \
+  env -u TQDM_DISABLE TQDM_MININTERVAL=5 EXIT_CODE_FILE="/tmp/$name.rc_job" ${spy[@]+"${spy[@]}"} timeout "${DEMO_TIMEOUT:-300}" arcsem experiment=demo device=cuda backbone.rasterizer="$r" seed="$seed" "$@" \
     colorize.cache_dir="/tmp/$name.cc" hydra.run.dir="/tmp/$name" 2>&1 | python3 benchmarks/gpu/summary.py --stamp > "/tmp/$name.log"
   echo "${PIPESTATUS[0]}" > "/tmp/$name.rc"
+  if [ -s "/tmp/$name.rc_job" ]; then cp "/tmp/$name.rc_job" "/tmp/$name.rc"; fi
   python3 -c "print(round($(date +%s.%N) - $s, 1))" > "/tmp/$name.wall"
   if [ -s "/tmp/$name.pyspy" ]; then
     python3 benchmarks/host_profile.py "/tmp/$name.pyspy" --top 60 > "$OUT/$name.host.md" 2>&1

@@ -48,6 +48,9 @@ class Study:
     rows: dict[str, str]          # row value -> label, in table order
     ours: str | None = None       # the paper's method: other rows are compared with it, paired by seed
     also: tuple[str, ...] = ()    # further keys whose values join the row: "one/daisy" (key/also...)
+    ours_last: str | None = None  # the method by the last key's value: each row is compared with the row of its
+    # group (the same values of the other keys) that has it ("synthetic/one/pseudo_only" with "synthetic/one/full")
+    group_name: str = ""          # what a group is, in the notes ("scene and reference count")
 
 
 _REFERENCES = {"one": "1", "two": "2", "three": "3", "four": "4", "five": "5"}
@@ -69,7 +72,7 @@ STUDIES: dict[str, Study] = {
               {f"{d}/{r}/{a}": f"{dn}, {n}, {an}" for d, dn in _COLOUR_SCENES
                for r, n in (("one", "1"), ("three", "3"), ("five", "5"))
                for a, an in (("full", "default"), ("pseudo_only", "pseudo-colours"))},
-              also=("colorize.references", "ablation")),
+              also=("colorize.references", "ablation"), ours_last="full", group_name="scene and reference count"),
         Study("reference_count", "colorize.references",
               {"five": "5", "four": "4", "three": "3", "two": "2", "one": "1"}, "five"),
         Study("runs", "", {}),  # every run of no known study (demo, single runs): one row per run folder

@@ -290,19 +290,30 @@ def _paired_notes(df: pd.DataFrame, study: str, columns: list[Column]) -> list[s
     keys = [(c.key, c.label if c.group == HELD_OUT else f"{c.label} (Table 1 protocol)") for c in columns
             if (c.group == HELD_OUT and c.label in ("PSNR", "PSNR out cov.")) or (c.group == TABLE1_PROTOCOL
                                                                                  and c.label == "PSNR")]
-    if spec.ours is None or not keys or "seed" not in df or spec.ours not in set(df["row"]):
+    if not keys or "seed" not in df:
         return []
-    return [n for key, label in keys if key in df for n in _paired_note(df, spec, key, label)]
+    present = set(df["row"].dropna())
+    rows = [r for r in spec.rows if r in present] + sorted(present - set(spec.rows))
+    if spec.ours is not None and spec.ours in present:
+        against = {r: spec.ours for r in rows if r != spec.ours}
+        whose = f"{spec.rows[spec.ours]}'s"
+    elif spec.ours_last is not None:  # each row against its own scene and reference count's method
+        against = {r: f"{r.rsplit('/', 1)[0]}/{spec.ours_last}" for r in rows if "/" in r
+                   and not r.endswith(f"/{spec.ours_last}")}
+        against = {r: a for r, a in against.items() if a in present}
+        name = spec.rows.get(next(iter(against.values()), ""), "").rsplit(", ", 1)[-1]  # "grain, 1, default"
+        whose = f"the {name} of the same {spec.group_name or 'group'}"
+    else:
+        return []
+    return [n for key, label in keys if key in df for n in _paired_note(df, spec, key, label, against, whose)]
 
 
-def _paired_note(df: pd.DataFrame, spec, key: str, label: str) -> list[str]:
-    """One note: ``label`` (a held-out PSNR column) of each row minus the study's own method, paired by seed."""
+def _paired_note(df: pd.DataFrame, spec, key: str, label: str, against: dict[str, str], whose: str) -> list[str]:
+    """One note: ``label`` (a held-out PSNR column) of each row minus its ``against`` row, paired by seed."""
     parts = []
-    for row in [r for r in spec.rows if r != spec.ours] + sorted(set(df["row"].dropna()) - set(spec.rows)):
-        if row not in set(df["row"]):
-            continue
+    for row, ours in against.items():
         try:
-            table, _ = pair(df, spec.ours, row, key)
+            table, _ = pair(df, ours, row, key)
         except DataError:  # several runs of one row and seed (e.g. a rerun): no unique pairing
             parts.append(f"{spec.rows.get(row, row)}: not paired (several runs of one seed)")
             continue
@@ -314,8 +325,7 @@ def _paired_note(df: pd.DataFrame, spec, key: str, label: str) -> list[str]:
     if not parts:
         return []
     what = "held-out PSNR" if label == "PSNR" else (label if "Table 1" in label else f"held-out {label}")
-    return [f"{what} minus {spec.rows[spec.ours]}'s, paired by seed (mean, 95 % t-interval): "
-            + "; ".join(parts) + "."]
+    return [f"{what} minus {whose}, paired by seed (mean, 95 % t-interval): " + "; ".join(parts) + "."]
 
 
 def _group(study: str, row: str) -> str:

@@ -84,7 +84,7 @@ if has setup; then
   python3 -c "import triton; print('triton', triton.__version__, '(rasterizer=triton)')" || echo "no triton: rasterizer=triton cannot run here"
   python3 -c "import imageio_ffmpeg as f; print('ffmpeg', f.get_ffmpeg_version(), '(MP4 orbits)')" || echo "no ffmpeg: the orbits are GIFs"
   if command -v py-spy > /dev/null && py-spy record --nonblocking -d 2 -f raw -o /tmp/pyspy_probe -- \
-      python3 -c "import time; time.sleep(1)" > /dev/null 2>&1 && [ -s /tmp/pyspy_probe ]; then
+      python3 -c "sum(i * i for i in range(5 * 10**6))" > /dev/null 2>&1 && [ -s /tmp/pyspy_probe ]; then
     touch /tmp/pyspy_ok; echo "py-spy: samples here (DEMO_PYSPY=1 profiles the demos' host side)"
   else echo "py-spy: cannot sample here"; fi
   python3 -c "import torch; print(torch.cuda.get_device_name())" > "$OUT/device.txt"

@@ -66,11 +66,14 @@ HELD_OUT = ("public_chair",)  # kept out of every tuning decision: listed on its
 
 def _name(run: Path) -> str:
     """The folder's name, or for a multirun job ``<dataset>_<references>_<variant>[_s<seed>]`` from its overrides."""
+    import yaml
+
+    from arcsem.report.collect import parse_overrides
+
     ov = run / ".hydra" / "overrides.yaml"
     if not (run.name.isdigit() and ov.is_file()):
         return run.name
-    kv = dict(line.strip().removeprefix("- ").lstrip("+").split("=", 1) for line in ov.read_text().splitlines()
-              if "=" in line)
+    kv = parse_overrides(yaml.safe_load(ov.read_text()))
     variant = kv.get("ablation", "full")
     seed = int(kv.get("seed", 0))
     return (f"{kv.get('dataset', 'synthetic')}_{kv.get('colorize.references', 'five')}_"

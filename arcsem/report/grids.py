@@ -117,12 +117,17 @@ def view_names(folder: Path, limit: int = MAX_VIEWS) -> list[str]:
     return [names[i] for i in idx]
 
 
-def _dataset_root(run: Path) -> Path | None:
+def _dataset_config(run: Path) -> dict:
+    """The run's ``dataset`` config (``config.yaml``), ``{}`` when it has none."""
     try:
-        cfg = yaml.safe_load((run / "config.yaml").read_text()) or {}
+        ds = (yaml.safe_load((run / "config.yaml").read_text()) or {}).get("dataset") or {}
     except (FileNotFoundError, yaml.YAMLError):
-        return None
-    ds = cfg.get("dataset") or {}
+        return {}
+    return ds if isinstance(ds, dict) else {"name": str(ds)}
+
+
+def _dataset_root(run: Path, ds: dict | None = None) -> Path | None:
+    ds = _dataset_config(run) if ds is None else ds
     root = next((ds.get(k) for k in ("root", "path", "dir") if isinstance(ds.get(k), str)), None)
     return None if root is None else Path(root).expanduser()
 
@@ -215,14 +220,9 @@ def _dataset(run: Path) -> tuple[str, str]:
     """``(key, name)`` of the run's dataset (``config.yaml``): runs with equal keys show the same views."""
     import json
 
-    try:
-        ds = (yaml.safe_load((run / "config.yaml").read_text()) or {}).get("dataset") or {}
-    except (FileNotFoundError, yaml.YAMLError):
-        ds = {}
-    if not isinstance(ds, dict):
-        ds = {"name": str(ds)}
-    where = next((ds.get(k) for k in ("path", "root", "dir") if isinstance(ds.get(k), str)), None)
-    name = ds.get("specimen") or (Path(where).name if where else None) or ds.get("name") or ds.get("kind") or "dataset"
+    ds = _dataset_config(run)
+    root = _dataset_root(run, ds)
+    name = ds.get("specimen") or (root.name if root else None) or ds.get("name") or ds.get("kind") or "dataset"
     return json.dumps(ds, sort_keys=True, default=str), str(name)
 
 

@@ -8,6 +8,8 @@ of a training step, as before. Equal pairs, order and offsets (tests/test_triton
 """
 from __future__ import annotations
 
+import functools
+
 import torch
 import triton
 import triton.language as tl
@@ -66,14 +68,7 @@ def bin_tiles_triton(rects: Tensor, depth: Tensor, W: int, H: int, tile: int) ->
     return Binning(splat[perm], ctile, offsets, C, H, W, tile, TX, TY)
 
 
-_ARANGES: dict = {}
-
-
+@functools.lru_cache(maxsize=16)
 def _aranges(n: int, dev: torch.device) -> Tensor:
     """``arange(n)`` on ``dev``, made once per size and device (read-only)."""
-    k = (n, dev)
-    if k not in _ARANGES:
-        if len(_ARANGES) > 16:
-            _ARANGES.clear()
-        _ARANGES[k] = torch.arange(n, device=dev)
-    return _ARANGES[k]
+    return torch.arange(n, device=dev)

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-__all__ = ["histories", "history_path", "read_history", "training_curves"]
+__all__ = ["histories", "history_path", "training_curves"]
 
 COLOURS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189), (140, 86, 75),
            (227, 119, 194), (127, 127, 127)]  # RGB, one per run (drawn as BGR)
@@ -26,13 +26,8 @@ def history_path(run: Path) -> Path | None:
                  if c.is_file()), None)
 
 
-def read_history(run: Path) -> pd.DataFrame | None:
-    """The run's stage-1 history (``step``, ``loss``, ``psnr``, ...), or None."""
-    cand = history_path(run)
-    return None if cand is None else _read(cand)
-
-
 def _read(path: Path) -> pd.DataFrame | None:
+    """A stage-1 history (``step``, ``loss``, ``psnr``, ...), or None without steps and losses."""
     df = pd.read_csv(path)
     return df if {"step", "loss"} <= set(df.columns) and len(df) else None
 

@@ -17,7 +17,7 @@ from typing import Any
 from .configs import ActConfig, ColorizeConfig, MeshConfig, RenderConfig, TrainConfig
 from .registry import plain, validate_config
 
-__all__ = ["RunConfig", "cache_root", "run_config", "validated"]
+__all__ = ["RunConfig", "cache_path", "cache_root", "run_config", "validated"]
 
 
 def cache_root(cfg: Any = None) -> Path:
@@ -27,6 +27,15 @@ def cache_root(cfg: Any = None) -> Path:
         root = plain(cfg).get("cache_dir") if hasattr(cfg, "get") else None
     root = root or os.environ.get("ARCSEM_CACHE") or "~/.cache/arcsem"
     return Path(str(root)).expanduser()
+
+
+def cache_path(sub: str, *, _root_: Any = None) -> str:
+    """``${arcsem_cache:sub}`` in a config: ``sub`` under the cache root of the config being composed (its
+    ``cache_dir``, else ``$ARCSEM_CACHE``, else ``~/.cache/arcsem``), e.g. the public colour scenes' default folder."""
+    from omegaconf import OmegaConf
+
+    root = OmegaConf.select(_root_, "cache_dir", default=None) if _root_ is not None else None
+    return str(cache_root({"cache_dir": root}) / sub)
 
 
 def validated(schema: type, raw: Any, where: str) -> Any:

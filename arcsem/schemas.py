@@ -111,8 +111,10 @@ def setup() -> None:
     _store_backbone_schemas(cs)
     Plugins.instance().register(EntryPointSearchPath)
     from .backbones.gs2d.config import lowpass_for
+    from .runconfig import cache_path
 
     OmegaConf.register_new_resolver("gs2d_lowpass", lowpass_for, replace=True)
+    OmegaConf.register_new_resolver("arcsem_cache", cache_path, replace=True)
     OmegaConf.register_new_resolver("of_steps", of_steps, replace=True)
     OmegaConf.register_new_resolver("slurm_cpus", slurm_cpus, replace=True)
     OmegaConf.register_new_resolver("slurm_gpus", slurm_gpus, replace=True)

@@ -1,7 +1,8 @@
 """Public multi-view scenes with true colour for the colour benchmark (issue 38), as arcsem transforms scenes.
 
 Each dataset is read from a fetched git mirror (no work tree: ``git --git-dir=MIRROR show COMMIT:PATH``) and
-written to ``OUT/<name>`` (default ``/work/exp/colour_scenes/<name>``, outside the repository):
+written to ``OUT/<name>`` (default ``<arcsem cache root>/colour_scenes/<name>``, where ``dataset=public_<name>``
+reads it; the cache root is ``$ARCSEM_CACHE`` or ``~/.cache/arcsem``):
 
 * ``images/`` grey input views: the luminance of the colour view (Rec. 709 weights on the 8-bit values);
 * ``color/`` the colour ground truth of every view (``color_path``), ``masks/`` where the dataset has alpha;
@@ -11,9 +12,10 @@ written to ``OUT/<name>`` (default ``/work/exp/colour_scenes/<name>``, outside t
 * ``transforms.json`` (frames with ``split``; intrinsics at the written size; ``source`` block) and ``SOURCE.md``
   (repository, commit, paths, licence).
 
-Usage (each ``--mirror`` defaults to ``/work/.mirror/<owner>+<name>/repo``, what ``fetch`` writes)::
+Usage (each ``--mirror`` defaults to ``/work/.mirror/<owner>+<name>/repo``; elsewhere make one with
+``git clone --bare https://github.com/<owner>/<name> DIR`` and pass ``--mirror NAME=DIR``)::
 
-    python benchmarks/colour_scenes.py [--out /work/exp/colour_scenes] [--only chair] [--mirror chair=DIR]
+    python benchmarks/colour_scenes.py [--out DIR] [--only chair] [--mirror chair=DIR]
 
 Then ``arcsem dataset=transforms dataset.path=OUT/chair stage=check colorize.references=five``.
 """
@@ -23,12 +25,15 @@ import argparse
 import json
 import os
 import subprocess
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")  # before cv2 is imported: EXR renders readable
 import cv2
 import numpy as np
+
+from arcsem.runconfig import cache_root
 
 __all__ = ["DATASETS", "Source", "main", "reference_sets", "write_scene"]
 
@@ -216,15 +221,21 @@ def _source_md(name: str, s: Source, n_train: int, n_test: int, refs: dict) -> s
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="/work/exp/colour_scenes", help="parent folder of the scenes")
+    ap.add_argument("--out", default=None, help="parent folder of the scenes (default: <arcsem cache root>/colour_scenes, "
+                    "where dataset=public_<name> looks)")
     ap.add_argument("--only", nargs="*", default=list(DATASETS), choices=list(DATASETS))
     ap.add_argument("--mirror", action="append", default=[], help="NAME=GIT_DIR (default: /work/.mirror/...)")
     args = ap.parse_args(argv)
     mirrors = dict(m.split("=", 1) for m in args.mirror)
+    out = Path(args.out) if args.out else cache_root() / "colour_scenes"
     for name in args.only:
         s = DATASETS[name]
         mirror = Path(mirrors.get(name, f"/work/.mirror/{s.repo.replace('/', '+')}/repo"))
-        path = write_scene(name, s, mirror, Path(args.out) / name)
+        if not (mirror / "HEAD").is_file():
+            print(f"error: --mirror {name}: no git repository at {mirror}; make one with `git clone --bare "
+                  f"https://github.com/{s.repo} DIR` and pass --mirror {name}=DIR", file=sys.stderr)
+            return 2
+        path = write_scene(name, s, mirror, out / name)
         print(f"{name}: {path}{'  (held out)' if s.held_out else ''}")
     return 0
 

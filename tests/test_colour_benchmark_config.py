@@ -47,7 +47,27 @@ def test_the_benchmark_composes_with_every_scene(scene):
         assert cfg.dataset.get("specimen", "grain") == {"synthetic": "grain"}.get(scene, scene)
 
 
-def test_a_public_scene_defaults_to_the_scenes_folder_outside_the_benchmark():
+@pytest.mark.parametrize("experiment", [False, True])
+def test_a_public_scene_defaults_to_the_cache_root_of_the_run(experiment, monkeypatch, tmp_path):
+    """Not a folder of one machine: under cache_dir, else $ARCSEM_CACHE (what benchmarks/colour_scenes.py writes)."""
+    from arcsem.schemas import setup
+
+    setup()
+    exp = ["experiment=colorization_benchmark"] if experiment else []
+    monkeypatch.setenv("ARCSEM_CACHE", str(tmp_path / "env"))
     with initialize_config_module("arcsem.conf", version_base="1.3"):
-        cfg = compose("config", overrides=["dataset=public_chair"])
-    assert cfg.dataset.path == "/work/exp/colour_scenes/chair"
+        by_env = compose("config", overrides=[*exp, "dataset=public_chair"])
+        by_key = compose("config", overrides=[*exp, "dataset=public_chair", "cache_dir=/data/cache"])
+    assert by_env.dataset.path == f"{tmp_path}/env/colour_scenes/chair"
+    assert by_key.dataset.path == "/data/cache/colour_scenes/chair"
+
+
+def test_a_missing_public_scene_says_how_to_write_it(tmp_path):
+    from arcsem.data import load_scene
+    from arcsem.errors import DataError
+
+    cfg = _compose("dataset=public_fox", f"benchmark_root={tmp_path}/scenes")
+    with pytest.raises(DataError) as err:
+        load_scene(cfg.dataset)
+    assert str(err.value) == (f"dataset path does not exist: {tmp_path}/scenes/fox (`python benchmarks/colour_scenes.py "
+                              f"--out {tmp_path}/scenes` writes it)")

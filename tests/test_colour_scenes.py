@@ -80,3 +80,11 @@ def test_a_mirrored_dataset_becomes_a_scene_arcsem_reads_with_colour_references(
     assert abs(float(grey[8, 8]) - float(rgb[8, 8] @ colour_scenes.LUMA)) <= 1  # the grey is the luminance
     assert rgb[8, 8, 1] > 150 and rgb[8, 8, 0] < 60  # the colour is kept: green
     assert f["fl_x"] == pytest.approx(0.5 * 16 / np.tan(0.5 * 0.69))  # intrinsics at the written size
+
+
+def test_a_missing_mirror_is_one_error_line_that_says_how_to_make_it(tmp_path, capsys):
+    assert colour_scenes.main(["--only", "chair", "--mirror", f"chair={tmp_path}/none", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"error: --mirror chair: no git repository at {tmp_path}/none") and "\n" not in err
+    assert f"git clone --bare https://github.com/{colour_scenes.DATASETS['chair'].repo}" in err
+    assert list(tmp_path.iterdir()) == []  # nothing written

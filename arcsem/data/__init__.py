@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..errors import ConfigError, PluginError
+from ..errors import ConfigError, DataError, PluginError
 from ..scene import Scene
 from .build import ReaderOptions, reader_options
 from .colmap import read_colmap
@@ -34,8 +34,10 @@ __all__ = [
 KINDS = ("transforms", "colmap", "synthetic")
 # Keys of a dataset config that are reader options, not parameters of the synthetic generator.
 _READER_KEYS = {"kind", "path", "downscale", "split", "test_every", "max_views", "holdout", "images", "masks",
-                "undistort", "params"}
-_KIND_KEYS = {"transforms": ("path",), "colmap": ("path", "images", "masks", "undistort"), "synthetic": ("params",)}
+                "undistort", "params", "source"}
+# ``source``: how the data at ``path`` is obtained (a command), said in the error when ``path`` does not exist.
+_KIND_KEYS = {"transforms": ("path", "source"), "colmap": ("path", "images", "masks", "undistort", "source"),
+              "synthetic": ("params",)}
 
 
 def dataset_keys(kind: str) -> list[str]:
@@ -64,6 +66,7 @@ class DatasetSpec:
     images: str = "images"
     masks: str | None = None
     undistort: bool = True
+    source: str | None = None
 
 
 def check_dataset_config(cfg: Any) -> DatasetSpec:
@@ -92,11 +95,14 @@ def check_dataset_config(cfg: Any) -> DatasetSpec:
     path = _get(cfg, "path")
     if not path:
         raise ConfigError(f"dataset.path is not set (dataset kind '{kind}')")
+    source = _get(cfg, "source")
+    source = None if source is None else str(source)
     if kind == "transforms":
-        return DatasetSpec(kind, opts, path=str(path))
+        return DatasetSpec(kind, opts, path=str(path), source=source)
     masks = _get(cfg, "masks")
     return DatasetSpec(kind, opts, path=str(path), images=str(_get(cfg, "images", "images")),
-                       masks=None if masks is None else str(masks), undistort=bool(_get(cfg, "undistort", True)))
+                       masks=None if masks is None else str(masks), undistort=bool(_get(cfg, "undistort", True)),
+                       source=source)
 
 
 def _synthetic_params(cfg: Any) -> dict:
@@ -131,6 +137,8 @@ def load_scene(cfg: Any) -> Scene:
         except ImportError as exc:
             raise PluginError(f"dataset kind 'synthetic' needs arcsem.synthetic.ensure_scene: {exc}") from None
         return read_transforms(Path(ensure_scene(**spec.params)), spec.options)
+    if spec.source and not Path(spec.path).exists():
+        raise DataError(f"dataset path does not exist: {spec.path} ({spec.source})")
     if spec.kind == "transforms":
         return read_transforms(spec.path, spec.options)
     return read_colmap(spec.path, spec.options, images=spec.images, masks=spec.masks, undistort=spec.undistort)

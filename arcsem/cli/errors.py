@@ -86,9 +86,26 @@ def _unparsable_override(exc: BaseException) -> str | None:
             f"another special character); quote it, in a shell: \"{key}='{value}'\"")
 
 
+def _missing_option(exc: BaseException) -> str | None:
+    """For a config group option that does not exist (``backbone=gs4d``): the option, the nearest name and the
+    group's options, without the schemas Hydra lists among them (``gs2d_schema``) or its search path."""
+    import difflib
+
+    from hydra.errors import MissingConfigException
+
+    missing = getattr(exc, "missing_cfg_file", None)
+    if not isinstance(exc, MissingConfigException) or not missing or "/" not in missing or exc.options is None:
+        return None
+    group, name = missing.rsplit("/", 1)
+    options = [o for o in exc.options if not o.endswith("_schema")]
+    near = difflib.get_close_matches(name, options, n=1)
+    hint = f"did you mean {group}={near[0]}? " if near else ""
+    return f"{group}={name}: no such option; {hint}available: {', '.join(options) or 'none'}"
+
+
 def describe(exc: BaseException) -> str:
     """The one-line message for a user-facing error (see :func:`exit_code`)."""
-    unknown = _unknown_schema_key(exc) or _unparsable_override(exc)
+    unknown = _unknown_schema_key(exc) or _unparsable_override(exc) or _missing_option(exc)
     if unknown:
         return unknown
     if isinstance(exc, KeyboardInterrupt):

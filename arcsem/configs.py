@@ -225,6 +225,10 @@ class ReaderOptions:
     max_views: int | None = checked(None, ge=2)  # keep at most this many views, evenly spaced, before splitting
     holdout: list[str] = field(default_factory=list)  # split=holdout: the test views, by name (a leave-one-out
     # sweep: dataset.split=holdout dataset.holdout=[v_02],[v_03],[v_04])
+    # true: colour views are read as their luminance (Rec. 709, as an SEM would see them), their colour kept as the
+    # view's ground-truth colour (stage 2's colour metrics): any colour multi-view dataset becomes a colourisation
+    # benchmark, references by file (colorize.references=[.../r_0.png])
+    grey: bool = False
 
 
 MESH_FORMATS = ("ply", "glb", "obj")

@@ -33,11 +33,10 @@ os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")  # before cv2 is imported
 import cv2
 import numpy as np
 
+from arcsem.data.io import LUMA  # Rec. 709, as dataset.grey=true reads a colour view
 from arcsem.runconfig import cache_root
 
 __all__ = ["DATASETS", "Source", "main", "reference_sets", "write_scene"]
-
-LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709
 
 
 @dataclass(frozen=True)

@@ -55,3 +55,20 @@ def test_refusals_name_the_file(tmp_path):
         load_references(sc, [str(_png(tmp_path / "v2.png", np.full((12, 16, 3), 0.5)))])
     with pytest.raises(DataError, match="does not exist"):
         load_references(sc, [str(tmp_path / "nope.png")])
+
+
+def test_a_view_named_with_its_folder_takes_the_file_of_that_folder(tmp_path):
+    """NeRF-synthetic folders repeat stems (train/r_0, test/r_0): views are named ``train/r_0`` and a reference
+    given as the dataset's own ``.../train/r_0.png`` (RGBA) colours that view, over black as the reader takes it."""
+    sc = _scene()
+    sc.train.names[:] = ["train/r_0", "train/r_1", "train/r_2"]
+    rgba = np.random.rand(12, 16, 4)
+    rgba[..., 3] = np.arange(16) >= 8  # the left half transparent
+    (tmp_path / "train").mkdir()
+    r = load_references(sc, [str(_png(tmp_path / "train" / "r_1.png", rgba))])
+    assert r.names == ["train/r_1"] and r.indices.tolist() == [1]
+    assert float(r.images[0, :, :8].abs().max()) == 0.0 and float(r.images[0, :, 8:].min()) >= 0.0
+    want = (np.clip(rgba[..., :3], 0, 1) * 255).astype(np.uint8)[:, 8:] / 255
+    np.testing.assert_allclose(r.images[0, :, 8:].numpy(), want, atol=1e-6)
+    with pytest.raises(DataError, match=r"r_1\.png.*matches no training view \(train/r_0"):  # a stem alone: no
+        load_references(sc, [str(_png(tmp_path / "r_1.png", rgba))])

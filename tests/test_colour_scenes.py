@@ -9,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import torch
 
 from arcsem.data.transforms import read_transforms
 
@@ -88,3 +89,26 @@ def test_a_missing_mirror_is_one_error_line_that_says_how_to_make_it(tmp_path, c
     assert err.startswith(f"error: --mirror chair: no git repository at {tmp_path}/none") and "\n" not in err
     assert f"git clone --bare https://github.com/{colour_scenes.DATASETS['chair'].repo}" in err
     assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+def test_dataset_grey_reads_the_raw_colour_dataset_as_the_written_scene(tmp_path):
+    """``dataset.grey=true`` on the raw renders gives what colour_scenes.py writes: the luminance as the grey input,
+    the colour as ground truth, masks from alpha; without it the colour is the input (and a warning says so)."""
+    from arcsem.configs import ReaderOptions
+
+    mirror, commit = _mirror(tmp_path)
+    src = colour_scenes.Source("someone/data", commit, "", "blender", "CC-0", "a test square", width=16, n_train=8,
+                               n_test=3)
+    written = read_transforms(colour_scenes.write_scene("square", src, mirror, tmp_path / "scene"))
+    raw = mirror.parent
+    grey = read_transforms(raw, ReaderOptions(downscale=2.0, grey=True))
+    as_is = read_transforms(raw, ReaderOptions(downscale=2.0))
+    for split in ("train", "test"):
+        a, b = getattr(grey, split), getattr(written, split)
+        assert len(a) == len(b) == {"train": 8, "test": 3}[split]  # the same views in the same order
+        assert (a.images - b.images).abs().max() <= 2 / 255  # 8-bit rounding of the written files
+        assert (a.colors - b.colors).abs().max() <= 2 / 255 and a.colors[:, 8, 8, 1].min() > 0.6  # green kept
+        assert torch.equal(a.masks, b.masks)
+        assert torch.allclose(a.images[..., 0], a.images[..., 2])  # grey: one value in every channel
+    assert as_is.train.colors is None and as_is.train.images[0, 8, 8, 1] > 0.6  # the colour itself is the input
+    assert any("colour content" in w for w in as_is.warnings) and not any("colour content" in w for w in grey.warnings)

@@ -1,7 +1,8 @@
 """Artist colour references: matched to training views by name, validated at the boundary.
 
 References come either from image files (the file stem names the training view, e.g.
-``r_013.png`` colours view ``r_013``) or from a preset of the scene (``five``, ``four``, ``three``,
+``r_013.png`` colours view ``r_013``; where views are named with their folder, ``train/r_0``, so is the file:
+``.../train/r_0.png``) or from a preset of the scene (``five``, ``four``, ``three``,
 ``two``, ``one``: the paper's reference sets, ``scene.reference_sets``) whose images are
 ``scene.references``. Every reference is checked: its size must equal the view's, its name must be a
 training view, and its content must be a colour image (not empty, not grey).
@@ -44,7 +45,8 @@ class References:
 
 
 def _read_image(path: Path) -> Tensor:
-    """``[H, W, 3]`` float32 in [0, 1] (alpha dropped, grey broadcast to 3 channels)."""
+    """``[H, W, 3]`` float32 in [0, 1] (RGBA over black, as the dataset readers take a view; grey broadcast to 3
+    channels)."""
     import imageio.v3 as iio
 
     try:
@@ -55,6 +57,8 @@ def _read_image(path: Path) -> Tensor:
     arr = arr.astype(np.float32) / scale
     if arr.ndim == 2:
         arr = np.repeat(arr[..., None], 3, -1)
+    if arr.shape[-1] == 4 and arr[..., 3].any():  # (an alpha of 0 everywhere is ignored, as the readers do)
+        arr = arr[..., :3] * arr[..., 3:]
     return torch.from_numpy(np.ascontiguousarray(arr[..., :3]))
 
 
@@ -85,6 +89,19 @@ def _view_index(names: list[str], name: str, where: str) -> int:
     return names.index(name)
 
 
+def _view_of_file(names: list[str], path: Path) -> str:
+    """The training view a reference file colours: its stem (``r_013.png`` -> ``r_013``), or, where views are named
+    with their folder because stems repeat (:func:`~arcsem.names.view_names`: ``train/r_0``), the file's last
+    path components (``.../train/r_0.png``: a NeRF-synthetic folder's own colour image). The stem if none is a view."""
+    from ..names import safe_name
+
+    parts = path.with_suffix("").parts
+    for k in range(1, len(parts) + 1):
+        if safe_name(parts[-k:]) in names:
+            return safe_name(parts[-k:])
+    return path.stem
+
+
 def load_references(scene, spec: str | list[str]) -> References:
     """References for ``scene`` from a preset name (``"five"`` ...) or a list of image files/folders.
 
@@ -113,7 +130,7 @@ def load_references(scene, spec: str | list[str]) -> References:
         files = _expand_files([spec] if isinstance(spec, (str, Path)) else list(spec))
         names, images = [], []
         for f in files:
-            name = f.stem
+            name = _view_of_file(train.names, f)
             _view_index(train.names, name, f"'{f}'")
             images.append(check_reference(name, _read_image(f), hw, f"'{f}'"))
             names.append(name)

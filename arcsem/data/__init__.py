@@ -5,6 +5,7 @@ Every reader returns one :class:`~arcsem.scene.Scene`; options shared by all rea
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -33,8 +34,8 @@ __all__ = [
 
 KINDS = ("transforms", "colmap", "synthetic")
 # Keys of a dataset config that are reader options, not parameters of the synthetic generator.
-_READER_KEYS = {"kind", "path", "downscale", "split", "test_every", "max_views", "holdout", "images", "masks",
-                "undistort", "params", "source"}
+_READER_KEYS = {"kind", "path", "images", "masks", "undistort", "params", "source",
+                *(f.name for f in dataclasses.fields(ReaderOptions))}
 # ``source``: how the data at ``path`` is obtained (a command), said in the error when ``path`` does not exist.
 _KIND_KEYS = {"transforms": ("path", "source"), "colmap": ("path", "images", "masks", "undistort", "source"),
               "synthetic": ("params",)}
@@ -43,8 +44,6 @@ _KIND_KEYS = {"transforms": ("path", "source"), "colmap": ("path", "images", "ma
 def dataset_keys(kind: str) -> list[str]:
     """The keys a ``dataset`` config of ``kind`` may hold: ``kind``, the reader options, the kind's own (for
     ``synthetic``: every :class:`~arcsem.synthetic.SceneParams` field)."""
-    import dataclasses
-
     keys = ["kind", *_KIND_KEYS[kind], *(f.name for f in dataclasses.fields(ReaderOptions))]
     if kind == "synthetic":
         from ..synthetic.write import SceneParams

@@ -21,7 +21,15 @@ from ..names import view_names
 from ..registry import plain, validate_config
 from ..scene import Scene, Split
 from .headers import check_declared_size, check_image_budget, image_header
-from .io import grey_if_equal_channels, read_array, read_image, read_image_levels, read_mask, resize
+from .io import (
+    grey_if_equal_channels,
+    luminance,
+    read_array,
+    read_image,
+    read_image_levels,
+    read_mask,
+    resize,
+)
 
 __all__ = [
     "ReaderOptions",
@@ -104,7 +112,7 @@ class ViewSpec:
 def reader_options(cfg: Any) -> ReaderOptions:
     """Validated :class:`ReaderOptions` from a dataset config (a DictConfig or a dict)."""
     get = (lambda k, d: cfg.get(k, d)) if hasattr(cfg, "get") else (lambda k, d: getattr(cfg, k, d))
-    values = {k: get(k, None) for k in ("downscale", "split", "test_every", "max_views", "holdout")}
+    values = {k: get(k, None) for k in ("downscale", "split", "test_every", "max_views", "holdout", "grey")}
     if values["holdout"] is not None:
         values["holdout"] = [str(v) for v in plain(values["holdout"])] if not isinstance(values["holdout"], str) \
             else [values["holdout"]]
@@ -147,19 +155,24 @@ def _holdout(views: list[ViewSpec], held: list[str]) -> tuple[list[ViewSpec], li
     return [v for v in views if v.name not in held], [v for v in views if v.name in held]
 
 
-def _read_view(v: ViewSpec, size: tuple[int, int]) -> dict[str, np.ndarray | None]:
+def _read_view(v: ViewSpec, size: tuple[int, int], grey: bool = False) -> dict[str, np.ndarray | None]:
     """Read every file of one view at the camera's size, undistort, and resize to ``size`` (w, h).
 
     An alpha channel that is 0 everywhere (an exporter that never set it) is ignored: the colour channels are
     the image and alpha gives no mask (``out["notes"]`` says ``alpha0``). An RGB image of grey content is read as
-    grey (:func:`~arcsem.data.io.grey_if_equal_channels`); one of colour content is kept and noted ``colour``."""
+    grey (:func:`~arcsem.data.io.grey_if_equal_channels`); one of colour content is kept and noted ``colour``, or
+    with ``grey`` (``dataset.grey=true``) read as its luminance, its colour becoming the view's ``color`` (where
+    the view has no colour file)."""
     img, alpha, lv = read_image_levels(v.image)
     notes = []
     if alpha is not None and not alpha.any():
         alpha = None
         notes.append("alpha0")
     img, coloured = grey_if_equal_channels(img)
-    if coloured:
+    own_colour = None
+    if grey:
+        own_colour, img = img, luminance(img)
+    elif coloured:
         notes.append("colour")
     if img.shape[:2] != (v.height, v.width):
         raise DataError(f"view '{v.name}': image {v.image} is {img.shape[1]}x{img.shape[0]} "
@@ -176,6 +189,7 @@ def _read_view(v: ViewSpec, size: tuple[int, int]) -> dict[str, np.ndarray | Non
     out: dict[str, np.ndarray | list | None] = {"notes": notes, "levels": lv.describe()}
     if alpha is not None:  # RGBA -> RGB over a black background; alpha is the mask unless one is given
         img = img * alpha[..., None]
+        own_colour = None if own_colour is None else own_colour * alpha[..., None]
     out["image"] = fit(img, v.image)
     mask = read_mask(v.mask) if v.mask is not None else (alpha > 0.5 if alpha is not None else None)
     out["mask"] = None if mask is None else fit(mask.astype(np.float32), v.mask or v.image) > 0.5
@@ -185,6 +199,8 @@ def _read_view(v: ViewSpec, size: tuple[int, int]) -> dict[str, np.ndarray | Non
     for key in ("color", "clean", "reference"):
         path = getattr(v, key)
         out[key] = None if path is None else fit(read_image(path)[0], path)
+    if out["color"] is None and own_colour is not None:
+        out["color"] = fit(own_colour, v.image)
     return out
 
 
@@ -200,10 +216,10 @@ def _stack(items: list[np.ndarray | None], name: str, views: list[ViewSpec]) -> 
 
 
 def _load_split(views: list[ViewSpec], size: tuple[int, int], factor: float, train: bool,
-                model: str) -> tuple[Split, dict[str, torch.Tensor], dict[str, list[Path]]]:
+                model: str, grey: bool = False) -> tuple[Split, dict[str, torch.Tensor], dict[str, list[Path]]]:
     """The split of ``views`` at ``size``, its reference images by view name, and the image files of each
     reading note of :func:`_read_view` (``{"alpha0": [...], "colour": [...], "levels <range>": [...]}``)."""
-    data = [_read_view(v, size) for v in views]
+    data = [_read_view(v, size, grey) for v in views]
     notes: dict[str, list[Path]] = {}
     for v, d in zip(views, data):
         for note in [*d["notes"], f"levels {d['levels']}"]:
@@ -300,8 +316,8 @@ def assemble_scene(root: Path, views: list[ViewSpec], opts: ReaderOptions, *, bo
         raise DataError(f"{root}: no training views after the split (split={opts.split})")
     size = (round(w / opts.downscale), round(h / opts.downscale))
     _check_headers(train_v + test_v, opts.downscale)
-    train, refs, notes = _load_split(train_v, size, opts.downscale, True, model)
-    test, test_refs, test_notes = _load_split(test_v, size, opts.downscale, False, model)
+    train, refs, notes = _load_split(train_v, size, opts.downscale, True, model, opts.grey)
+    test, test_refs, test_notes = _load_split(test_v, size, opts.downscale, False, model, opts.grey)
     refs.update(test_refs)
     for note, files in test_notes.items():
         notes.setdefault(note, []).extend(files)

@@ -15,8 +15,10 @@ from ..sem.image import Levels, levels, orient, read_tiff, to_levels
 __all__ = [
     "GREY_TOLERANCE",
     "IMAGE_EXTS",
+    "LUMA",
     "dataset_root",
     "grey_if_equal_channels",
+    "luminance",
     "read_array",
     "read_image",
     "read_image_levels",
@@ -139,6 +141,16 @@ def read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     """
     img, alpha, _ = read_image_levels(path)
     return img, alpha
+
+
+LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+"""Rec. 709 luminance weights: a colour view's grey (``dataset.grey=true``, the public colour scenes)."""
+
+
+def luminance(rgb: np.ndarray) -> np.ndarray:
+    """``[..., 3]`` colour -> ``[..., 3]``: its Rec. 709 luminance in every channel (grey as the readers store it)."""
+    lum = rgb[..., :3].astype(np.float32) @ LUMA
+    return np.ascontiguousarray(np.repeat(lum[..., None], 3, axis=-1))
 
 
 def grey_if_equal_channels(img: np.ndarray) -> tuple[np.ndarray, float]:

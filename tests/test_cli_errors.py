@@ -83,6 +83,8 @@ def test_dataset_path_does_not_exist(tmp_path):
     # Hydra: no such config option; its options named without the schemas Hydra lists among them
     ("backbone=gs4d", ["backbone=gs4d: no such option; did you mean backbone=gs3d? available: gs2d, gs3d, "]),
     ("experiment=dem", ["experiment=dem: no such option; did you mean experiment=demo?"]),
+    # a study's preset on a single run: what a run takes instead
+    ("preset=paper", ["preset=paper: a preset is chosen on a study", "train=paper colorize=paper", "+preset=paper"]),
     ("backbone.name=nope", ["unknown backbone 'nope'", "available: ", "gs2d"]),  # registry
 ])
 def test_unknown_plugin(tmp_path, override, needles):

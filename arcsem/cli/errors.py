@@ -103,9 +103,23 @@ def _missing_option(exc: BaseException) -> str | None:
     return f"{group}={name}: no such option; {hint}available: {', '.join(options) or 'none'}"
 
 
+def _preset_on_a_run(exc: BaseException) -> str | None:
+    """``preset=quick`` on a single run (presets are chosen in the studies' defaults): what a run takes instead."""
+    import re
+
+    from hydra.errors import ConfigCompositionException
+
+    found = re.search(r"Could not override 'preset'\. No match.*use \+preset=(\S+)", str(exc), re.DOTALL)
+    if not isinstance(exc, ConfigCompositionException) or found is None:
+        return None
+    v = found.group(1)
+    return (f"preset={v}: a preset is chosen on a study (experiment=<study> preset={v}); a single run takes "
+            f"train={v} colorize={v} (quick: the default), or +preset={v}")
+
+
 def describe(exc: BaseException) -> str:
     """The one-line message for a user-facing error (see :func:`exit_code`)."""
-    unknown = _unknown_schema_key(exc) or _unparsable_override(exc) or _missing_option(exc)
+    unknown = _unknown_schema_key(exc) or _unparsable_override(exc) or _missing_option(exc) or _preset_on_a_run(exc)
     if unknown:
         return unknown
     if isinstance(exc, KeyboardInterrupt):

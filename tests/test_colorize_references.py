@@ -72,3 +72,16 @@ def test_a_view_named_with_its_folder_takes_the_file_of_that_folder(tmp_path):
     np.testing.assert_allclose(r.images[0, :, 8:].numpy(), want, atol=1e-6)
     with pytest.raises(DataError, match=r"r_1\.png.*matches no training view \(train/r_0"):  # a stem alone: no
         load_references(sc, [str(_png(tmp_path / "r_1.png", rgba))])
+
+
+def test_a_reference_at_the_full_size_of_a_downscaled_view_is_resampled(tmp_path):
+    """dataset.downscale=2 trains 16x12 views; the artist's reference at the files' 32x24 is the view's colour at
+    twice the scale: resampled by area as the reader resamples the views. Another shape is still refused."""
+    big = np.random.rand(24, 32, 3)
+    r = load_references(_scene(), [str(_png(tmp_path / "v2.png", big))])
+    stored = (np.clip(big, 0, 1) * 255).astype(np.uint8) / 255
+    want = stored.reshape(12, 2, 16, 2, 3).mean((1, 3))  # area resampling by an integer factor: block means
+    assert r.images.shape == (1, 12, 16, 3)
+    np.testing.assert_allclose(r.images[0].numpy(), want, atol=1e-5)
+    with pytest.raises(DataError, match=r"size 32x20 differs from view 'v2' \(16x12\) and is not the view at"):
+        load_references(_scene(), [str(_png(tmp_path / "v2.png", np.random.rand(20, 32, 3)))])

@@ -62,10 +62,18 @@ def _read_image(path: Path) -> Tensor:
     return torch.from_numpy(np.ascontiguousarray(arr[..., :3]))
 
 
-def check_reference(name: str, image: Tensor, view_hw: tuple[int, int], where: str) -> Tensor:
-    """Validate one reference ``image [H, W, 3]`` against its view's size; returns float32 [H, W, 3].
+def _resize(image: Tensor, hw: tuple[int, int]) -> Tensor:
+    """``[h, w, 3]`` -> ``[H, W, 3]`` by area resampling (as ``dataset.downscale`` shrinks the views)."""
+    import cv2
 
-    Raises DataError naming ``where`` (file or view) when the size differs, the image is empty
+    return torch.from_numpy(cv2.resize(image.numpy(), (hw[1], hw[0]), interpolation=cv2.INTER_AREA))
+
+
+def check_reference(name: str, image: Tensor, view_hw: tuple[int, int], where: str) -> Tensor:
+    """Validate one reference ``image [H, W, 3]`` against its view's size; returns float32 [H, W, 3], resized to
+    the view where it is the view at another scale (a full-size reference of a run with ``dataset.downscale``).
+
+    Raises DataError naming ``where`` (file or view) when the size differs otherwise, the image is empty
     (one constant value) or grey (channels equal).
     """
     image = torch.as_tensor(image, dtype=torch.float32)
@@ -73,7 +81,10 @@ def check_reference(name: str, image: Tensor, view_hw: tuple[int, int], where: s
         raise DataError(f"reference {where}: expected an [H, W, 3] colour image, got shape {tuple(image.shape)}")
     if tuple(image.shape[:2]) != tuple(view_hw):
         h, w = image.shape[:2]
-        raise DataError(f"reference {where}: size {w}x{h} differs from view '{name}' ({view_hw[1]}x{view_hw[0]})")
+        if abs(h * view_hw[1] / w - view_hw[0]) > 1.0:  # not the view at another scale (dataset.downscale)
+            raise DataError(f"reference {where}: size {w}x{h} differs from view '{name}' ({view_hw[1]}x{view_hw[0]}) "
+                            "and is not the view at another scale")
+        image = _resize(image, view_hw)
     if float(image.max() - image.min()) < GREY_TOL:
         raise DataError(f"reference {where}: image is empty (a single value)")
     spread = (image.max(-1).values - image.min(-1).values).max()

@@ -307,6 +307,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     from ..runs import load_stage1
     from ..share import cache_root
     from ..train import LoopConfig, train
+    from ..train.evaluate import write_views_csv
     from ..train.loop import loss_trend_warning
     from .coverage import coverage_metrics
     from .outputs import evaluate_colour, write_colored_products, write_outputs
@@ -363,6 +364,8 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
                     config={"colorize": plain(cfg.get("colorize")), "stage1": str(ckpt), "pseudo": pinfo["key"]},
                     batch_hook=hook)
     backbone.eval()
+    if res.history:  # stage 2's loss (and its terms) per logged step, as stage 1's train_history.csv
+        write_views_csv(run_dir / "colorize" / "train_history.csv", res.history)
     features = finfo["label"] if guidance is not None else "unused"
     with phase(timings, "evaluate"):  # metrics (whole, inside and outside the coverage)
         result = evaluate_colour(backbone, scene, refs, run_dir, cc, progress=cc.progress)

@@ -101,8 +101,10 @@ def training_curves(runs: Mapping[str, Path], path: Path) -> Path | None:
     hist = histories(runs)
     if not hist:
         return None
-    loss = [(h["step"].to_numpy(float), h["loss"].to_numpy(float)) for h in hist.values()]
-    panels = [_panel(loss, "training loss (log scale)", log=True)]
+    mean = all("loss_mean" in h for h in hist.values())  # each log interval's mean (older runs: one batch's)
+    key = "loss_mean" if mean else "loss"
+    loss = [(h["step"].to_numpy(float), h[key].to_numpy(float)) for h in hist.values()]
+    panels = [_panel(loss, f"training loss{', mean per log interval' if mean else ''} (log scale)", log=True)]
     if all("psnr" in h for h in hist.values()):
         psnr = [(h["step"].to_numpy(float), h["psnr"].to_numpy(float)) for h in hist.values()]
         panels.append(_panel(psnr, "PSNR of the training batch (dB)", log=False))

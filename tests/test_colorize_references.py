@@ -85,3 +85,24 @@ def test_a_reference_at_the_full_size_of_a_downscaled_view_is_resampled(tmp_path
     np.testing.assert_allclose(r.images[0].numpy(), want, atol=1e-5)
     with pytest.raises(DataError, match=r"size 32x20 differs from view 'v2' \(16x12\) and is not the view at"):
         load_references(_scene(), [str(_png(tmp_path / "v2.png", np.random.rand(20, 32, 3)))])
+
+
+def test_views_named_in_the_list_give_their_true_colour(tmp_path, monkeypatch):
+    """``colorize.references=[v2, v0]`` on a dataset with colour ground truth (dataset.grey=true): each view's true
+    colour is its reference; a file of that name wins; a bare word stays a preset, and its error says how."""
+    sc = _scene()
+    sc.train.colors = torch.rand(3, 12, 16, 3)
+    r = load_references(sc, ["v2", "v0"])
+    assert r.names == ["v2", "v0"] and torch.equal(r.images, sc.train.colors[[2, 0]])
+    with pytest.raises(ConfigError, match=r"unknown preset 'v1'.*for view 'v1''s true colour write \[v1\]"):
+        load_references(sc, "v1")
+    monkeypatch.chdir(tmp_path)
+    img = np.random.rand(12, 16, 3)
+    (tmp_path / "v1").mkdir()
+    _png(tmp_path / "v1" / "v1.png", img)  # a folder named as the view: its images are the references
+    r = load_references(sc, ["v1"])
+    assert not torch.equal(r.images[0], sc.train.colors[1])
+    np.testing.assert_allclose(r.images[0].numpy(), (np.clip(img, 0, 1) * 255).astype(np.uint8) / 255, atol=1e-6)
+    sc.train.colors = None  # no true colour: a name is a file that does not exist
+    with pytest.raises(DataError, match="reference file 'v2' does not exist"):
+        load_references(sc, ["v2"])

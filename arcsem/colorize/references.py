@@ -113,6 +113,12 @@ def _view_of_file(names: list[str], path: Path) -> str:
     return path.stem
 
 
+def _true_colour_view(train, item) -> bool:
+    """Whether a list item of ``colorize.references`` names a training view with ground-truth colour (and is no file
+    or folder): the reference is then that colour."""
+    return train.colors is not None and str(item) in train.names and not Path(item).exists()
+
+
 def load_references(scene, spec: str | list[str]) -> References:
     """References for ``scene`` from a preset name (``"five"`` ...) or a list of image files/folders.
 
@@ -120,13 +126,16 @@ def load_references(scene, spec: str | list[str]) -> References:
         scene: :class:`arcsem.scene.Scene`; its ``train`` split gives names and sizes.
         spec: a preset in ``scene.reference_sets`` (a bare word: ``one``, even where a folder ``one`` exists), a
             path (written with ``/`` or ``.``: ``./one``, ``refs/a.png``), or a list of paths (a folder means
-            every image file in it).
+            every image file in it) and of training views with ground-truth colour (``[train/r_0, train/r_50]``:
+            that colour is the reference; a file or folder of the same name wins).
     """
     train = scene.train
     hw = (train.cameras.height, train.cameras.width)
     if isinstance(spec, str) and "/" not in spec and "." not in spec:  # a bare word names a preset, never a path
         if spec not in scene.reference_sets:
             path = f"; for the file or folder '{spec}' write ./{spec}" if Path(spec).exists() else ""
+            if _true_colour_view(train, spec):
+                path += f"; for view '{spec}''s true colour write [{spec}]"
             raise ConfigError(
                 f"colorize.references: unknown preset '{spec}'; the dataset has: "
                 f"{', '.join(scene.reference_sets) or 'none'}{path}"
@@ -138,13 +147,18 @@ def load_references(scene, spec: str | list[str]) -> References:
                 raise DataError(f"reference preset '{spec}': no colour image for view '{n}' in the scene")
             images.append(check_reference(n, scene.references[n], hw, f"'{n}' (preset {spec})"))
     else:
-        files = _expand_files([spec] if isinstance(spec, (str, Path)) else list(spec))
         names, images = [], []
-        for f in files:
-            name = _view_of_file(train.names, f)
-            _view_index(train.names, name, f"'{f}'")
-            images.append(check_reference(name, _read_image(f), hw, f"'{f}'"))
-            names.append(name)
+        for item in [spec] if isinstance(spec, (str, Path)) else list(spec):
+            if _true_colour_view(train, item):  # a view's own ground-truth colour (benchmarks; dataset.grey=true)
+                names.append(str(item))
+                images.append(check_reference(str(item), train.colors[train.names.index(str(item))], hw,
+                                              f"view '{item}' (its true colour)"))
+                continue
+            for f in _expand_files([item]):
+                name = _view_of_file(train.names, f)
+                _view_index(train.names, name, f"'{f}'")
+                images.append(check_reference(name, _read_image(f), hw, f"'{f}'"))
+                names.append(name)
     if not names:
         raise ConfigError(f"references: '{spec}' gives no reference image")
     if len(set(names)) != len(names):

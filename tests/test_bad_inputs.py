@@ -52,6 +52,9 @@ CONFIG_CASES = {
     "references=seven": (None, ["colorize.references=seven"], "all", ["colorize.references: unknown preset 'seven'"]),
     "references file": (None, ["colorize.references=/nowhere/ref.png"], "all",
                         ["colorize.references: file or folder not found: /nowhere/ref.png"]),
+    # in a list, a name without an image suffix may be a view's (read with the data): still refused before training
+    "references list name": (None, ["colorize.references=[nowhere/r_0]"], "all",
+                             ["reference file 'nowhere/r_0' does not exist (nor is it a training view"]),
     "features=sift": (None, ["colorize.features=sift"], "all", ["colorize.features: must be one of auto, vgg16"]),
     "tcm_space=features daisy": (None, ["colorize.features=daisy", "colorize.tcm_space=features", "colorize.losses.tcm.weight=1"],
                                  "all", ["colorize.tcm_space=features: 'daisy' features cannot be computed"]),

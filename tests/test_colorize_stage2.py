@@ -53,6 +53,7 @@ def test_stage2_end_to_end(tmp_path, monkeypatch):
 
     hist = pd.read_csv(run / "colorize" / "train_history.csv")  # stage 2's loss per logged step (1 and the last)
     assert hist["step"].tolist() == [1, 4] and hist["loss"].notna().all() and "reference_l1" in hist.columns
+    assert s2["post_renders"]["reused"] >= len(scene.train) + len(scene.test)  # metrics and PNGs: one render a view
     assert s2["pseudo"]["cache_hit"] is False and 0.5 < s2["pseudo"]["coverage"] <= 1
     # held-out colour renders beside the grey ones, with their true colour; the pseudo-colour target's parts
     held = run / "colorize" / "renders" / "test"

@@ -9,7 +9,8 @@ import torch
 
 from ..metrics import metric_convention
 
-__all__ = ["colour_split", "evaluate_colour", "write_colored_products", "write_heldout", "write_outputs"]
+__all__ = ["colour_split", "evaluate_and_write", "evaluate_colour", "write_colored_products", "write_heldout",
+           "write_outputs"]
 
 
 def colour_split(split, idx: list[int]):
@@ -58,6 +59,26 @@ def evaluate_colour(backbone, scene, refs, run_dir: Path, cc, progress: bool = F
     return out
 
 
+def evaluate_and_write(backbone, scene, refs, run_dir: Path, cc, coverage: tuple, pseudo: tuple, timings: dict) -> dict:
+    """After training: the colour metrics (:func:`evaluate_colour`, with the coverage split of
+    :func:`~arcsem.colorize.coverage.coverage_metrics`; ``coverage``: the training views' masks and pseudo-colour
+    reach ``[N, H, W]``) then the outputs (:func:`write_outputs`; ``pseudo``: the target and where it holds), each
+    view rendered once for all of them (:class:`~arcsem.colorize.memo.RenderMemo`); phases timed into ``timings``."""
+    from ..timing import phase
+    from .coverage import coverage_metrics
+    from .memo import RenderMemo
+
+    views = RenderMemo(backbone)
+    with phase(timings, "evaluate"):  # metrics (whole, inside and outside the coverage)
+        result = evaluate_colour(views, scene, refs, run_dir, cc, progress=cc.progress)
+        for part, extra in coverage_metrics(views, scene, refs, *coverage, cc).items():
+            result.setdefault(part, {}).update(extra)
+    with phase(timings, "outputs"):  # renders, videos
+        result.update(write_outputs(backbone, scene, run_dir, cc, *pseudo, progress=cc.progress, views=views))
+    result["post_renders"] = {"renders": views.renders, "reused": views.hits}
+    return result
+
+
 def _png(folder: Path, name: str, img: torch.Tensor) -> None:
     import imageio.v2 as imageio
 
@@ -68,18 +89,20 @@ def _png(folder: Path, name: str, img: torch.Tensor) -> None:
 
 
 def write_outputs(backbone, scene, run_dir: Path, cc, pseudo: torch.Tensor, valid: torch.Tensor,
-                  progress: bool = False) -> dict:
+                  progress: bool = False, views=None) -> dict:
     """``colored/<view name>.png`` (every training view), ``colorize/pseudo/<name>.png``, the held-out views
-    (:func:`write_heldout`), ``colored_turntable.*`` and ``colored_model.<ext>``; returns their paths."""
+    (:func:`write_heldout`), ``colored_turntable.*`` and ``colored_model.<ext>``; returns their paths. ``views``:
+    what renders the training and held-out views (a :class:`~arcsem.colorize.memo.RenderMemo`; default the model)."""
     from ..train.stage1 import turntable
 
     run_dir = Path(run_dir)
     split = scene.train
+    views = views if views is not None else backbone
     with torch.no_grad():
         for i in range(len(split)):
-            _png(run_dir / "colored", split.names[i], backbone.render(split.cameras[i:i + 1])["rgb"][0].clamp(0, 1).cpu())
+            _png(run_dir / "colored", split.names[i], views.render(split.cameras[i:i + 1])["rgb"][0].clamp(0, 1).cpu())
             _png(run_dir / "colorize" / "pseudo", split.names[i], pseudo[i] * valid[i][..., None])
-    out = {"colored_dir": str(run_dir / "colored"), **write_heldout(backbone, scene.test, run_dir)}
+    out = {"colored_dir": str(run_dir / "colored"), **write_heldout(views, scene.test, run_dir)}
     if cc.eval.video:
         out["video"] = str(turntable(backbone, scene, run_dir / "colored_turntable", cc.eval.video_frames, cc.eval.fps,
                                      progress=progress))

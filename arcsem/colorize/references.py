@@ -179,5 +179,5 @@ def _expand_files(items: list) -> list[Path]:
         elif p.is_file():
             out.append(p)
         else:
-            raise DataError(f"reference file '{p}' does not exist")
+            raise DataError(f"reference file '{p}' does not exist (nor is it a training view with ground-truth colour)")
     return out

@@ -309,8 +309,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     from ..train import LoopConfig, train
     from ..train.evaluate import write_views_csv
     from ..train.loop import loss_trend_warning
-    from .coverage import coverage_metrics
-    from .outputs import evaluate_colour, write_colored_products, write_outputs
+    from .outputs import evaluate_and_write, write_colored_products
 
     run_dir = Path(run_dir)
     rc = run_config(cfg)
@@ -367,12 +366,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     if res.history:  # stage 2's loss (and its terms) per logged step, as stage 1's train_history.csv
         write_views_csv(run_dir / "colorize" / "train_history.csv", res.history)
     features = finfo["label"] if guidance is not None else "unused"
-    with phase(timings, "evaluate"):  # metrics (whole, inside and outside the coverage)
-        result = evaluate_colour(backbone, scene, refs, run_dir, cc, progress=cc.progress)
-        for part, extra in coverage_metrics(backbone, scene, refs, masks, pinfo["valid2d"], cc).items():
-            result.setdefault(part, {}).update(extra)
-    with phase(timings, "outputs"):  # renders, videos
-        result.update(write_outputs(backbone, scene, run_dir, cc, pseudo, valid, progress=cc.progress))
+    result = evaluate_and_write(backbone, scene, refs, run_dir, cc, (masks, pinfo["valid2d"]), (pseudo, valid), timings)
     with phase(timings, "products"):  # the coloured mesh and viewer
         result.update(write_colored_products(rc, backbone, scene, run_dir, res.steps, cc.progress))
     record = {**_pseudo_quality(split, masks, refs, pseudo, pinfo["valid2d"]), "cache_hit": pinfo["cache_hit"],

@@ -24,13 +24,26 @@ from torch import Tensor
 
 from .cameras import Cameras
 
-__all__ = ["BACKGROUND", "DEPTH_SPAN", "colour_bar", "depth_display", "depth_normals", "depth_rgb", "normal_rgb",
-           "render_layers", "to_uint8"]
+__all__ = ["BACKGROUND", "DEPTH_SPAN", "PNG_LEVEL", "colour_bar", "depth_display", "depth_normals", "depth_rgb",
+           "normal_rgb", "render_layers", "to_uint8", "write_png"]
 
 BACKGROUND = (255, 255, 255)  # RGB of pixels with no surface in depth and normal images
 DEPTH_SPAN = 0.5
 """Depth images span ``0 .. DEPTH_SPAN x length_scale`` below the nearest ground-truth point (half the
 specimen's diameter: the depth of the hemisphere a view sees)."""
+
+
+PNG_LEVEL = 1
+"""zlib level of the PNGs a run writes (renders, ground truth, depth): 6.5 ms a 288x288 render against 46 ms at
+imageio's default 9, for files 12 % larger (benchmarks/png_writes.py)."""
+
+
+def write_png(path, img: np.ndarray) -> None:
+    """Write ``img`` (``[H, W]`` or ``[H, W, 3]`` uint8) as a PNG at :data:`PNG_LEVEL` (through Python, so the write
+    guard sees it)."""
+    import imageio.v2 as imageio
+
+    imageio.imwrite(path, img, compress_level=PNG_LEVEL)
 
 
 def to_uint8(img: Tensor) -> np.ndarray:

@@ -45,6 +45,17 @@ def test_rgb_of_grey_content_reads_as_grey_and_colour_stays():
     assert out is colour and coloured > 0.5
 
 
+def test_channel_spread_is_max_minus_min_whichever_channel_is_which():
+    from itertools import permutations
+
+    from arcsem.data.io import channel_spread
+
+    x = np.random.default_rng(1).random((16, 16, 3)).astype(np.float32)
+    for order in permutations(range(3)):  # the largest and smallest channel in every position
+        y = x[..., list(order)]
+        assert np.array_equal(channel_spread(y), y.max(-1) - y.min(-1))
+
+
 def test_strict_metrics_nulls_with_reasons():
     from arcsem.metrics_json import strict_metrics
 

@@ -80,12 +80,10 @@ def evaluate_and_write(backbone, scene, refs, run_dir: Path, cc, coverage: tuple
 
 
 def _png(folder: Path, name: str, img: torch.Tensor) -> None:
-    import imageio.v2 as imageio
-
     from ..guard import out_path
-    from ..visual import to_uint8
+    from ..visual import to_uint8, write_png
 
-    imageio.imwrite(out_path(folder, name, ".png"), to_uint8(img))
+    write_png(out_path(folder, name, ".png"), to_uint8(img))
 
 
 def write_outputs(backbone, scene, run_dir: Path, cc, pseudo: torch.Tensor, valid: torch.Tensor,

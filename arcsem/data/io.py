@@ -153,16 +153,24 @@ def luminance(rgb: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.repeat(lum[..., None], 3, axis=-1))
 
 
+def channel_spread(img: np.ndarray) -> np.ndarray:
+    """``[H, W, 3]`` -> ``[H, W]``: max minus min of the three channels, as the largest of the three pairwise
+    differences (16x faster than ``max(-1) - min(-1)``, a reduction over a 3-long axis: benchmarks/io_speed.py)."""
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    return np.maximum(np.maximum(np.abs(r - g), np.abs(g - b)), np.abs(r - b))
+
+
 def grey_if_equal_channels(img: np.ndarray) -> tuple[np.ndarray, float]:
     """``[H, W, 3]`` -> itself, or its channel mean three times where it is grey content (:data:`GREY_TOLERANCE`);
     and the fraction of pixels whose channels differ by more than the tolerance (0: grey)."""
-    spread = img.max(-1) - img.min(-1)
+    spread = channel_spread(img)
     if not spread.any():
         return img, 0.0
     coloured = float(np.mean(spread > GREY_TOLERANCE))
     if coloured > 1e-3:
         return img, coloured
-    return np.ascontiguousarray(np.repeat(img.mean(-1, keepdims=True), 3, axis=-1)), 0.0
+    mean = (img[..., 0] + img[..., 1] + img[..., 2]) / 3  # = img.mean(-1), 14x faster (a 3-long reduction)
+    return np.repeat(mean[..., None], 3, axis=-1), 0.0
 
 
 def read_mask(path: Path) -> np.ndarray:

@@ -132,22 +132,21 @@ def evaluate_split(backbone: nn.Module, split: Split, *, split_name: str = "test
 def _write_view(render_dir: Path, split: Split, i: int, out: dict, target: torch.Tensor, depth: torch.Tensor | None,
                 span: float) -> None:
     """``<name>.png``, ``<name>_depth.png`` and the ground truth beside them (``_gt``, ``_depth_gt``)."""
-    import imageio.v2 as imageio
-
     from ..guard import out_path
+    from ..visual import write_png
 
     name = split.names[i]
-    imageio.imwrite(out_path(render_dir, name, ".png"), to_uint8(out["rgb"]))
-    imageio.imwrite(out_path(render_dir, name, "_gt.png"), to_uint8(target))
+    write_png(out_path(render_dir, name, ".png"), to_uint8(out["rgb"]))
+    write_png(out_path(render_dir, name, "_gt.png"), to_uint8(target))
     if depth is None:
         return
     gt = split.depths[i] if split.depths is not None else None
     mask = split.masks[i] if split.masks is not None else None
     valid = out["alpha"][..., 0] > 0.5 if "alpha" in out else torch.ones_like(depth[..., 0], dtype=torch.bool)
     pred, gt_img, _ = depth_display(depth[..., 0], gt, mask, valid, span)
-    imageio.imwrite(out_path(render_dir, name, "_depth.png"), pred)
+    write_png(out_path(render_dir, name, "_depth.png"), pred)
     if gt_img is not None:
-        imageio.imwrite(out_path(render_dir, name, "_depth_gt.png"), gt_img)
+        write_png(out_path(render_dir, name, "_depth_gt.png"), gt_img)
 
 
 def mean_metrics(rows: Iterable[dict[str, Any]]) -> dict[str, float]:

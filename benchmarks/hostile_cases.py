@@ -206,7 +206,7 @@ def _config() -> list[Case]:
              overrides=["+dataset.n_horizntal=3"], dataset="synthetic"),
         Case("synthetic +dataset.path", "error", ("dataset.path: unknown key for dataset kind 'synthetic'",),
              overrides=["+dataset.path=/tmp"], dataset="synthetic"),
-        Case("+dataset.dowscale=4", "error", ("dataset.dowscale: unknown key", "valid keys: kind, path, source, downscale"),
+        Case("+dataset.dowscale=4", "error", ("dataset.dowscale: unknown key", "valid keys: kind, path, undistort, source, downscale"),
              overrides=["+dataset.dowscale=4"]),
         Case("+dataset.params on transforms", "error", ("dataset.params: unknown key",), overrides=["+dataset.params=1"]),
         Case("non-ASCII dataset.path unquoted", "error", ("Hydra's override grammar", "dataset.path='"),

@@ -68,7 +68,7 @@ def dataset_cases() -> dict[str, object]:
         "reflection": frame(transform_matrix=[[-1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]),
         "w zero": lambda m: m.update(w=0), "h string": lambda m: m.update(h="x"), "cx NaN": lambda m: m.update(cx=float("nan")),
         "fl_x null": lambda m: m.update(fl_x=None), "camera_angle_x 4": lambda m: (m.pop("fl_x"), m.update(camera_angle_x=4.0)),
-        "camera_model FISHEYE": lambda m: m.update(camera_model="FISHEYE"), "k2 nonzero": lambda m: m.update(k2=0.1),
+        "camera_model FISHEYE": lambda m: m.update(camera_model="FISHEYE"), "k4 nonzero (fisheye)": lambda m: m.update(k4=0.1),
         "split bogus": frame(split="val"), "mask missing": frame(mask_path="nomask.png"),
         "depth wrong shape": None, "aabb inverted": lambda m: m.update(aabb=[[1, 1, 1], [0, 0, 0]]),
         "aabb junk": lambda m: m.update(aabb="x"), "reference_sets junk": lambda m: m.update(reference_sets=[1]),

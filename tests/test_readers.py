@@ -199,8 +199,8 @@ def test_reader_errors_name_the_file(tiny_transforms, errcase):
         meta["frames"][1]["file_path"] = "nope.png"
         match = "frame 1.*nope.png"
     elif errcase == "distortion":
-        meta["k1"] = 0.1
-        match = "distortion"
+        meta["k4"] = 0.1  # a fisheye's (k1, k2, k3, p1, p2 are undistorted as read)
+        match = r"lens distortion \(k4\) of a fisheye camera is not supported"
     else:
         meta["reference_sets"] = {"five": ["view_00", "ghost"]}
         match = "reference set 'five'.*ghost"
@@ -264,6 +264,32 @@ def test_colmap_distortion_refused_or_undistorted(tmp_path):
     np.testing.assert_allclose(s.train.images[0, ..., 0].numpy(), expected, atol=1e-6)
     assert not np.allclose(expected, img / 255.0)
     torch.testing.assert_close(s.train.cameras.K[0].double(), torch.from_numpy(K))
+
+
+def test_transforms_distortion_undistorted_as_colmap_does_or_refused(tiny_transforms):
+    """instant-ngp's k1, k2, p1, p2 (colmap2nerf writes an OPENCV camera so): the images are undistorted as read, with
+    the same function as the COLMAP reader's, to the same K; ``undistort=False`` refuses them naming the keys."""
+    path = tiny_transforms(n=3)
+    img = np.zeros((12, 16), np.uint8)
+    img[::3, :] = 255  # horizontal lines bend under radial distortion
+    for i in range(3):
+        cv2.imwrite(str(path.parent / f"view_{i:02d}.png"), img)
+    plain = read_transforms(path)
+    meta = json.loads(path.read_text())
+    meta.update(k1=0.3, k2=-0.05, p1=0.01, p2=None)
+    path.write_text(json.dumps(meta))
+    with pytest.raises(DataError, match=r"frame 0 .*lens distortion \(k1, k2, p1\); set dataset.undistort=true"):
+        read_transforms(path, undistort=False)
+    s = read_transforms(path)
+    K = s.train.cameras.K[0].double().numpy()
+    expected = cv2.undistort(img.astype(np.float32) / 255, K, np.array([0.3, -0.05, 0.01, 0, 0]), None, K)
+    np.testing.assert_allclose(s.train.images[0, ..., 0].numpy(), expected, atol=1e-6)
+    assert not np.allclose(expected, img / 255.0)
+    torch.testing.assert_close(s.train.cameras.K, plain.train.cameras.K)  # the same pinhole camera
+    same = load_scene({"kind": "transforms", "path": str(path)})  # the dataset config's default: undistort
+    torch.testing.assert_close(same.train.images, s.train.images)
+    with pytest.raises(DataError, match="set dataset.undistort=true"):
+        load_scene({"kind": "transforms", "path": str(path), "undistort": False})
 
 
 def test_load_scene_synthetic_dispatch(monkeypatch, tmp_path):

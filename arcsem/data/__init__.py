@@ -37,7 +37,7 @@ KINDS = ("transforms", "colmap", "synthetic")
 _READER_KEYS = {"kind", "path", "images", "masks", "undistort", "params", "source",
                 *(f.name for f in dataclasses.fields(ReaderOptions))}
 # ``source``: how the data at ``path`` is obtained (a command), said in the error when ``path`` does not exist.
-_KIND_KEYS = {"transforms": ("path", "source"), "colmap": ("path", "images", "masks", "undistort", "source"),
+_KIND_KEYS = {"transforms": ("path", "undistort", "source"), "colmap": ("path", "images", "masks", "undistort", "source"),
               "synthetic": ("params",)}
 
 
@@ -97,7 +97,7 @@ def check_dataset_config(cfg: Any) -> DatasetSpec:
     source = _get(cfg, "source")
     source = None if source is None else str(source)
     if kind == "transforms":
-        return DatasetSpec(kind, opts, path=str(path), source=source)
+        return DatasetSpec(kind, opts, path=str(path), undistort=bool(_get(cfg, "undistort", True)), source=source)
     masks = _get(cfg, "masks")
     return DatasetSpec(kind, opts, path=str(path), images=str(_get(cfg, "images", "images")),
                        masks=None if masks is None else str(masks), undistort=bool(_get(cfg, "undistort", True)),
@@ -139,5 +139,5 @@ def load_scene(cfg: Any) -> Scene:
     if spec.source and not Path(spec.path).exists():
         raise DataError(f"dataset path does not exist: {spec.path} ({spec.source})")
     if spec.kind == "transforms":
-        return read_transforms(spec.path, spec.options)
+        return read_transforms(spec.path, spec.options, undistort=spec.undistort)
     return read_colmap(spec.path, spec.options, images=spec.images, masks=spec.masks, undistort=spec.undistort)

@@ -41,6 +41,7 @@ __all__ = [
     "check_rotation",
     "reader_options",
     "select_views",
+    "undistorter",
 ]
 
 
@@ -107,6 +108,18 @@ class ViewSpec:
     clean: Path | None = None
     reference: Path | None = None
     undistort: Callable[[np.ndarray], np.ndarray] | None = field(default=None, repr=False)
+
+
+def undistorter(K: np.ndarray, dist: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """The :attr:`ViewSpec.undistort` of a pinhole camera ``K [3, 3]`` with OpenCV distortion ``dist``
+    (``[k1, k2, p1, p2[, k3]]``): ``cv2.undistort`` to the same ``K`` and size, for every image of the view."""
+    def undistort(arr: np.ndarray) -> np.ndarray:
+        import cv2
+
+        out = cv2.undistort(np.ascontiguousarray(arr, dtype=np.float32), K, dist, None, K)
+        return out.reshape(arr.shape)
+
+    return undistort
 
 
 def reader_options(cfg: Any) -> ReaderOptions:

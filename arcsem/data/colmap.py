@@ -11,14 +11,13 @@ and refused otherwise; every other model (fisheye, ...) is refused, naming the c
 """
 from __future__ import annotations
 
-from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import DataError
 from ..scene import Scene
-from .build import ReaderOptions, ViewSpec, assemble_scene, check_intrinsics
+from .build import ReaderOptions, ViewSpec, assemble_scene, check_intrinsics, undistorter
 from .io import IMAGE_EXTS, dataset_root, resolve_file
 
 __all__ = ["colmap_intrinsics", "find_colmap_model", "read_colmap"]
@@ -63,13 +62,6 @@ def colmap_intrinsics(camera, undistort: bool) -> tuple[np.ndarray, np.ndarray |
     return K, np.asarray(dist, dtype=np.float64)
 
 
-def _undistort(arr: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    import cv2
-
-    out = cv2.undistort(np.ascontiguousarray(arr, dtype=np.float32), K, dist, None, K)
-    return out.reshape(arr.shape)
-
-
 def _pose(image) -> np.ndarray:
     rigid = image.cam_from_world() if callable(image.cam_from_world) else image.cam_from_world
     w2c = np.eye(4)
@@ -107,7 +99,7 @@ def read_colmap(path: str | Path, opts: ReaderOptions | None = None, *, images: 
         mask = resolve_file(root / masks, stem, f"{where} mask", IMAGE_EXTS) if masks else None
         views.append(ViewSpec(
             name=Path(img.name).stem, image=file, w2c=_pose(img), K=K, width=int(cam.width),
-            height=int(cam.height), mask=mask, undistort=None if dist is None else partial(_undistort, K=K, dist=dist)))
+            height=int(cam.height), mask=mask, undistort=None if dist is None else undistorter(K, dist)))
     points = colors = None
     if rec.num_points3D() > 0:
         pts = list(rec.points3D.values())

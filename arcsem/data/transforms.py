@@ -4,8 +4,9 @@ Schema (``*`` marks arcsem extensions); intrinsics may sit at the top level or i
 
 * ``fl_x, fl_y, cx, cy, w, h`` or ``camera_angle_x`` (and ``camera_angle_y``) (NeRF); ``w, h``
   default to the image size, ``cx, cy`` to the image centre, ``fl_y`` to ``fl_x``;
-* ``*camera_model``: ``PINHOLE`` (default; ``SIMPLE_PINHOLE`` and ``OPENCV`` with zero distortion
-  are accepted) or ``ORTHOGRAPHIC`` (``fl_x`` = pixels per world unit);
+* ``*camera_model``: ``PINHOLE`` (default; ``SIMPLE_PINHOLE`` and ``OPENCV``) or ``ORTHOGRAPHIC`` (``fl_x`` =
+  pixels per world unit); ``k1, k2, k3, p1, p2`` (instant-ngp's, OpenCV's model): the images are undistorted as read
+  (``dataset.undistort=true``, the default; the same ``K``), ``k4`` (fisheye) is refused;
 * ``*aabb`` ``[[min], [max]]`` scene bounds (the specimen's: the Gaussians' length scale); ``content_aabb``: the
   box of all the views show, substrate and debris included (the Plenoxels grid spans it); ``ply_file_path``: initial point cloud;
   ``*pixel_size_um``: the images' pixel size in micrometres (SEM metadata) at ``w x h``, which
@@ -32,7 +33,7 @@ import torch
 from ..cameras import opengl_to_opencv
 from ..errors import DataError
 from ..scene import Scene
-from .build import ReaderOptions, ViewSpec, assemble_scene, check_intrinsics, check_rotation
+from .build import ReaderOptions, ViewSpec, assemble_scene, check_intrinsics, check_rotation, undistorter
 from .headers import check_declared_size, image_header
 from .io import dataset_root, read_image, read_ply, resolve_file
 
@@ -91,15 +92,28 @@ def _number(p: dict, key: str, where: str, positive: bool = False) -> float:
     return float(value)
 
 
+def _distortion(p: dict, model: str, undistort: bool, where: str) -> np.ndarray | None:
+    """OpenCV ``[k1, k2, p1, p2, k3]`` of a pinhole frame (instant-ngp's keys, colmap2nerf's OPENCV camera), None
+    without distortion (absent, 0 or null); DataError for ``k4`` (fisheye), an orthographic camera, or
+    ``dataset.undistort=false``."""
+    given = [k for k in DISTORTION_KEYS if p.get(k) is not None and _number(p, k, where) != 0.0]  # null: none
+    if not given:
+        return None
+    if "k4" in given or model != "pinhole":
+        raise DataError(f"{where}: lens distortion ({', '.join(given)}) of a {'fisheye' if 'k4' in given else model} "
+                        "camera is not supported; undistort the images first")
+    if not undistort:
+        raise DataError(f"{where}: lens distortion ({', '.join(given)}); set dataset.undistort=true (the images are "
+                        "then undistorted as read) or undistort the images first")
+    return np.array([float(p.get(k) or 0.0) for k in ("k1", "k2", "p1", "p2", "k3")])
+
+
 def _intrinsics(p: dict, img_path: Path, where: str) -> tuple[np.ndarray, int, int, str]:
     """``K [3,3]``, w, h and model from merged top-level/frame keys ``p``."""
     name = str(p.get("camera_model", "PINHOLE")).upper()
     if name not in MODELS:
         raise DataError(f"{where}: unknown camera_model '{p.get('camera_model')}'; "
                         f"expected one of {', '.join(MODELS)}")
-    if any(_number(p, k, where) != 0.0 for k in DISTORTION_KEYS if p.get(k) is not None):  # null: none
-        raise DataError(f"{where}: lens distortion ({', '.join(k for k in DISTORTION_KEYS if p.get(k))}) "
-                        "is not supported in transforms.json; undistort the images first")
     model = MODELS[name]
     if "w" in p and "h" in p:
         w, h = _pixels(p, "w", where), _pixels(p, "h", where)
@@ -171,8 +185,9 @@ def _optional_file(base: Path, frame: dict, key: str, where: str) -> Path | None
     return resolve_file(base, str(frame[key]), f"{where} {key}", (".npy", ".png", ".tif", ".tiff"))
 
 
-def frame_views(path: Path, data: dict, split: str | None) -> list[ViewSpec]:
-    """:class:`ViewSpec` of every frame of one parsed transforms file."""
+def frame_views(path: Path, data: dict, split: str | None, undistort: bool = True) -> list[ViewSpec]:
+    """:class:`ViewSpec` of every frame of one parsed transforms file (``undistort``: lens distortion is undone as
+    the images are read, else refused)."""
     base, top = path.parent, {k: data[k] for k in INTRINSIC_KEYS if k in data}
     views = []
     for i, frame in enumerate(data["frames"]):
@@ -180,22 +195,27 @@ def frame_views(path: Path, data: dict, split: str | None) -> list[ViewSpec]:
             raise DataError(f"{path}: frame {i} has no 'file_path'")
         where = f"{path}: frame {i} ('{frame['file_path']}')"
         image = resolve_file(base, str(frame["file_path"]), where)
-        K, w, h, model = _intrinsics({**top, **{k: frame[k] for k in INTRINSIC_KEYS if k in frame}}, image, where)
+        keys = {**top, **{k: frame[k] for k in INTRINSIC_KEYS if k in frame}}
+        K, w, h, model = _intrinsics(keys, image, where)
+        dist = _distortion(keys, model, undistort, where)
         views.append(ViewSpec(
             name=image.stem, image=image, w2c=_pose(frame, where), K=K, width=w, height=h, model=model,
-            split=frame.get("split", split), **{k: _optional_file(base, frame, f"{k}_path", where) for k in OPTIONAL}))
+            split=frame.get("split", split), undistort=None if dist is None else undistorter(K, dist),
+            **{k: _optional_file(base, frame, f"{k}_path", where) for k in OPTIONAL}))
     return views
 
 
-def read_transforms(path: str | Path, opts: ReaderOptions | None = None) -> Scene:
-    """Read a transforms.json file or folder into a :class:`Scene` (see the module docstring)."""
+def read_transforms(path: str | Path, opts: ReaderOptions | None = None, *, undistort: bool = True) -> Scene:
+    """Read a transforms.json file or folder into a :class:`Scene` (see the module docstring); ``undistort``: lens
+    distortion (``k1, k2, k3, p1, p2``) undone as the images are read (``cv2.undistort``, the same ``K``), else
+    refused."""
     opts = opts or ReaderOptions()
     files = find_transforms_files(dataset_root(path))
     views, first = [], None
     for file, split in files:
         data = _load_json(file)
         first = first or (file, data)
-        views += frame_views(file, data, split)
+        views += frame_views(file, data, split, undistort)
     file, data = first
     points = colors = None
     if data.get("ply_file_path"):

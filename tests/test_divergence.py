@@ -9,8 +9,9 @@ from trainer_util import L1_DSSIM, loop, tiny_scene
 from arcsem.errors import TrainingError
 from arcsem.train import loop as loop_module
 from arcsem.train.checkpoint import load_checkpoint
-from arcsem.train.loop import LoopConfig, loss_trend_warning, train
+from arcsem.train.loop import LoopConfig, train
 from arcsem.train.losses import build_losses
+from arcsem.train.trend import loss_trend_warning
 
 
 def _nan_gradient_from(bb, step_from: int):

@@ -308,7 +308,7 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
     from ..share import cache_root
     from ..train import LoopConfig, train
     from ..train.evaluate import write_views_csv
-    from ..train.loop import loss_trend_warning
+    from ..train.trend import loss_trend_warning
     from .outputs import evaluate_and_write, write_colored_products
 
     run_dir = Path(run_dir)

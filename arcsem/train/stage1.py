@@ -32,10 +32,11 @@ from ..timing import phase
 from ..video import write_video
 from ..visual import DEPTH_SPAN, to_uint8
 from .evaluate import PROTOCOLS, evaluate_split, mean_metrics, resolve_protocol, write_views_csv
-from .loop import LoopConfig, loss_trend_warning, train
+from .loop import LoopConfig, train
 from .losses import build_losses
 from .products import write_products
 from .sampling import resize_scene
+from .trend import loss_trend_warning
 
 __all__ = [
     "NON_SEMANTIC_KEYS",

@@ -292,6 +292,21 @@ def test_transforms_distortion_undistorted_as_colmap_does_or_refused(tiny_transf
         load_scene({"kind": "transforms", "path": str(path), "undistort": False})
 
 
+def test_grey_option_on_grey_images_gives_no_colour_truth(tiny_transforms):
+    """``dataset.grey=true`` on views that are grey already (an SEM series): their "colour" would score stage 2
+    against grey, so there is no colour ground truth, and a warning says why; the grey images read as without it."""
+    path = tiny_transforms(n=3)
+    plain, grey = read_transforms(path), read_transforms(path, ReaderOptions(grey=True))
+    assert grey.train.colors is None and grey.test.colors is None
+    assert any("dataset.grey=true but every view is grey already" in w for w in grey.warnings)
+    torch.testing.assert_close(grey.train.images, plain.train.images)
+    img = cv2.imread(str(path.parent / "view_01.png"))
+    img[2:6, 3:9] = (0, 0, 255)  # one view with colour content: every view's colour is its truth
+    cv2.imwrite(str(path.parent / "view_01.png"), img)
+    mixed = read_transforms(path, ReaderOptions(grey=True))
+    assert mixed.train.colors is not None and not any("grey already" in w for w in mixed.warnings)
+
+
 def test_load_scene_synthetic_dispatch(monkeypatch, tmp_path):
     import arcsem.synthetic as synth
 

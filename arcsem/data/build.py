@@ -185,6 +185,7 @@ def _read_view(v: ViewSpec, size: tuple[int, int], grey: bool = False) -> dict[s
     own_colour = None
     if grey:
         own_colour, img = img, luminance(img)
+        notes += ["grey_of_colour"] if coloured else []
     elif coloured:
         notes.append("colour")
     if img.shape[:2] != (v.height, v.width):
@@ -261,7 +262,7 @@ def _reading_warnings(notes: dict[str, list[Path]]) -> list[str]:
                       "the images to grey if they are SEM images"}
     out = []
     for note, files in notes.items():
-        if note.startswith("levels "):
+        if note.startswith("levels ") or note == "grey_of_colour":
             continue
         more = f" and {len(files) - 1} more" if len(files) > 1 else ""
         out.append(f"{files[0]}{more}: {text[note]}")
@@ -334,6 +335,10 @@ def assemble_scene(root: Path, views: list[ViewSpec], opts: ReaderOptions, *, bo
     refs.update(test_refs)
     for note, files in test_notes.items():
         notes.setdefault(note, []).extend(files)
+    warnings = _reading_warnings(notes)
+    if opts.grey and "grey_of_colour" not in notes and all(v.color is None for v in train_v + test_v):
+        train.colors = test.colors = None  # grey images' "colour" would score stage 2 against grey
+        warnings.append(f"{root}: dataset.grey=true but every view is grey already: no colour ground truth from them")
     known, all_names = set(train.names) | set(test.names), {v.name for v in views}
     for set_name, names in (reference_sets or {}).items():
         bad = [n for n in names if n not in all_names]
@@ -350,7 +355,7 @@ def assemble_scene(root: Path, views: list[ViewSpec], opts: ReaderOptions, *, bo
     to_t = lambda a: None if a is None else torch.as_tensor(np.asarray(a, dtype=np.float32))
     return Scene(str(root), train, test, box, points=to_t(points), point_colors=to_t(point_colors),
                  references=refs, reference_sets=sets, specimen_size=specimen_size, bounds_source=source,
-                 warnings=_reading_warnings(notes), intensity=intensity_ranges(notes), content_bounds=content)
+                 warnings=warnings, intensity=intensity_ranges(notes), content_bounds=content)
 
 
 def _box(root: Path, bounds: Any, key: str) -> torch.Tensor:

@@ -59,7 +59,8 @@ def check_summary(cfg: Any, scene: Any, result: dict) -> str:
         "check: OK (the data was read and the model built; nothing was trained)",
         f"  dataset    {cfg.dataset.kind}: {scene.root}",
         f"  views      {len(tr)} train + {len(te)} held-out, {cams.width}x{cams.height} px, {cams.model} cameras",
-        f"  per view   ground truth: {_extras(tr)}",
+        f"  per view   ground truth: {_extras(tr)}"
+        + (" (grey input: the colour views' luminance, dataset.grey=true)" if cfg.dataset.get("grey") else ""),
         *[f"  intensity  {r['levels']}: {r['views']} view(s)" for r in scene.intensity],
         f"  colour     {len(scene.references)} artist reference image(s); presets: {refs}",
         f"  bounds     {_box(scene.bounds)}",

@@ -45,21 +45,17 @@ class References:
 
 
 def _read_image(path: Path) -> Tensor:
-    """``[H, W, 3]`` float32 in [0, 1] (RGBA over black, as the dataset readers take a view; grey broadcast to 3
-    channels)."""
-    import imageio.v3 as iio
+    """``[H, W, 3]`` float32 in [0, 1], read as the dataset readers read a view (:func:`arcsem.data.io.read_image`:
+    grey as three channels, RGBA over black; an alpha of 0 everywhere is ignored)."""
+    from ..data.io import read_image
 
     try:
-        arr = np.asarray(iio.imread(path))
-    except Exception as exc:  # noqa: BLE001 (any reader error: name the file)
-        raise DataError(f"reference '{path}': cannot read image ({exc})") from None
-    scale = 65535.0 if arr.dtype == np.uint16 else (255.0 if arr.dtype == np.uint8 else 1.0)
-    arr = arr.astype(np.float32) / scale
-    if arr.ndim == 2:
-        arr = np.repeat(arr[..., None], 3, -1)
-    if arr.shape[-1] == 4 and arr[..., 3].any():  # (an alpha of 0 everywhere is ignored, as the readers do)
-        arr = arr[..., :3] * arr[..., 3:]
-    return torch.from_numpy(np.ascontiguousarray(arr[..., :3]))
+        img, alpha = read_image(path)
+    except DataError as exc:
+        raise DataError(f"reference {exc}") from None
+    if alpha is not None and alpha.any():
+        img = img * alpha[..., None]
+    return torch.from_numpy(np.ascontiguousarray(img, dtype=np.float32))
 
 
 def _resize(image: Tensor, hw: tuple[int, int]) -> Tensor:

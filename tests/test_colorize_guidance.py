@@ -83,3 +83,25 @@ def test_ccm_targets_from_quadrant_matches(tmp_path):
     g2._compute = lambda v: pytest.fail("recomputed despite the disk cache")
     torch.testing.assert_close(g2.targets(1)["ccm_target"], expect)
     assert g2.matches(1) is g2.matches(1)  # memory cache
+
+
+def test_apart_matches_skip_the_locations_own_surface_point():
+    """A view that sees the reference's two points again: its guarded matches are those points themselves; searched
+    apart (beyond two 0.1-wide cells of the own point), each location must take the other point, as a point no
+    reference sees would have to."""
+    from arcsem.configs import GuardConfig
+
+    ref_grey, view = _grey([[[0.2, 0.85]]]), _grey([[0.25, 0.8]])
+    ref_col = torch.stack([torch.tensor([1.0, 0.0, 0.0]), torch.tensor([0.0, 0.0, 1.0])])[None, None]
+    points = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]).reshape(1, 1, 2, 3).expand(2, 1, 2, 3)
+    g = Guidance(FakeVGG(), FakeVGG(), torch.cat([ref_grey, view[None]]), [0], ref_col, tcm_downscale=1,
+                 ccm_downscale=1, geometry=torch.zeros(2, 2, 1, 2), guard=GuardConfig())
+    assert g.matches(1)["tcm_idx0"].tolist() == [[0, 1]] and g.matches(1)["tcm_ok0"].all()
+    apart = g.apart_matches(1, points, footprint=0.1, factor=2.0)
+    assert apart["tcm_idx0"].tolist() == [[1, 0]] and apart["ccm_idx"].tolist() == [[1, 0]]
+    colours, keep = g.carried(1, "tcm0", apart)
+    torch.testing.assert_close(colours, ref_col[0, 0].flip(0))
+    assert keep.all()
+    assert g.matches(1)["tcm_idx0"].tolist() == [[0, 1]]  # the guidance's own matches are untouched
+    far = g.apart_matches(1, points, footprint=0.1, factor=20.0)  # every point within the radius: no match kept
+    assert not far["tcm_ok0"].any() and not far["ccm_ok"].any()

@@ -54,7 +54,8 @@ def test_apply_choice_sets_the_target_and_drops_losses_that_lose():
 
 
 class _Guidance:
-    """TCM guidance and CCM targets right (blue) on the top half of an 8x8 view, wrong (green) on the bottom."""
+    """TCM guidance and CCM targets right (blue) on the top half of an 8x8 view, wrong (green) on the bottom; the
+    TCM matches bring those colours."""
 
     def targets(self, v):
         tcm = torch.zeros(3, 8, 8)
@@ -62,6 +63,9 @@ class _Guidance:
         ccm = torch.zeros(2, 2, 3)
         ccm[0, :, 2], ccm[1, :, 1] = 1.0, 1.0
         return {"tcm_guidance": [tcm], "ccm_target": ccm, "ccm_valid": torch.ones(2, 2, dtype=torch.bool)}
+
+    def carried(self, v, name):
+        return self.targets(v)["tcm_guidance"][0].permute(1, 2, 0).reshape(-1, 3), None
 
 
 def test_tcm_and_ccm_are_scored_only_where_they_act():
@@ -76,11 +80,30 @@ def test_tcm_and_ccm_are_scored_only_where_they_act():
     covered = torch.zeros(8, 8, dtype=torch.bool)
     covered[:4] = True
     space = lambda x: [x.permute(0, 3, 1, 2)]  # colour as the feature
-    g_tcm, r_tcm, g_ccm, r_ccm = _guide_scores(_Guidance(), 0, rgb, truth, space, 1, 4)
+    g_tcm, r_tcm, g_ccm, r_ccm, gc_tcm, rc_tcm = _guide_scores(_Guidance(), 0, rgb, truth, space, 1, 4)
     assert g_tcm < r_tcm and g_ccm < r_ccm  # whole view: (0 + 1) / 2 against (1 + 0.42) / 2; 1/3 against 0.46
-    g_tcm, r_tcm, g_ccm, r_ccm = _guide_scores(_Guidance(), 0, rgb, truth, space, 1, 4, covered)
+    assert abs(gc_tcm - 1 / 3) < 1e-6 and abs(rc_tcm - (2 / 3 + 0.25) / 2) < 1e-6  # the colours the matches bring
+    g_tcm, r_tcm, g_ccm, r_ccm, gc_tcm, rc_tcm = _guide_scores(_Guidance(), 0, rgb, truth, space, 1, 4, covered)
     assert abs(g_tcm - 1.0) < 1e-6 and abs(r_tcm - (1 - 3 ** -0.5)) < 1e-6  # bottom only: green vs grey
     assert abs(g_ccm - 2 / 3) < 1e-6 and abs(r_ccm - 0.25) < 1e-6
+    assert abs(gc_tcm - 2 / 3) < 1e-6 and abs(rc_tcm - 0.25) < 1e-6
+
+
+def test_tcm_is_kept_only_where_its_matches_bring_better_colour_too():
+    """Nearer the truth in the loss space on both held-out references, but the colours its matches bring further
+    than the target's on one and in the mean: TCM is dropped; CCM, nearer on the views where it acts, kept."""
+    from arcsem.colorize.validate import guide_choice
+
+    nan = float("nan")
+    scores = {"tcm": [(0.2, 0.5), (0.3, 0.4)], "tcm_colour": [(0.05, 0.01), (0.02, 0.03)],
+              "ccm": [(0.01, 0.02), (nan, nan)]}
+    out = guide_choice(scores)
+    assert not out["tcm"]["keep"] and out["tcm"]["guidance"] < out["tcm"]["target"]
+    assert abs(out["tcm"]["colour_guidance"] - 0.035) < 1e-9 and abs(out["tcm"]["colour_target"] - 0.02) < 1e-9
+    assert out["ccm"]["keep"] and out["ccm"]["guidance"] == 0.01
+    scores["tcm_colour"][0] = (0.005, 0.01)
+    assert guide_choice(scores)["tcm"]["keep"]  # better in both: kept
+    assert not guide_choice({**scores, "ccm": [(nan, nan)]})["ccm"]["keep"]  # acts nowhere: dropped
 
 
 def test_the_background_counts_as_covered_when_it_has_its_own_target():
@@ -101,6 +124,9 @@ def test_the_background_counts_as_covered_when_it_has_its_own_target():
             ccm[:, 1, 2], ccm[:, 0, 1] = 1.0, 1.0
             return {"tcm_guidance": [tcm], "ccm_target": ccm, "ccm_valid": torch.ones(2, 2, dtype=torch.bool)}
 
+        def carried(self, v, name):
+            return self.targets(v)["tcm_guidance"][0].permute(1, 2, 0).reshape(-1, 3), None
+
     truth = torch.zeros(8, 8, 3)
     truth[:, 4:, 2], truth[:, :4, 0] = 1.0, 1.0  # blue specimen on the right, red background on the left
     rgb = torch.full((8, 8, 3), 0.5)  # the flat guess everywhere: the target covers nothing
@@ -113,8 +139,8 @@ def test_the_background_counts_as_covered_when_it_has_its_own_target():
     scores = {}
     for bg in ("auto", "off"):
         covered = acting_cover(ok, mask, dataclasses.replace(cc, background=bg), refs, ref_grey, ref_masks)
-        g_tcm, r_tcm, g_ccm, r_ccm = _guide_scores(Guide(), 0, rgb, truth, space, 1, 4, covered)
-        scores[bg] = (g_tcm < r_tcm, g_ccm < r_ccm)
+        g_tcm, r_tcm, g_ccm, r_ccm, gc_tcm, rc_tcm = _guide_scores(Guide(), 0, rgb, truth, space, 1, 4, covered)
+        scores[bg] = (g_tcm < r_tcm and gc_tcm < rc_tcm, g_ccm < r_ccm)
     assert scores == {"auto": (True, True), "off": (False, False)}
     # no background in the other references: no line, so the background is not covered
     assert acting_cover(ok, mask, cc, refs, ref_grey, torch.ones(1, 16, 16, dtype=torch.bool)).sum() == 0

@@ -69,6 +69,23 @@ def test_ratio_test_drops_a_match_that_could_as_well_be_elsewhere():
         assert kept.tolist() == [want], far
 
 
+def test_apart_search_skips_the_querys_own_surface_point():
+    """The right part's location 22 is the query's own surface point (the reference shows it): found as usual, and
+    with ``apart`` the search goes past it, to the same-part location 12 three units away, or to none when 12 is
+    within the radius too (a point no reference sees has no such match)."""
+    query, keys, qgeo, kgeo = _wrong_part_scene()
+    keys[12], kgeo[12] = keys[22] + 0.2 * torch.randn(D, generator=torch.Generator().manual_seed(3)), torch.tensor(TOP)
+    kpts = torch.full((30, 3), 50.0)
+    kpts[22], kpts[12] = torch.tensor([0.0, 0.0, 0.1]), torch.tensor([3.0, 0.0, 0.0])
+    qpts = torch.zeros(1, 3)
+    args = (query, keys, qgeo, kgeo, torch.tensor([[0, 0]]), grid_positions(1, 5, 6), GuardConfig())
+    assert guarded_nearest(*args)[0].tolist() == [22]
+    idx, _, kept = guarded_nearest(*args, apart=(qpts, kpts, 1.0))
+    assert idx.tolist() == [12] and kept.tolist() == [True]
+    _, _, kept = guarded_nearest(*args, apart=(qpts, kpts, 4.0))
+    assert kept.tolist() == [False]
+
+
 def test_mutual_test_keeps_only_the_best_of_two_queries_for_one_location():
     """Queries at cells (0, 0) and (3, 3) both match key 22; its nearest query is the second: only it is kept
     (the first kept without the mutual test)."""
@@ -101,17 +118,21 @@ def test_views_that_disagree_about_a_points_colour_are_dropped():
 
 class _Carried:
     """Guidance stub: one CCM grid of 2x2 cells per 8x8 view; every match brings ``colour`` and is kept, except the
-    bottom-right cell's (dropped by the guard)."""
+    bottom-right cell's (dropped by the guard); the matches searched apart from their own points bring ``apart``."""
 
-    def __init__(self, colour):
-        self.colour = torch.tensor(colour)
+    def __init__(self, colour, apart=(0.0, 0.0, 1.0)):
+        self.colour, self.apart, self.asked = torch.tensor(colour), torch.tensor(apart), []
 
     def kinds(self):
         return [("ccm", (2, 2))]
 
-    def carried(self, v, name):
+    def apart_matches(self, v, points, footprint, factor):
+        self.asked.append((v, factor))
+        return {"apart": True}
+
+    def carried(self, v, name, matches=None):
         keep = torch.tensor([True, True, True, False])
-        return self.colour.expand(4, 3), keep
+        return (self.colour if matches is None else self.apart).expand(4, 3), keep
 
 
 def test_match_check_keeps_matches_that_bring_the_pseudo_colours_and_drops_those_that_bring_another_part():
@@ -136,3 +157,10 @@ def test_match_check_keeps_matches_that_bring_the_pseudo_colours_and_drops_those
     prior[:, :4, :, 0] = 1.0
     beaten = match_check(_Carried([1.0, 0.0, 0.0]), [1, 2], pseudo, valid, prior)["ccm"]
     assert beaten["guess"] == 0.0 and not beaten["keep"]  # matches no better than the prior: dropped
+    # searched away from their own points, the matches that found red bring blue: dropped
+    guide = _Carried([1.0, 0.0, 0.0])
+    apart = match_check(guide, [1, 2], pseudo, valid, flat, (torch.zeros(3, 8, 8, 3), 0.1, 2.0))["ccm"]
+    assert abs(apart["match"] - 2 / 3) < 1e-6 and not apart["keep"] and guide.asked == [(1, 2.0), (2, 2.0)]
+    found = match_check(_Carried([0.0, 0.0, 1.0], apart=(1.0, 0.0, 0.0)), [1, 2], pseudo, valid, flat,
+                        (torch.zeros(3, 8, 8, 3), 0.1, 2.0))["ccm"]
+    assert found["match"] == 0.0 and found["keep"]  # and the other way round: the apart matches decide

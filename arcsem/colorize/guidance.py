@@ -180,9 +180,17 @@ class Guidance:
         g = F.interpolate(self.geometry[views].float(), size=grid, mode="nearest")
         return g.permute(0, 2, 3, 1).reshape(-1, g.shape[1])
 
-    def _compute_guarded(self, v: int, feats: list[Tensor]) -> dict[str, Tensor]:
+    def _points(self, points: Tensor, views: list[int], grid: tuple[int, int]) -> Tensor:
+        """``[len(views)*h*w, 3]`` world points ``points [N, H, W, 3]`` of ``views`` at a feature grid (nearest)."""
+        p = F.interpolate(points[views].permute(0, 3, 1, 2).float(), size=grid, mode="nearest")
+        return p.permute(0, 2, 3, 1).reshape(-1, 3)
+
+    def _compute_guarded(self, v: int, feats: list[Tensor], apart: tuple[Tensor, float, float] | None = None
+                         ) -> dict[str, Tensor]:
         """As the plain search, among geometrically compatible locations, with the ratio and mutual tests
-        (:func:`arcsem.colorize.guard.guarded_nearest`): adds ``tcm_ok<b>`` ``[h_b, w_b]`` and ``ccm_ok [hc, wc]``."""
+        (:func:`arcsem.colorize.guard.guarded_nearest`): adds ``tcm_ok<b>`` ``[h_b, w_b]`` and ``ccm_ok [hc, wc]``.
+        ``apart``: ``(points [N, H, W, 3], pixel footprint, factor)``: only keys farther than ``factor`` cells (a
+        cell's world size: the footprint times the pixels a cell spans) from the location's own surface point."""
         from .guard import grid_positions, guarded_nearest
 
         out = {}
@@ -191,9 +199,15 @@ class Guidance:
                       "ccm_ok"))
         for f, r, name, ok_name in pairs:
             D, h, w = f.shape
+            near = None
+            if apart is not None:
+                points, foot, factor = apart
+                near = (self._points(points, [v], (h, w)), self._points(points, self.ref_indices, tuple(r.shape[-2:])),
+                        factor * foot * self.gray.shape[1] / h)
             idx, dist, ok = guarded_nearest(
                 f.reshape(D, -1).T, _flat(r), self._geo([v], (h, w)), self._geo(self.ref_indices, tuple(r.shape[-2:])),
-                grid_positions(1, h, w)[:, 1:], grid_positions(*r.shape[:1], *r.shape[-2:]), self.guard, self.chunk)
+                grid_positions(1, h, w)[:, 1:], grid_positions(*r.shape[:1], *r.shape[-2:]), self.guard, self.chunk,
+                near)
             out[name], out[ok_name] = idx.reshape(h, w), ok.reshape(h, w)
             if name == "ccm_idx":
                 out["ccm_dist"] = dist.reshape(h, w)
@@ -214,28 +228,39 @@ class Guidance:
         self._memory[v] = out
         return out
 
-    def targets(self, v: int) -> dict[str, Tensor | list[Tensor]]:
-        """``tcm_guidance``: per block ``[D_b, h_b, w_b]`` (loss space); ``ccm_target [hc, wc, 3]``, ``ccm_valid [hc, wc]``."""
-        m = self.matches(v)
+    def apart_matches(self, v: int, points: Tensor, footprint: float, factor: float) -> dict[str, Tensor]:
+        """View ``v``'s guarded matches (as :meth:`matches`) searched only among the reference locations more than
+        ``factor`` cells from each location's own surface point (``points [N, H, W, 3]``, world; ``footprint``: a
+        pixel's world size): what a point no reference sees gets, asked where the answer is known
+        (:func:`arcsem.colorize.guard.match_check`). Computed each call, not cached; needs the guard."""
+        feats = [f[0] for f in self.features(self.gray[v:v + 1])]
+        return self._compute_guarded(v, feats, (points, footprint, factor))
+
+    def targets(self, v: int, matches: dict[str, Tensor] | None = None) -> dict[str, Tensor | list[Tensor]]:
+        """``tcm_guidance``: per block ``[D_b, h_b, w_b]`` (loss space); ``ccm_target [hc, wc, 3]``, ``ccm_valid [hc, wc]``
+        (``matches``: another match set of ``v``, :meth:`apart_matches`, without the cross-view agreement test)."""
+        m = self.matches(v) if matches is None else matches
+        agree = self._agree if matches is None else {}
         guide = []
         for b, rc in enumerate(self.ref_color):
             idx = m[f"tcm_idx{b}"]
             guide.append(rc[idx.reshape(-1)].T.reshape(rc.shape[1], *idx.shape))
         target, valid = ccm_targets(m["ccm_idx"], m["ccm_dist"], self.ref_means, self.ccm_max_dist, self.ccm_white)
         out = {"tcm_guidance": guide, "ccm_target": target,
-               "ccm_valid": valid & m.get("ccm_ok", True) & self._agree.get((v, "ccm"), True)}
+               "ccm_valid": valid & m.get("ccm_ok", True) & agree.get((v, "ccm"), True)}
         if "tcm_ok0" in m:
-            out["tcm_valid"] = [m[f"tcm_ok{b}"] & self._agree.get((v, f"tcm{b}"), True) for b in range(len(guide))]
+            out["tcm_valid"] = [m[f"tcm_ok{b}"] & agree.get((v, f"tcm{b}"), True) for b in range(len(guide))]
         return out
 
     def kinds(self) -> list[tuple[str, tuple[int, int]]]:
         """The match kinds and their grids: ``("ccm", (hc, wc))``, then ``("tcm<b>", (h_b, w_b))`` per block."""
         return [("ccm", self.grid)] + [(f"tcm{b}", tuple(r.shape[-2:])) for b, r in enumerate(self.ref_gray)]
 
-    def carried(self, v: int, name: str) -> tuple[Tensor, Tensor]:
+    def carried(self, v: int, name: str, matches: dict[str, Tensor] | None = None) -> tuple[Tensor, Tensor]:
         """The colour each match of kind ``name`` brings to view ``v`` (``[h*w, 3]``: the CCM target, or the
-        reference colour at the TCM match, pooled to the block's grid) and which matches are kept (``[h*w]``)."""
-        t, m = self.targets(v), self.matches(v)
+        reference colour at the TCM match, pooled to the block's grid) and which matches are kept (``[h*w]``)
+        (``matches``: as :meth:`targets`)."""
+        t, m = self.targets(v, matches), self.matches(v) if matches is None else matches
         if name == "ccm":
             return t["ccm_target"].reshape(-1, 3), t["ccm_valid"].reshape(-1)
         b = int(name[3:])

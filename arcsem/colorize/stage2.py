@@ -244,8 +244,8 @@ def _guide_factory(cc, extractor, space, split, geo: SurfaceGeometry, cache_dir)
                                         geometry=geometry, guard=cc.guard)
 
 
-def _agree(guidance: Guidance, split, geo: SurfaceGeometry, tol: float) -> dict[str, float]:
-    """The guidance's cross-view agreement test on the stage-1 surface points of every pixel."""
+def _surface_points(split, geo: SurfaceGeometry) -> tuple[torch.Tensor, float]:
+    """The stage-1 surface point of every pixel ``[N, H, W, 3]`` (NaN: none) and a pixel's median world size."""
     from .pseudocolor import pixel_footprint
 
     depth, _ = geo.value
@@ -253,13 +253,19 @@ def _agree(guidance: Guidance, split, geo: SurfaceGeometry, tol: float) -> dict[
     pts = cams.unproject(depth.double())
     pts = torch.where((depth > 0)[..., None], pts, torch.full_like(pts, float("nan")))
     foot = pixel_footprint(cams, depth.double().reshape(len(depth), -1))[(depth > 0).reshape(len(depth), -1)]
-    return guidance.agree(pts, float(foot.median()) if foot.numel() else 1.0, tol)
+    return pts, float(foot.median()) if foot.numel() else 1.0
 
 
-def _match_check(cc, guidance: Guidance, split, refs, masks, pseudo, valid2d, prior_rgb=None):
+def _agree(guidance: Guidance, split, geo: SurfaceGeometry, tol: float) -> dict[str, float]:
+    """The guidance's cross-view agreement test on the stage-1 surface points of every pixel."""
+    return guidance.agree(*_surface_points(split, geo), tol)
+
+
+def _match_check(cc, guidance: Guidance, split, refs, masks, pseudo, valid2d, geo: SurfaceGeometry, prior_rgb=None):
     """:func:`arcsem.colorize.guard.match_check` on the non-reference views (``prior_rgb [N, H, W, 3]``: the grey
-    prior's colours, the guess without matches; None: the references' mean colour): the config without the losses
-    whose matches carry no colour, and the scores."""
+    prior's colours, the guess without matches; None: the references' mean colour), the matches searched beyond the
+    pseudo-colours' search radius (``colorize.radius_factor`` cells) from each location's own surface point: the
+    config without the losses whose matches carry no colour, and the scores."""
     from .guard import match_check
     from .validate import without_losses
 
@@ -271,7 +277,8 @@ def _match_check(cc, guidance: Guidance, split, refs, masks, pseudo, valid2d, pr
         guess = refs.images.float()[ref_masks].mean(0)
     else:
         guess = refs.images.float().mean((0, 1, 2))
-    check = match_check(guidance, others, pseudo.cpu(), valid2d.cpu(), guess)
+    check = match_check(guidance, others, pseudo.cpu(), valid2d.cpu(), guess,
+                        (*_surface_points(split, geo), cc.radius_factor))
     return without_losses(cc, [k for k, c in check.items() if not c["keep"]]), check
 
 
@@ -345,7 +352,8 @@ def run_stage2(cfg: Any, scene, run_dir: str | Path) -> dict:
         if cc.guard.enabled:
             finfo["agreement_dropped"] = _agree(guidance, split, geo, cc.guard.views_tol)
             if cc.guard.check and (validation is None or validation["references"] < 2):  # else the validation
-                cc, finfo["match_check"] = _match_check(cc, guidance, split, refs, masks, pseudo, pinfo["valid2d"], prior_rgb)
+                cc, finfo["match_check"] = _match_check(cc, guidance, split, refs, masks, pseudo, pinfo["valid2d"], geo,
+                                                         prior_rgb)
                 losses = colorize_losses(cc, backbone, validated)
         finfo["time_s"] += time.perf_counter() - t0
         timings["matches_s"] = time.perf_counter() - t0

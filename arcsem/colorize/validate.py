@@ -11,7 +11,9 @@ specimen pixels. Closed form, no training: a few seconds per reference. The decl
   with the least error is chosen; pseudo-colours alone (all off) is one of the eight. An addition switched off in
   the config stays off (:func:`grid`: an ablation is one);
 * **TCM** is kept where its guarded guidance lies closer to the truth in the TCM loss space than the chosen
-  target image (the same locations, mean cosine distance); **CCM** where its targets lie closer (squared error) to
+  target image (the same locations, mean cosine distance), and the colours its matches bring closer to the truth's
+  (squared error of the cell colours) than the target's: a loss space of features without meaning (VGG16 with random
+  weights) can be nearer where the colour is further; **CCM** where its targets lie closer (squared error) to
   the truth's cell colours than the target's cell means on the cells it acts on. Both are scored where they act in
   training: with ``colorize.guard.uncovered_only`` on the cells the target leaves before the prior (there the
   target image holds the prior, or the grey), less the background when ``colorize.background=auto`` gives it a target (:func:`acting_cover`).
@@ -46,6 +48,7 @@ __all__ = [
     "acting_cover",
     "apply_choice",
     "grid",
+    "guide_choice",
     "held_out_targets",
     "target_error",
     "validate",
@@ -102,11 +105,18 @@ def target_error(rgb: Tensor, truth: Tensor, mask: Tensor) -> float:
     return float(((rgb - truth.float()) ** 2).sum(-1)[mask].mean() / 3) if bool(mask.any()) else float("nan")
 
 
+def _cells(x: Tensor, grid: tuple[int, int]) -> Tensor:
+    """``[h*w, 3]``: the image ``x [H, W, 3]`` pooled to ``grid`` (area means)."""
+    return F.adaptive_avg_pool2d(x.permute(2, 0, 1)[None].float(), grid)[0].permute(1, 2, 0).reshape(-1, 3)
+
+
 def _guide_scores(guidance, v: int, rgb: Tensor, truth: Tensor, space, tcm_downscale: int, ccm_downscale: int,
                   covered: Tensor | None = None):
-    """``(tcm guidance, tcm target, ccm guidance, ccm target)`` distances to the truth on view ``v``'s guarded
-    locations (NaN where a loss acts nowhere); with ``covered [H, W]`` (the target's pixels), only on the cells the
-    target leaves, as in training (``colorize.guard.uncovered_only``)."""
+    """``(tcm guidance, tcm target, ccm guidance, ccm target, tcm colour guidance, tcm colour target)`` distances to
+    the truth on view ``v``'s guarded locations (NaN where a loss acts nowhere): TCM in its loss space and by the
+    colours its matches bring (:meth:`~arcsem.colorize.guidance.Guidance.carried`, against the cell colours); with
+    ``covered [H, W]`` (the target's pixels), only on the cells the target leaves, as in training
+    (``colorize.guard.uncovered_only``)."""
     t = dict(guidance.targets(v))
     if covered is not None:
         from .guard import uncovered_cells
@@ -118,18 +128,23 @@ def _guide_scores(guidance, v: int, rgb: Tensor, truth: Tensor, space, tcm_downs
     with torch.no_grad():
         f_truth = space(downscale(truth[None].float(), tcm_downscale))
         f_rgb = space(downscale(rgb[None].float(), tcm_downscale))
-    g_err, r_err, n = 0.0, 0.0, 0
+    g_err, r_err, gc_err, rc_err, n = 0.0, 0.0, 0.0, 0.0, 0
     for b, guide in enumerate(t["tcm_guidance"]):
         ok = t["tcm_valid"][b] if "tcm_valid" in t else torch.ones(guide.shape[1:], dtype=torch.bool)
         if bool(ok.any()):
             g_err += float((1 - F.cosine_similarity(guide[None].float(), f_truth[b], dim=1)[0])[ok].mean())
             r_err += float((1 - F.cosine_similarity(f_rgb[b], f_truth[b], dim=1)[0])[ok].mean())
+            brought, cells = guidance.carried(v, f"tcm{b}")[0].float(), _cells(truth, tuple(ok.shape))
+            sel = ok.reshape(-1)
+            gc_err += float(((brought - cells) ** 2)[sel].mean())
+            rc_err += float(((_cells(rgb, tuple(ok.shape)) - cells) ** 2)[sel].mean())
             n += 1
     cells, truth_cells = patch_means(rgb[None], ccm_downscale)[0], patch_means(truth[None].float(), ccm_downscale)[0]
     ok = t["ccm_valid"]
     c = (float(((t["ccm_target"] - truth_cells) ** 2)[ok].mean()), float(((cells - truth_cells) ** 2)[ok].mean())) \
         if bool(ok.any()) else (float("nan"), float("nan"))
-    return (g_err / n, r_err / n, *c) if n else (float("nan"), float("nan"), *c)
+    nan = float("nan")
+    return (g_err / n, r_err / n, *c, gc_err / n, rc_err / n) if n else (nan, nan, *c, nan, nan)
 
 
 def acting_cover(ok: Tensor, mask: Tensor, cc, ref_colors: Tensor, ref_grey: Tensor, ref_masks: Tensor):
@@ -158,7 +173,7 @@ def validate(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Tensor, r
     name = lambda g: f"{g['surface']}/{g['shading']}/{g['prior']}"
     settings = grid(cc)
     errs = {name(g): [] for g in settings}
-    guide = {"tcm": [], "ccm": []}
+    guide = {"tcm": [], "ccm": [], "tcm_colour": []}
     graph = build_graph(cams, depth, masks, grey, normal, cc.surface)
     for r in range(len(ridx)):
         v = ridx[r]
@@ -180,11 +195,24 @@ def validate(cams, depth: Tensor, normal: Tensor, masks: Tensor, grey: Tensor, r
             acts = acting_cover(ok, masks[ridx[r]], cc, images[rest], grey[others], masks[others])
             s = _guide_scores(held, ridx[r], rgb, images[r], held.space, held.tcm_downscale, held.ccm_downscale, acts)
             guide["tcm"].append(s[:2])
-            guide["ccm"].append(s[2:])
-        for k in ("tcm", "ccm"):
-            pairs = [p for p in guide[k] if p[0] == p[0]]  # not NaN
-            g, t = (sum(p[0] for p in pairs) / len(pairs), sum(p[1] for p in pairs) / len(pairs)) if pairs else (1, 0)
-            out[k] = {"guidance": g, "target": t, "keep": bool(pairs) and g < t}
+            guide["ccm"].append(s[2:4])
+            guide["tcm_colour"].append(s[4:])
+        out.update(guide_choice(guide))
+    return out
+
+
+def guide_choice(scores: dict[str, list[tuple[float, float]]]) -> dict[str, dict]:
+    """Whether TCM and CCM are kept, from the held-out references' ``(guidance, target)`` distances (NaN: the loss
+    acts nowhere on that view) under ``tcm`` (loss space), ``tcm_colour`` and ``ccm``: each kept where its mean
+    distance is below the target's over the views where it acts; TCM in its loss space and in colour both."""
+    out = {}
+    for k in ("tcm", "ccm", "tcm_colour"):
+        pairs = [p for p in scores[k] if p[0] == p[0]]  # not NaN
+        g, t = (sum(p[0] for p in pairs) / len(pairs), sum(p[1] for p in pairs) / len(pairs)) if pairs else (1, 0)
+        out[k] = {"guidance": g, "target": t, "keep": bool(pairs) and g < t}
+    colour = out.pop("tcm_colour")
+    out["tcm"].update(colour_guidance=colour["guidance"], colour_target=colour["target"],
+                      keep=out["tcm"]["keep"] and colour["keep"])
     return out
 
 

@@ -22,9 +22,12 @@ from omegaconf import OmegaConf
 def rescore(run: Path) -> dict:
     """The coverage metrics of one run folder (its config, stage-1 model, stage-2 checkpoint and caches)."""
     from arcsem.colorize.coverage import coverage_metrics
+    from arcsem.colorize.inputs import prepare_scene as _prepare_scene
+    from arcsem.colorize.inputs import pseudo_target as _pseudo
+    from arcsem.colorize.inputs import resize_images as _resize_images
     from arcsem.colorize.masks import specimen_masks
     from arcsem.colorize.references import load_references
-    from arcsem.colorize.stage2 import _prepare_scene, _pseudo, _resize_images, colorize_config
+    from arcsem.colorize.stage2 import colorize_config
     from arcsem.data import load_scene
     from arcsem.runs import load_stage1
     from arcsem.share import cache_root

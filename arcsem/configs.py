@@ -138,9 +138,9 @@ class GuardConfig:
     # TCM and CCM act only on the cells the pseudo-colour target leaves (under half their pixels have one): where the
     # stage-1 geometry already says which reference pixel a point shows, an appearance match is the weaker evidence
     uncovered_only: bool = True
-    # where no validation decides (one reference, or validate=off): drop TCM / CCM when their kept matches bring
-    # colours no closer to the 2-D pseudo-colours than a flat guess, on the cells those cover
-    # (arcsem.colorize.guard.match_check; the evidence there is with one reference)
+    # where no validation decides (one reference, or validate=off): drop TCM / CCM when their kept matches, searched
+    # away from each location's own surface point, bring colours no closer to the 2-D pseudo-colours than the guess
+    # without them, on the cells those cover (arcsem.colorize.guard.match_check; the evidence with one reference)
     check: bool = True
 
 

@@ -15,7 +15,8 @@ PSNR in dB over the pooled pixels (cells: each cell's colour on its pixels). No 
 
     .venv/bin/python benchmarks/match_outside.py RUN_DIR [--references one three] [--features auto daisy learned]
 
-RUN_DIR: a stage-1 run folder (its config.yaml names the dataset, which needs colour and depth: a built-in scene).
+RUN_DIR: a run folder (its config.yaml; the stage-1 model found as stage 2 finds it: the run's own, its shared
+one, or ``colorize.stage1``); its dataset needs colour and depth (a built-in scene).
 """
 from __future__ import annotations
 
@@ -33,6 +34,7 @@ from arcsem.colorize.coverage import coverage_masks
 from arcsem.colorize.guard import match_check
 from arcsem.colorize.masks import specimen_masks
 from arcsem.colorize.references import load_references
+from arcsem.colorize.stage2 import find_stage1
 from arcsem.data import load_scene
 from arcsem.runconfig import run_config
 from arcsem.runs import load_stage1
@@ -44,12 +46,12 @@ def _db(pred, gt, sel) -> float:
 
 def score(run: Path, refs_spec: str, features: str, cache: Path) -> dict:
     cfg = OmegaConf.load(run / "config.yaml")
-    cfg.colorize.references, cfg.colorize.stage1, cfg.colorize.progress = refs_spec, str(run), False
+    cfg.colorize.references, cfg.colorize.progress = refs_spec, False
     cfg.colorize.features, cfg.colorize.cache_dir = features, str(cache)
     rc = run_config(cfg)
     cfg, cc = rc.cfg, rc.colorize
+    ckpt = find_stage1(cfg, cc, run)  # as stage 2 finds it (this run's, or its shared stage-1 model)
     scene = load_scene(cfg.dataset)
-    ckpt = run / "checkpoints" / "last.pt"
     refs = load_references(scene, cc.references)
     backbone, _ = load_stage1(ckpt, scene, cfg)
     split = prep.prepare_scene(scene, ckpt, cc).train

@@ -42,6 +42,20 @@ def test_files_matched_by_stem(tmp_path):
     np.testing.assert_allclose(r.images[0].numpy(), (np.clip(img, 0, 1) * 255).astype(np.uint8) / 255, atol=1e-6)
 
 
+def test_a_folder_of_references_takes_every_image_the_readers_read(tmp_path):
+    """A folder's references: every file with an image suffix the dataset readers take (one list, WebP included;
+    lossless here, so the pixels are exact), other files left alone."""
+    import cv2
+
+    img = (np.random.default_rng(0).random((12, 16, 3)) * 255).astype(np.uint8)
+    cv2.imwrite(str(tmp_path / "v2.webp"), img[..., ::-1], [cv2.IMWRITE_WEBP_QUALITY, 101])
+    _png(tmp_path / "v0.png", img / 255.0)
+    (tmp_path / "notes.txt").write_text("v1")
+    r = load_references(_scene(), str(tmp_path))
+    assert sorted(r.names) == ["v0", "v2"]
+    np.testing.assert_allclose(r.images[r.names.index("v2")].numpy(), img / 255.0, atol=1e-6)
+
+
 def test_refusals_name_the_file(tmp_path):
     sc = _scene()
     with pytest.raises(DataError, match=r"wrong\.png.*matches no training view"):

@@ -35,10 +35,10 @@ def check_config(rc: Any) -> None:
     if any(n in losses.terms for n in ("tcm", "ccm")):
         rc.features = check_features(cc.features, cc.tcm_space)  # `auto` resolved here, once per run
     refs = cc.references
-    from .references import IMAGE_EXT
+    from ..data.io import IMAGE_EXTS
 
     # a path; in a list, an image file (a name without an image suffix may be a view's: known once the data is read)
-    paths = [refs] if isinstance(refs, str) else [f for f in refs or [] if Path(str(f)).suffix.lower() in IMAGE_EXT]
+    paths = [refs] if isinstance(refs, str) else [f for f in refs or [] if Path(str(f)).suffix.lower() in IMAGE_EXTS]
     for f in paths:
         if ("/" in str(f) or "." in str(f)) and not Path(str(f)).expanduser().exists():
             raise DataError(f"colorize.references: file or folder not found: {f}")

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ..data.io import IMAGE_EXTS
 from ..errors import ConfigError, DataError
 
 __all__ = ["PRESETS", "References", "check_reference", "load_references"]
@@ -163,15 +164,12 @@ def load_references(scene, spec: str | list[str]) -> References:
     return References(names=names, indices=idx, images=torch.stack(images))
 
 
-IMAGE_EXT = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
-
-
 def _expand_files(items: list) -> list[Path]:
     out: list[Path] = []
     for it in items:
         p = Path(it)
         if p.is_dir():
-            out += sorted(q for q in p.iterdir() if q.suffix.lower() in IMAGE_EXT)
+            out += sorted(q for q in p.iterdir() if q.suffix.lower() in IMAGE_EXTS)
         elif p.is_file():
             out.append(p)
         else:

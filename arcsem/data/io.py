@@ -31,7 +31,7 @@ __all__ = [
 
 read_ply, write_ply = read_points, write_points  # the point-cloud names the readers use (arcsem.ply)
 
-IMAGE_EXTS = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".exr")
+IMAGE_EXTS = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".webp", ".exr")
 
 GREY_TOLERANCE = 4 / 255
 """An RGB image is grey content when its channels differ by more than this at no more than 0.1 % of its pixels

@@ -163,3 +163,13 @@ def test_rows_sharing_a_stage1_model_draw_one_curve(tmp_path):
     assert list(got) == ["grain, 1, default (+2 rows)", "diatom, 1, default"]
     assert got["diatom, 1, default"]["psnr"].tolist() == [9, 14]
     assert training_curves(runs, tmp_path / "c.png").is_file()
+
+
+def test_list_references_are_labelled_by_their_names_in_the_tiles():
+    """References given as a list of files or view names fill a tile's width with their folders: the tile label
+    keeps the names; presets and the rest of a label stay as they are."""
+    from arcsem.report.grids import tile_label
+
+    assert tile_label("[train/r_0,train/r_50]") == "r_0+r_50"
+    assert tile_label("[/data/chair/train/r_0.png, /data/chair/train/r_50.png], default") == "r_0+r_50, default"
+    assert tile_label("five, pseudo-colours") == "five, pseudo-colours"

@@ -17,6 +17,7 @@ Where a file is missing, the tile says "missing" instead of failing.
 """
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -25,7 +26,7 @@ import yaml
 
 from .groundtruth import GroundTruth
 
-__all__ = ["TILE_H", "gt_path", "make_grid", "placeholder", "read_image", "study_grids", "view_names"]
+__all__ = ["TILE_H", "gt_path", "make_grid", "placeholder", "read_image", "study_grids", "tile_label", "view_names"]
 
 TILE_H = 160          # tile height in pixels
 LABEL_H = 22          # height of the label band above each tile
@@ -253,10 +254,17 @@ def _short(runs: Mapping[str, Path]) -> dict[str, Path]:
     return {label.split(", ", 1)[1]: d for label, d in runs.items()}
 
 
+def tile_label(label: str) -> str:
+    """A column label short enough for a tile: a list in it (references given as files or view names,
+    ``[refs/train/r_0.png,train/r_50]``) as its items' names (``r_0+r_50``); the rest as it is."""
+    return re.sub(r"\[([^\]]*)\]", lambda m: "+".join(Path(x.strip()).stem or x.strip() for x in m.group(1).split(",")),
+                  label)
+
+
 def _grids(study: str, runs: Mapping[str, Path], out: Path, gt: GroundTruth, title_end: str,
            file_end: str) -> list[tuple[str, Path]]:
     """:func:`study_grids` of runs on one dataset (``title_end``, ``file_end``: what tells its grids apart)."""
-    labels, dirs = list(runs), [Path(d) for d in runs.values()]
+    labels, dirs = [tile_label(k) for k in runs], [Path(d) for d in runs.values()]
     grids = []
     for kind in KINDS.get(study, ("gray", "depth", "color")):
         folders, suffix, gt_kind, gt_label, title = GRID[kind]

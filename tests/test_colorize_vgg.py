@@ -78,6 +78,21 @@ def test_layers_are_torchvisions_without_importing_it(offline, arch):
 
 
 
+def test_random_weights_are_the_same_in_every_process_whatever_ran_before(offline):
+    """Without ImageNet weights the trunk keeps its initial weights: drawn from a fixed seed, so two extractors built
+    after different random draws (two jobs of one multirun worker, two runs) are the same function, and building
+    one leaves the global random state as it was."""
+    torch.manual_seed(1)
+    a = VGGFeatures("vgg16")
+    torch.rand(1000)
+    state = torch.random.get_rng_state()
+    b = VGGFeatures("vgg16")
+    assert torch.equal(torch.random.get_rng_state(), state)
+    assert a.features_source == "random" and a.key() == b.key()
+    for (k, x), (_, y) in zip(a.trunk.state_dict().items(), b.trunk.state_dict().items(), strict=True):
+        assert torch.equal(x, y), k
+
+
 def test_trunk_sees_nchw_memory_whatever_the_input_layout(offline):
     """A render ``[C, H, W, 3]`` permuted to NCHW is channels-last in memory; the trunk's first convolution gets it
     NCHW-contiguous, as its weights are (the mismatch ran 1.6x slower forward and backward on oneDNN,

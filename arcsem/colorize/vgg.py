@@ -29,6 +29,12 @@ VGG_CFG = {"vgg16": (64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 5
                      512, 512, 512, 512, "M")}
 
 
+RANDOM_SEED = 0
+"""The seed of the trunk's initial weights, which a run keeps where no ImageNet weights are found: the same random
+extractor in every run and process, as a pretrained one is. (Drawn from the global random state, as before, the
+features of a Hydra multirun job depended on which job had built the per-process extractor first.)"""
+
+
 def vgg_layers(arch: str) -> nn.Sequential:
     """``vgg.features`` of ``arch`` (``vgg16``/``vgg19``), built here rather than by torchvision (whose import costs
     seconds a process): the same modules in the same order, so also the same default-initialised random weights."""
@@ -70,7 +76,9 @@ class VGGFeatures(nn.Module):
         if arch not in WEIGHT_FILES:
             raise ConfigError(f"vgg: unknown architecture '{arch}'; use vgg16 or vgg19")
         net = nn.Module()
-        net.features = vgg_layers(arch)  # features only: the classifier is never used
+        with torch.random.fork_rng(devices=[]):  # the global random state is left as it was
+            torch.manual_seed(RANDOM_SEED)
+            net.features = vgg_layers(arch)  # features only: the classifier is never used
         self.arch, self.blocks = arch, tuple(blocks)
         self.name, self.strides = arch, tuple(2 ** (b - 1) for b in self.blocks)  # block b: after b-1 pools
         self.features_source, self.weights_detail = "random", "not requested"

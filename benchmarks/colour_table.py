@@ -11,6 +11,7 @@ validation chose and the guided losses that trained.
     .venv/bin/python benchmarks/colour_table.py --outside DIR [DIR ...]  # issue 38's second line: the outside-coverage
                                                                    # gain by scene and reference count, averaged
                                                                    # and pooled over the pixels
+    .venv/bin/python benchmarks/colour_table.py --versus OLD NEW   # the same runs of two sweeps (two commits), paired
 
 A DIR may also be a Hydra multirun folder (``arcsem experiment=colorization_benchmark``): its numbered runs are named
 ``<dataset>_<references>_<variant>[_s<seed>]`` from their overrides (``ablation=full`` is the ``default``).
@@ -192,7 +193,38 @@ def ablations(dirs: list[str]) -> None:
                   f"{f(mean)} | {'-' if spread is None else f'{spread:.2f}'} |")
 
 
+def _guided(run: Path) -> str:
+    """Which guided losses trained: ``TCM+CCM``, ``TCM``, ``CCM`` or ``-``."""
+    trained = json.loads((run / "metrics.json").read_text())["stage2"].get("losses") or []
+    return "+".join(n.upper() for n in ("tcm", "ccm") if n in trained) or "-"
+
+
+def versus(old_dir: str, new_dir: str) -> None:
+    """The same runs of two folders (two commits' sweeps from the same stage-1 models), paired by name: one row per
+    ``<scene>_<refs>_<variant>``, the new run's gain over the old per seed, whole and outside the coverage, and the
+    guided losses that trained in each."""
+    old, new = _runs([old_dir]), _runs([new_dir])
+    groups: dict[str, list[str]] = {}
+    for name in sorted(set(old) & set(new)):
+        groups.setdefault(re.sub(r"_s\d+$", "", name), []).append(name)
+    f = lambda x: "-" if x is None else f"{x:+.2f}"
+    print("| run | seeds | old (mean) | new (mean) | gain per seed | gain per seed outside cov. | mean gain outside | "
+          "TCM/CCM old -> new |")
+    print("|---|---:|---:|---:|---|---|---:|---|")
+    for stem, names in groups.items():
+        a, b = [_test(old[n]) for n in names], [_test(new[n]) for n in names]
+        out = [_outside(y, x) for x, y in zip(a, b)]
+        mean = sum(out) / len(out) if None not in out else None
+        print(f"| {stem} | {len(names)} | {sum(x['psnr'] for x in a) / len(a):.2f} | "
+              f"{sum(y['psnr'] for y in b) / len(b):.2f} | {', '.join(f(y['psnr'] - x['psnr']) for x, y in zip(a, b))} "
+              f"| {', '.join(f(o) for o in out)} | {f(mean)} | {', '.join(_guided(old[n]) for n in names)} -> "
+              f"{', '.join(_guided(new[n]) for n in names)} |")
+
+
 def main(dirs: list[str]) -> None:
+    if dirs and dirs[0] == "--versus" and len(dirs) == 3:
+        versus(dirs[1], dirs[2])
+        return
     if dirs and dirs[0] == "--seeds":
         seeded(dirs[1:])
         return

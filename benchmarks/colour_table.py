@@ -14,7 +14,8 @@ validation chose and the guided losses that trained.
     .venv/bin/python benchmarks/colour_table.py --versus OLD NEW   # the same runs of two sweeps (two commits), paired
 
 A DIR may also be a Hydra multirun folder (``arcsem experiment=colorization_benchmark``): its numbered runs are named
-``<dataset>_<references>_<variant>[_s<seed>]`` from their overrides (``ablation=full`` is the ``default``).
+``<dataset>_<references>_<variant>[_s<seed>]`` from their overrides (``ablation=full`` is the ``default``; with an
+addition switched off, ``colorize.prior=off`` and the others of :data:`SWITCHES`, the variant is ``no_prior``, ...).
 """
 from __future__ import annotations
 
@@ -76,9 +77,19 @@ def _name(run: Path) -> str:
         return run.name
     kv = parse_overrides(yaml.safe_load(ov.read_text()))
     variant = kv.get("ablation", "full")
+    switched = [name for key, (value, name) in SWITCHES.items() if str(kv.get(key)).lower() == value]
+    if variant == "full" and switched:
+        variant = "_".join(switched)
     seed = int(kv.get("seed", 0))
     return (f"{kv.get('dataset', 'synthetic')}_{kv.get('colorize.references', 'five')}_"
             f"{'default' if variant == 'full' else variant}" + (f"_s{seed}" if seed else ""))
+
+
+SWITCHES = {"colorize.prior": ("off", "no_prior"), "colorize.surface.mode": ("off", "no_surface"),
+            "colorize.shading": ("off", "no_shading"), "colorize.validate": ("off", "no_validate"),
+            "colorize.guard.enabled": ("false", "no_guard")}
+"""A multirun job's override that switches one addition off, and its variant name (as ``colour_runs.sh`` names
+them): ``ablation=full colorize.prior=off`` is ``no_prior``."""
 
 
 def _runs(dirs: list[str]) -> dict[str, Path]:

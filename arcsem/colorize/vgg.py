@@ -4,7 +4,8 @@ Features are the relu3_x and relu4_x layers, concatenated along channels per blo
 channels at 1/4 resolution and 3 x 512 at 1/8; VGG19: 4 x 256 and 4 x 512). Inputs are normalised
 with the ImageNet mean/std. Weights come from the torch hub cache (:mod:`arcsem.weights`); where
 they cannot be had the network runs with RANDOM weights after a loud warning (one per job, in its log), and
-``features_source`` says ``"random"`` so that runs record ``vgg16-random`` (:meth:`VGGFeatures.label`).
+``features_source`` says ``"random"`` so that runs record ``vgg16-random`` (:meth:`VGGFeatures.label`). The random
+weights are drawn from a fixed seed (:data:`RANDOM_SEED`): the same in every run and process.
 """
 from __future__ import annotations
 
@@ -124,7 +125,7 @@ class VGGFeatures(nn.Module):
     differentiable = True  # usable on a colour render: the paper's TCM loss space
 
     def key(self) -> str:
-        """Cache identity: architecture, blocks and a hash of the weights (random ones differ between runs)."""
+        """Cache identity: architecture, blocks and a hash of the weights."""
         if getattr(self, "_key", None) is None:
             from .pseudocolor import cache_key
 

@@ -11,7 +11,9 @@ with their cross-view agreement) and scores, against the dataset's true colour o
   matches as found (the reference shows the very point) and searched apart from each location's own point (as a
   point no reference sees must be matched): which of the two predicts the outside?
 
-PSNR in dB over the pooled pixels (cells: each cell's colour on its pixels). No training: seconds per line::
+PSNR in dB over the pooled pixels (cells: each cell's colour on its pixels). The last line counts the decisions in
+which each check keeps a loss exactly where its matches beat the prior outside the coverage. No training: seconds
+per line::
 
     .venv/bin/python benchmarks/match_outside.py RUN_DIR [--references one three] [--features auto daisy learned]
 
@@ -95,6 +97,14 @@ def score(run: Path, refs_spec: str, features: str, cache: Path) -> dict:
     return out
 
 
+def carries(r: dict, loss: str) -> bool:
+    """Whether ``loss``'s kept matches beat the prior outside the coverage on the pixels where they act (TCM: the
+    mean over its blocks of the difference in dB)."""
+    k = r["kinds"]
+    blocks = ["ccm"] if loss == "ccm" else [n for n in k if n.startswith("tcm")]
+    return sum(k[b]["match_db"] - k[b]["prior_db"] for b in blocks) / len(blocks) > 0
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("run", type=Path)
@@ -102,9 +112,15 @@ def main() -> None:
     ap.add_argument("--features", nargs="+", default=["auto"])
     ap.add_argument("--cache", type=Path, default=Path("/tmp/arcsem_match_outside"))
     args = ap.parse_args()
+    agree = {"as_found": 0, "apart": 0}
+    decisions = 0
     for refs in args.references:
         for feats in args.features:
             r = score(args.run, refs, feats, args.cache)
+            for loss in ("tcm", "ccm"):
+                decisions += 1
+                for how in agree:
+                    agree[how] += r[f"check_{how}"][loss]["keep"] == carries(r, loss)
             print(json.dumps(r))
             line = " ".join(f"{k} kept {x['kept_outside']:.2f} match {x['match_db']:.2f} / prior {x['prior_db']:.2f}"
                             for k, x in r["kinds"].items())
@@ -113,6 +129,8 @@ def main() -> None:
                              for k, c in r["check_as_found"].items())
             print(f"# {args.run.name} {refs} {r['features']}: outside {r['outside_px']} px, target "
                   f"{r['target_db']:.2f} dB, prior {r['prior_db']:.2f} dB | {line} | check {check}")
+    print(f"# the check keeps a loss exactly where its matches beat the prior outside: as found {agree['as_found']} "
+          f"of {decisions} decisions, apart {agree['apart']} of {decisions}")
 
 
 if __name__ == "__main__":

@@ -26,7 +26,7 @@ from torch import Tensor
 from ..imageops import downscale, patch_means
 from .pseudocolor import cache_key
 
-__all__ = ["Guidance", "ccm_match", "ccm_targets", "nearest_cosine", "tcm_match"]
+__all__ = ["Guidance", "ccm_match", "ccm_targets", "cell_colours", "nearest_cosine", "tcm_match"]
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +61,12 @@ def tcm_match(view_feats: list[Tensor], ref_gray_feats: list[Tensor], chunk: int
 def _pool_to(feats: Tensor, grid: tuple[int, int]) -> Tensor:
     """``[C, D, h, w]`` -> ``[C, D, *grid]`` by adaptive average pooling (identity when equal)."""
     return feats if tuple(feats.shape[-2:]) == tuple(grid) else F.adaptive_avg_pool2d(feats, grid)
+
+
+def cell_colours(images: Tensor, grid: tuple[int, int]) -> Tensor:
+    """``[N*h*w, 3]``: images ``[N, H, W, 3]`` pooled to ``grid`` (area means), view-major then row-major: the colour
+    of each location of a feature grid, as a TCM match brings it."""
+    return _flat(_pool_to(images.permute(0, 3, 1, 2).float(), grid))
 
 
 def ccm_match(view_feat: Tensor, ref_gray_feat: Tensor, grid: tuple[int, int], chunk: int = 4096):
@@ -266,7 +272,7 @@ class Guidance:
         b = int(name[3:])
         grid = tuple(self.ref_gray[b].shape[-2:])
         if grid not in self._ref_rgb_at:  # pooled once per grid, not once per view
-            self._ref_rgb_at[grid] = _flat(_pool_to(self.ref_rgb.permute(0, 3, 1, 2), grid))
+            self._ref_rgb_at[grid] = cell_colours(self.ref_rgb, grid)
         rgb = self._ref_rgb_at[grid]
         idx = m[f"tcm_idx{b}"].reshape(-1)
         keep = t["tcm_valid"][b].reshape(-1) if "tcm_valid" in t else torch.ones(len(idx), dtype=torch.bool)

@@ -38,6 +38,7 @@ from torch import Tensor
 
 from ..imageops import downscale, patch_means
 from .background import fit_background
+from .guidance import cell_colours
 from .prior import fit_grey_prior, grey_prior
 from .pseudocolor import pseudo_colors
 from .shading import fit_shading, shade
@@ -105,11 +106,6 @@ def target_error(rgb: Tensor, truth: Tensor, mask: Tensor) -> float:
     return float(((rgb - truth.float()) ** 2).sum(-1)[mask].mean() / 3) if bool(mask.any()) else float("nan")
 
 
-def _cells(x: Tensor, grid: tuple[int, int]) -> Tensor:
-    """``[h*w, 3]``: the image ``x [H, W, 3]`` pooled to ``grid`` (area means)."""
-    return F.adaptive_avg_pool2d(x.permute(2, 0, 1)[None].float(), grid)[0].permute(1, 2, 0).reshape(-1, 3)
-
-
 def _guide_scores(guidance, v: int, rgb: Tensor, truth: Tensor, space, tcm_downscale: int, ccm_downscale: int,
                   covered: Tensor | None = None):
     """``(tcm guidance, tcm target, ccm guidance, ccm target, tcm colour guidance, tcm colour target)`` distances to
@@ -134,10 +130,10 @@ def _guide_scores(guidance, v: int, rgb: Tensor, truth: Tensor, space, tcm_downs
         if bool(ok.any()):
             g_err += float((1 - F.cosine_similarity(guide[None].float(), f_truth[b], dim=1)[0])[ok].mean())
             r_err += float((1 - F.cosine_similarity(f_rgb[b], f_truth[b], dim=1)[0])[ok].mean())
-            brought, cells = guidance.carried(v, f"tcm{b}")[0].float(), _cells(truth, tuple(ok.shape))
+            brought, cells = guidance.carried(v, f"tcm{b}")[0].float(), cell_colours(truth[None], tuple(ok.shape))
             sel = ok.reshape(-1)
             gc_err += float(((brought - cells) ** 2)[sel].mean())
-            rc_err += float(((_cells(rgb, tuple(ok.shape)) - cells) ** 2)[sel].mean())
+            rc_err += float(((cell_colours(rgb[None], tuple(ok.shape)) - cells) ** 2)[sel].mean())
             n += 1
     cells, truth_cells = patch_means(rgb[None], ccm_downscale)[0], patch_means(truth[None].float(), ccm_downscale)[0]
     ok = t["ccm_valid"]

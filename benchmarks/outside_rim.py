@@ -1,0 +1,131 @@
+"""Where "outside the coverage" lies: the silhouette's rim or the specimen's inside, and the default's gain on each.
+
+Issue 38's second line asks the default stage 2 to beat pseudo-colours alone by 2 dB outside the references'
+coverage. This splits the held-out (test) views' specimen pixels four ways, covered or not (decided on the true
+depth, as the run's metrics) and on the silhouette's rim (within ``--rim`` px of the specimen mask's edge, by the
+mask's distance transform) or inside it, and gives the held-out colour PSNR of the default and of pseudo-colours
+alone on each part, pooled over the views and the seeds. The renders are the PNGs each stage 2 saves
+(``colorize/renders/test/<view>.png``; 8-bit, so within a hundredth of a dB of ``metrics.json``)::
+
+    .venv/bin/python benchmarks/outside_rim.py DIR [DIR ...] [--references one three five] [--rim 1.5]
+
+DIR: sweep folders as ``colour_table.py`` reads them (the default's and ``ablation=pseudo_only``'s runs, paired by
+scene, reference count and seed; a later DIR's run replaces an earlier one's). Scenes without depth maps (their
+coverage is the model's) are left out.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # colour_table beside it (benchmarks/ is no package)
+import colour_table
+
+PARTS = ("rim covered", "rim outside", "inside covered", "inside outside", "outside")
+
+
+def rim_masks(masks: torch.Tensor, width: float) -> torch.Tensor:
+    """``[N, H, W]`` bool: the mask pixels within ``width`` px (Euclidean) of a pixel outside the mask (``masks
+    [N, H, W]`` bool; the image border counts as outside)."""
+    from scipy import ndimage
+
+    padded = np.pad(masks.numpy(), ((0, 0), (1, 1), (1, 1)))
+    dist = np.stack([ndimage.distance_transform_edt(m)[1:-1, 1:-1] for m in padded])
+    return masks & torch.from_numpy(dist <= width)
+
+
+def split_parts(masks: torch.Tensor, covered: torch.Tensor, rim: torch.Tensor) -> dict[str, torch.Tensor]:
+    """The five selections of :data:`PARTS` (``[N, H, W]`` bool each)."""
+    inner = masks & ~rim
+    return {"rim covered": rim & covered, "rim outside": rim & ~covered, "inside covered": inner & covered,
+            "inside outside": inner & ~covered, "outside": masks & ~covered}
+
+
+def _renders(folder: Path, names: list[str], suffix: str = "") -> torch.Tensor:
+    """``[N, H, W, 3]`` in [0, 1]: the PNGs ``<folder>/<name><suffix>.png``."""
+    import cv2
+
+    return torch.stack([torch.from_numpy(cv2.imread(str(folder / f"{n}{suffix}.png"), cv2.IMREAD_COLOR)[..., ::-1]
+                                         .copy()) for n in names]).float() / 255
+
+
+def errors(default: Path, pseudo: Path, rim_px: float) -> dict[str, tuple[int, float, float]] | None:
+    """Per part of :data:`PARTS`: (pixels, the default's and pseudo-colours' summed squared error), and under
+    ``grey``, per ``rim``/``inside`` (of the mask): (pixels, the stage-1 model's grey test renders' summed squared error
+    against their ground truth, 0 if it saved none); None without depth maps."""
+    from omegaconf import OmegaConf
+
+    from arcsem.colorize import inputs as prep
+    from arcsem.colorize.coverage import coverage_masks
+    from arcsem.colorize.references import load_references
+    from arcsem.colorize.stage2 import find_stage1
+    from arcsem.data import load_scene
+    from arcsem.runconfig import run_config
+
+    rc = run_config(OmegaConf.load(default / "config.yaml"))
+    cfg, cc = rc.cfg, rc.colorize
+    ckpt = find_stage1(cfg, cc, default)
+    scene = prep.prepare_scene(load_scene(cfg.dataset), ckpt, cc)
+    train, test = scene.train, scene.test
+    if train.depths is None or test.depths is None or test.masks is None:
+        return None
+    ridx = load_references(scene, cc.references).indices.tolist()
+    masks = test.masks.bool()
+    covered = coverage_masks(train.cameras[ridx], train.depths[ridx], train.masks[ridx].bool(), test.cameras,
+                             test.depths, masks, cc.radius, cc.radius_factor)
+    names = [Path(str(n)).stem for n in test.names]
+    gt = test.colors.float()
+    a, b = (_renders(run / "colorize" / "renders" / "test", names) for run in (default, pseudo))
+    rim = rim_masks(masks, rim_px)
+    out = {}
+    for part, sel in split_parts(masks, covered, rim).items():
+        out[part] = (int(sel.sum()), float(((a - gt)[sel] ** 2).sum()), float(((b - gt)[sel] ** 2).sum()))
+    grey = ckpt.parent.parent / "renders" / "test"  # the stage-1 run's held-out grey renders, if it saved them
+    if all((grey / f"{n}.png").is_file() and (grey / f"{n}_gt.png").is_file() for n in names):
+        g, g_gt = _renders(grey, names), _renders(grey, names, "_gt")
+        out["grey"] = {k: (int(sel.sum()), float(((g - g_gt)[sel] ** 2).sum()))
+                       for k, sel in (("rim", rim), ("inside", masks & ~rim))}
+    return out
+
+
+def _db(sq: float, n: int) -> float:
+    return -10 * math.log10(sq / (3 * n)) if n else float("nan")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("dirs", nargs="+")
+    ap.add_argument("--references", nargs="+", default=["five"])
+    ap.add_argument("--rim", type=float, default=1.5, help="the rim's width in pixels")
+    args = ap.parse_args()
+    runs = colour_table._runs(args.dirs)
+    groups = colour_table._paired(runs, "pseudo_only")
+    print(f"| scene, references | seeds | {' | '.join(f'{p}: px / default / pseudo / gain' for p in PARTS)} | "
+          "stage-1 grey: rim / inside |")
+    print("|---|---:|" + "---|" * (len(PARTS) + 1))
+    for stem in sorted(groups):
+        if stem.rpartition("_")[2] not in args.references:
+            continue
+        got = [errors(runs[a], runs[b], args.rim) for a, b in groups[stem].values()]
+        if any(g is None for g in got):
+            continue
+        cells = []
+        for part in PARTS:
+            n = sum(g[part][0] for g in got)
+            da, db = _db(sum(g[part][1] for g in got), n), _db(sum(g[part][2] for g in got), n)
+            cells.append(f"{n // len(got)} / {da:.2f} / {db:.2f} / {da - db:+.2f}" if n else "0")
+        if all("grey" in g for g in got):
+            cells.append(" / ".join(f"{_db(sum(g['grey'][k][1] for g in got), sum(g['grey'][k][0] for g in got)):.2f}"
+                                    for k in ("rim", "inside")))
+        else:
+            cells.append("-")
+        print(f"| {stem} | {len(got)} | {' | '.join(cells)} |")
+
+
+if __name__ == "__main__":
+    main()

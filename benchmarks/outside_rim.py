@@ -10,8 +10,8 @@ alone on each part, pooled over the views and the seeds. The renders are the PNG
     .venv/bin/python benchmarks/outside_rim.py DIR [DIR ...] [--references one three five] [--rim 1.5]
 
 DIR: sweep folders as ``colour_table.py`` reads them (the default's and ``ablation=pseudo_only``'s runs, paired by
-scene, reference count and seed; a later DIR's run replaces an earlier one's). Scenes without depth maps (their
-coverage is the model's) are left out.
+scene, reference count and seed; a later DIR's run replaces an earlier one's). On scenes without depth maps the
+coverage is the stage-1 model's, as in the run's metrics (pixels where the model has no surface in no part).
 """
 from __future__ import annotations
 
@@ -72,12 +72,16 @@ def errors(default: Path, pseudo: Path, rim_px: float) -> dict[str, tuple[int, f
     ckpt = find_stage1(cfg, cc, default)
     scene = prep.prepare_scene(load_scene(cfg.dataset), ckpt, cc)
     train, test = scene.train, scene.test
-    if train.depths is None or test.depths is None or test.masks is None:
+    if test.colors is None or test.masks is None or not len(test):
         return None
     ridx = load_references(scene, cc.references).indices.tolist()
     masks = test.masks.bool()
-    covered = coverage_masks(train.cameras[ridx], train.depths[ridx], train.masks[ridx].bool(), test.cameras,
-                             test.depths, masks, cc.radius, cc.radius_factor)
+    if train.depths is not None and test.depths is not None:  # the true geometry decides, as the run's metrics
+        covered = coverage_masks(train.cameras[ridx], train.depths[ridx], train.masks[ridx].bool(), test.cameras,
+                                 test.depths, masks, cc.radius, cc.radius_factor)
+    else:  # the stage-1 model's depth, as the run's metrics: pixels without model surface in neither part
+        covered, surface = _model_coverage(ckpt, scene, cfg, cc, ridx)
+        masks = masks & surface
     names = [Path(str(n)).stem for n in test.names]
     gt = test.colors.float()
     a, b = (_renders(run / "colorize" / "renders" / "test", names) for run in (default, pseudo))
@@ -91,6 +95,23 @@ def errors(default: Path, pseudo: Path, rim_px: float) -> dict[str, tuple[int, f
         out["grey"] = {k: (int(sel.sum()), float(((g - g_gt)[sel] ** 2).sum()))
                        for k, sel in (("rim", rim), ("inside", masks & ~rim))}
     return out
+
+
+def _model_coverage(ckpt: Path, scene, cfg, cc, ridx: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
+    """``[N, H, W]`` covered and with-surface pixels of the test views by the stage-1 model's depth (the split of
+    :func:`arcsem.colorize.coverage.coverage_metrics` for a dataset without depth maps)."""
+    from arcsem.colorize.coverage import coverage_masks
+    from arcsem.colorize.masks import specimen_masks
+    from arcsem.colorize.pseudocolor import render_depths
+    from arcsem.runs import load_stage1
+
+    backbone, _ = load_stage1(ckpt, scene, cfg)
+    refs = scene.train.subset(ridx)
+    ref_masks = specimen_masks(scene.train, cc.masks, cc.mask_folder, cc.sam_checkpoint)[ridx].bool()
+    depth = render_depths(backbone, scene.test)
+    covered = coverage_masks(refs.cameras, render_depths(backbone, refs), ref_masks, scene.test.cameras, depth,
+                             scene.test.masks.bool(), cc.radius, cc.radius_factor)
+    return covered, depth > 0
 
 
 def _db(sq: float, n: int) -> float:

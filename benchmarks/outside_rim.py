@@ -56,8 +56,9 @@ def _renders(folder: Path, names: list[str], suffix: str = "") -> torch.Tensor:
 
 def errors(default: Path, pseudo: Path, rim_px: float) -> dict[str, tuple[int, float, float]] | None:
     """Per part of :data:`PARTS`: (pixels, the default's and pseudo-colours' summed squared error), and under
-    ``grey``, per ``rim``/``inside`` (of the mask): (pixels, the stage-1 model's grey test renders' summed squared error
-    against their ground truth, 0 if it saved none); None without depth maps."""
+    ``grey``, per ``test rim``/``test inside``/``train rim``/``train inside`` (of the masks): (pixels, the stage-1
+    model's grey renders' summed squared error against their ground truth), where it saved them; None without colour
+    or masks of the test views."""
     from omegaconf import OmegaConf
 
     from arcsem.colorize import inputs as prep
@@ -89,11 +90,17 @@ def errors(default: Path, pseudo: Path, rim_px: float) -> dict[str, tuple[int, f
     out = {}
     for part, sel in split_parts(masks, covered, rim).items():
         out[part] = (int(sel.sum()), float(((a - gt)[sel] ** 2).sum()), float(((b - gt)[sel] ** 2).sum()))
-    grey = ckpt.parent.parent / "renders" / "test"  # the stage-1 run's held-out grey renders, if it saved them
-    if all((grey / f"{n}.png").is_file() and (grey / f"{n}_gt.png").is_file() for n in names):
-        g, g_gt = _renders(grey, names), _renders(grey, names, "_gt")
-        out["grey"] = {k: (int(sel.sum()), float(((g - g_gt)[sel] ** 2).sum()))
-                       for k, sel in (("rim", rim), ("inside", masks & ~rim))}
+    grey = {}
+    for name, split in (("test", test), ("train", train)):  # the stage-1 run's grey renders, if it saved them
+        folder, views = ckpt.parent.parent / "renders" / name, [Path(str(n)).stem for n in split.names]
+        if split.masks is None or not all((folder / f"{n}{x}.png").is_file() for n in views for x in ("", "_gt")):
+            continue
+        g, g_gt, m = _renders(folder, views), _renders(folder, views, "_gt"), split.masks.bool()
+        r = rim_masks(m, rim_px)
+        grey.update({f"{name} {k}": (int(sel.sum()), float(((g - g_gt)[sel] ** 2).sum()))
+                     for k, sel in (("rim", r), ("inside", m & ~r))})
+    if len(grey) == 4:
+        out["grey"] = grey
     return out
 
 
@@ -127,7 +134,7 @@ def main() -> None:
     runs = colour_table._runs(args.dirs)
     groups = colour_table._paired(runs, "pseudo_only")
     print(f"| scene, references | seeds | {' | '.join(f'{p}: px / default / pseudo / gain' for p in PARTS)} | "
-          "stage-1 grey: rim / inside |")
+          "stage-1 grey, test: rim / inside; train: rim / inside |")
     print("|---|---:|" + "---|" * (len(PARTS) + 1))
     for stem in sorted(groups):
         if stem.rpartition("_")[2] not in args.references:
@@ -141,8 +148,8 @@ def main() -> None:
             da, db = _db(sum(g[part][1] for g in got), n), _db(sum(g[part][2] for g in got), n)
             cells.append(f"{n // len(got)} / {da:.2f} / {db:.2f} / {da - db:+.2f}" if n else "0")
         if all("grey" in g for g in got):
-            cells.append(" / ".join(f"{_db(sum(g['grey'][k][1] for g in got), sum(g['grey'][k][0] for g in got)):.2f}"
-                                    for k in ("rim", "inside")))
+            db = {k: _db(sum(g["grey"][k][1] for g in got), sum(g["grey"][k][0] for g in got)) for k in got[0]["grey"]}
+            cells.append(f"{db['test rim']:.2f} / {db['test inside']:.2f}; {db['train rim']:.2f} / {db['train inside']:.2f}")
         else:
             cells.append("-")
         print(f"| {stem} | {len(got)} | {' | '.join(cells)} |")

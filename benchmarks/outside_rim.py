@@ -5,7 +5,9 @@ coverage. This splits the held-out (test) views' specimen pixels four ways, cove
 depth, as the run's metrics) and on the silhouette's rim (within ``--rim`` px of the specimen mask's edge, by the
 mask's distance transform) or inside it, and gives the held-out colour PSNR of the default and of pseudo-colours
 alone on each part, pooled over the views and the seeds. The renders are the PNGs each stage 2 saves
-(``colorize/renders/test/<view>.png``; 8-bit, so within a hundredth of a dB of ``metrics.json``)::
+(``colorize/renders/test/<view>.png``; 8-bit, so within a hundredth of a dB of ``metrics.json``). The last column:
+the stage-1 model's grey renders (``renders/{test,train}/<view>.png`` of its run) on the rim and inside, of the
+test views and of the training views it was fitted to, where that run saved them::
 
     .venv/bin/python benchmarks/outside_rim.py DIR [DIR ...] [--references one three five] [--rim 1.5]
 

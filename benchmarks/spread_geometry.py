@@ -49,6 +49,16 @@ def depth_error(model: torch.Tensor, true: torch.Tensor, masks: torch.Tensor, fx
             "p99": float(np.percentile(err, 99)), "beyond10": float((err > 10).mean())}
 
 
+def _scene_name(run: Path, cfg) -> str:
+    """The run's ``dataset`` choice (its ``.hydra/hydra.yaml``), else the dataset's ``kind``."""
+    import yaml
+
+    hy = run / ".hydra" / "hydra.yaml"
+    choice = (yaml.safe_load(hy.read_text()) or {}).get("hydra", {}).get("runtime", {}).get("choices", {}).get(
+        "dataset") if hy.is_file() else None
+    return str(choice or cfg.dataset.get("kind", "?"))
+
+
 def score(run: Path, refs_spec: str) -> str:
     from omegaconf import OmegaConf
 
@@ -81,7 +91,7 @@ def score(run: Path, refs_spec: str) -> str:
     md, mn = prep.SurfaceGeometry(backbone, split).value
     td, tn = split.depths.float(), split.normals.float()
     err = depth_error(md, td, masks, split.cameras.K[:, 0, 0].float())
-    line = (f"| {cfg.dataset.get('kind', '?')} ({run.name}) | {refs_spec} | {int(outside.sum())} | "
+    line = (f"| {_scene_name(run, cfg)} ({run.name}) | {refs_spec} | {int(outside.sum())} | "
             f"{err['p50']:.1f} / {err['p90']:.1f} / {err['p99']:.1f} / {err['beyond10']:.2f} |")
     for depth, normal in ((md, mn), (td, tn), (mixed(md, td, ridx, "true"), mixed(mn, tn, ridx, "true")),
                           (mixed(md, td, ridx, "model"), mixed(mn, tn, ridx, "model"))):

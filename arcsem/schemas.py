@@ -53,10 +53,11 @@ def backbone_schema(name: str, config: type) -> type:
                                       bases=(config,))
 
 
-def of_steps(steps: int, fraction: float) -> int:
-    """``${of_steps:${train.steps},<fraction>}``: a step of a preset's schedule as a fraction of the run (rounded,
-    at least 1), so the schedule keeps its shape when ``train.steps`` changes (conf/tuning/quick_*.yaml)."""
-    return max(1, round(int(steps) * float(fraction)))
+def of_steps(steps: int, fraction: float, least: int = 1) -> int:
+    """``${of_steps:${train.steps},<fraction>[,<least>]}``: a step of a preset's schedule as a fraction of the run
+    (rounded, at least ``least``), so the schedule keeps its shape when ``train.steps`` changes
+    (conf/tuning/quick_*.yaml)."""
+    return max(int(least), round(int(steps) * float(fraction)))
 
 
 def slurm_cpus(threads: int | None) -> int:

@@ -26,6 +26,7 @@ import argparse
 import json
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import torch
 import torch.nn.functional as F
@@ -46,13 +47,18 @@ def _db(pred, gt, sel) -> float:
     return -10 * math.log10(float(((pred - gt)[sel] ** 2).mean())) if bool(sel.any()) else float("nan")
 
 
-def score(run: Path, refs_spec: str, features: str, cache: Path) -> dict:
+def open_run(run: Path, refs_spec: str, **colorize) -> SimpleNamespace:
+    """A run folder's stage-2 inputs for ``refs_spec`` as stage 2 opens them (``colorize``: overrides of its
+    ``colorize`` group, dotted keys): ``rc``, ``cfg``, ``cc``, ``ckpt`` (its stage-1 model, found as stage 2 finds
+    it), ``backbone`` (no ACT), ``split`` (the training views at colourisation size), ``refs`` (resized to it) and
+    ``masks`` ``[N, H, W]``. Shared by the closed-form stage-2 benchmarks."""
     cfg = OmegaConf.load(run / "config.yaml")
     cfg.colorize.references, cfg.colorize.progress = refs_spec, False
-    cfg.colorize.features, cfg.colorize.cache_dir = features, str(cache)
+    for key, value in colorize.items():
+        OmegaConf.update(cfg, f"colorize.{key}", value)
     rc = run_config(cfg)
     cfg, cc = rc.cfg, rc.colorize
-    ckpt = find_stage1(cfg, cc, run)  # as stage 2 finds it (this run's, or its shared stage-1 model)
+    ckpt = find_stage1(cfg, cc, run)
     scene = load_scene(cfg.dataset)
     refs = load_references(scene, cc.references)
     backbone, _ = load_stage1(ckpt, scene, cfg)
@@ -60,6 +66,13 @@ def score(run: Path, refs_spec: str, features: str, cache: Path) -> dict:
     backbone.set_act(None)
     refs.images = prep.resize_images(refs.images, split.cameras.height, split.cameras.width)
     masks = specimen_masks(split, cc.masks, cc.mask_folder, cc.sam_checkpoint)
+    return SimpleNamespace(rc=rc, cfg=cfg, cc=cc, ckpt=ckpt, backbone=backbone, split=split, refs=refs, masks=masks)
+
+
+def score(run: Path, refs_spec: str, features: str, cache: Path) -> dict:
+    r = open_run(run, refs_spec, features=features, cache_dir=str(cache))
+    rc, cfg, cc, ckpt, backbone, split, refs, masks = (r.rc, r.cfg, r.cc, r.ckpt, r.backbone, r.split, r.refs,
+                                                       r.masks)
     geo = prep.SurfaceGeometry(backbone, split)
     extractor, space, _ = prep.feature_extractor(cc, cfg, ckpt, backbone, split, masks, cache, rc.features)
     guidance = prep.guidance_factory(cc, extractor, space, split, geo, cache)(refs.indices.tolist(), refs.images)

@@ -22,10 +22,14 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
 import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # match_outside beside it (benchmarks/ is no package)
+import match_outside
 
 
 def _db(pred, gt, sel) -> float:
@@ -60,35 +64,20 @@ def _scene_name(run: Path, cfg) -> str:
 
 
 def score(run: Path, refs_spec: str) -> str:
-    from omegaconf import OmegaConf
-
     from arcsem.colorize import inputs as prep
     from arcsem.colorize.coverage import coverage_masks
-    from arcsem.colorize.references import load_references
-    from arcsem.colorize.stage2 import find_stage1
     from arcsem.colorize.surface import surface_colors
-    from arcsem.data import load_scene
-    from arcsem.runconfig import run_config
-    from arcsem.runs import load_stage1
 
-    cfg = OmegaConf.load(run / "config.yaml")
-    cfg.colorize.references, cfg.colorize.progress = refs_spec, False
-    rc = run_config(cfg)
-    cfg, cc = rc.cfg, rc.colorize
-    ckpt = find_stage1(cfg, cc, run)
-    scene = load_scene(cfg.dataset)
-    refs = load_references(scene, cc.references)
-    backbone, _ = load_stage1(ckpt, scene, cfg)
-    split = prep.prepare_scene(scene, ckpt, cc).train
+    r = match_outside.open_run(run, refs_spec)
+    cfg, cc, split, refs = r.cfg, r.cc, r.split, r.refs
     if split.depths is None or split.normals is None or split.colors is None or split.masks is None:
         return f"# {run.name}: the scene has no true depth, normals, colour or masks"
-    refs.images = prep.resize_images(refs.images, split.cameras.height, split.cameras.width)
     masks, ridx, gt = split.masks.bool(), refs.indices.tolist(), split.colors.float()
     covered = coverage_masks(split.cameras[ridx], split.depths[ridx], masks[ridx], split.cameras, split.depths, masks)
     outside = masks & ~covered
     outside[ridx] = False
     grey = split.images.float().mean(-1)
-    md, mn = prep.SurfaceGeometry(backbone, split).value
+    md, mn = prep.SurfaceGeometry(r.backbone, split).value
     td, tn = split.depths.float(), split.normals.float()
     err = depth_error(md, td, masks, split.cameras.K[:, 0, 0].float())
     line = (f"| {_scene_name(run, cfg)} ({run.name}) | {refs_spec} | {int(outside.sum())} | "

@@ -25,10 +25,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import sys
 from pathlib import Path
 
 import torch
 import torch.nn.functional as F
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # match_outside in benchmarks/ (no package)
+import match_outside
 
 CACHE = Path("/tmp/arcsem_stage2_probes")
 
@@ -38,39 +42,18 @@ def _db(pred, gt, sel) -> float:
 
 
 def setup(run: Path, refs_spec: str, **colorize) -> dict:
-    """The run's stage-2 inputs for ``refs_spec`` (``colorize``: overrides of its ``colorize`` group)."""
-    from omegaconf import OmegaConf
-
+    """The run's stage-2 inputs for ``refs_spec`` (``colorize``: overrides of its ``colorize`` group;
+    ``match_outside.open_run``), with the coverage split, the true colour, the surface geometry and the grey."""
     from arcsem.colorize import inputs as prep
     from arcsem.colorize.coverage import coverage_masks
-    from arcsem.colorize.masks import specimen_masks
-    from arcsem.colorize.references import load_references
-    from arcsem.colorize.stage2 import find_stage1
-    from arcsem.data import load_scene
-    from arcsem.runconfig import run_config
-    from arcsem.runs import load_stage1
 
-    cfg = OmegaConf.load(run / "config.yaml")
-    cfg.colorize.references, cfg.colorize.progress, cfg.colorize.cache_dir = refs_spec, False, str(CACHE)
-    for k, v in colorize.items():
-        OmegaConf.update(cfg, f"colorize.{k}", v)
-    rc = run_config(cfg)
-    cfg, cc = rc.cfg, rc.colorize
-    ckpt = find_stage1(cfg, cc, run)
-    scene = load_scene(cfg.dataset)
-    refs = load_references(scene, cc.references)
-    backbone, _ = load_stage1(ckpt, scene, cfg)
-    split = prep.prepare_scene(scene, ckpt, cc).train
-    backbone.set_act(None)
-    refs.images = prep.resize_images(refs.images, split.cameras.height, split.cameras.width)
-    masks = specimen_masks(split, cc.masks, cc.mask_folder, cc.sam_checkpoint).bool()
-    ridx = refs.indices.tolist()
+    r = match_outside.open_run(run, refs_spec, cache_dir=str(CACHE), **colorize)
+    split, masks, ridx = r.split, r.masks.bool(), r.refs.indices.tolist()
     covered = coverage_masks(split.cameras[ridx], split.depths[ridx], masks[ridx], split.cameras, split.depths, masks)
     outside = masks & ~covered
     outside[ridx] = False
-    return {"cfg": cfg, "cc": cc, "rc": rc, "ckpt": ckpt, "backbone": backbone, "split": split, "refs": refs,
-            "masks": masks, "ridx": ridx, "outside": outside, "gt": split.colors.float(),
-            "geo": prep.SurfaceGeometry(backbone, split), "grey": split.images.float().mean(-1)}
+    return {**vars(r), "masks": masks, "ridx": ridx, "outside": outside, "gt": split.colors.float(),
+            "geo": prep.SurfaceGeometry(r.backbone, split), "grey": split.images.float().mean(-1)}
 
 
 def confidence(run: Path, refs_spec: str) -> str:
